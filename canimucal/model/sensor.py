@@ -35,12 +35,12 @@ class AccelParams:
     def output(self, f_body: ArrayLike) -> NDArray[np.float64]:
         """Noise-free output for specific force ``f_body`` (``(3,)`` or ``(n, 3)``)."""
         f = np.asarray(f_body, dtype=float)
-        return self.bias + f @ self.K.T
+        return np.asarray(self.bias + f @ self.K.T, dtype=np.float64)
 
     def correct(self, counts: ArrayLike) -> NDArray[np.float64]:
         """Specific force from outputs: ``K⁻¹ (U − b)``."""
         u = np.asarray(counts, dtype=float)
-        return np.linalg.solve(self.K, (u - self.bias).T).T
+        return np.asarray(np.linalg.solve(self.K, (u - self.bias).T).T, dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -60,9 +60,9 @@ class GyroParams:
         """Noise-free output for rate ``w_body`` and specific force ``f_body``."""
         w = np.asarray(w_body, dtype=float)
         f = np.asarray(f_body, dtype=float)
-        return self.bias + w @ self.S.T + f @ self.G.T
+        return np.asarray(self.bias + w @ self.S.T + f @ self.G.T, dtype=np.float64)
 
     def correct(self, counts: ArrayLike, f_body: ArrayLike) -> NDArray[np.float64]:
         """Angular rate from outputs: ``S⁻¹ (V − B − G f)``."""
         v = np.asarray(counts, dtype=float) - self.bias - np.asarray(f_body, float) @ self.G.T
-        return np.linalg.solve(self.S, v.T).T
+        return np.asarray(np.linalg.solve(self.S, v.T).T, dtype=np.float64)

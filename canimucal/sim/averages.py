@@ -53,7 +53,9 @@ def simulate_averages(
         angles = p.angles
         if angle_errors:
             angles = angles + rng.normal(0.0, p.tolerance, 3)
-        c = position_dcm(*angles, alpha0=alpha0, beta0=beta0, tilt_model=tilt_model)
+        c = position_dcm(
+            angles[0], angles[1], angles[2], alpha0=alpha0, beta0=beta0, tilt_model=tilt_model
+        )
         f = c @ f_level
         cov_a = np.diag(na**2 / p.seconds)
         mean_a = accel.output(f) + rng.multivariate_normal(np.zeros(3), cov_a)

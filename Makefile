@@ -1,0 +1,44 @@
+# canimucal — the two README commands (`make demo`, `make test`) and their helpers.
+# Prerequisites on Debian 12: make, python3-venv (apt-get install make python3-venv).
+
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed-stamp
+DEMO_OUT ?= demo-out
+
+.PHONY: all venv demo test test-vcan lint bench clean
+
+all: test
+
+$(STAMP): pyproject.toml
+	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' || \
+	  { echo "error: Python >= 3.11 is needed (found $$($(PYTHON) --version))"; exit 1; }
+	@$(PYTHON) -c 'import ensurepip, venv' 2>/dev/null || \
+	  { echo "error: the venv module is missing; install it with: sudo apt-get install python3-venv"; exit 1; }
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	@touch $(STAMP)
+
+venv: $(STAMP)
+
+# The main job against the built-in simulated IMU.
+demo: $(STAMP)
+	$(BIN)/canimucal demo --out $(DEMO_OUT)
+
+# The whole unit, device, procedure, TUI and CLI suite (HIL tests over vcan: `make test-vcan`).
+test: $(STAMP)
+	$(BIN)/python -m pytest -q -m "not vcan"
+
+lint: $(STAMP)
+	$(BIN)/ruff check canimucal tests benchmarks
+	$(BIN)/ruff format --check canimucal tests benchmarks
+	$(BIN)/mypy
+	$(BIN)/lint-imports
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/accuracy.py
+
+clean:
+	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache .mypy_cache .ruff_cache

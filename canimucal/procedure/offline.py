@@ -1,0 +1,84 @@
+"""A whole plan recorded straight from the simulator, without the CAN bus.
+
+For studies and tests of the solve path (and for `analyze`'s reproduction of a measured
+session): the simulated unit follows the plan's pose schedule and every still sample is
+labelled with its position, as the recorder labels a real session.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from canimucal.io.recording import Recording, recording_from_columns
+from canimucal.model.positions import Plan, PlannedPosition
+from canimucal.sim.imu import ImuSimulator
+from canimucal.sim.truth import Truth
+
+BLOCK_SAMPLES = 1000
+
+
+def simulate_plan_recording(
+    truth: Truth,
+    plan: Plan,
+    *,
+    seed: int | None = None,
+    transient_s: float = 2.0,
+    serial: int | None = None,
+    angle_errors: bool = True,
+) -> Recording:
+    """Simulate ``plan`` (angles, seconds) on ``truth`` and return the labelled recording.
+
+    With ``angle_errors`` the unit is really set to each pose plus an error drawn from the
+    position's ``tolerance`` (an operator on a step ladder), while the recording is labelled
+    with the nominal angles, as in the field.
+    """
+    sim = ImuSimulator(truth, seed=seed)
+    actual = _as_set_by_operator(plan, np.random.default_rng(seed)) if angle_errors else plan
+    first = actual.positions[0]
+    sim.set_pose(first.alpha, first.beta, first.psi, transient_s=0.0)
+    sim.set_schedule(actual, transient_s=transient_s)
+    fs = sim.sample_rate_hz
+    total = int(np.ceil((plan.total_seconds + transient_s * len(plan.positions)) * fs)) + 1
+    blocks = []
+    remaining = total
+    while remaining > 0:
+        blocks.append(sim.next_block(min(BLOCK_SAMPLES, remaining)))
+        remaining -= len(blocks[-1])
+    index = np.concatenate([b.position_index for b in blocks])
+    angles = np.full((index.size, 3), np.nan)
+    for i, p in enumerate(plan.positions):
+        angles[index == i] = np.rad2deg(p.angles)
+    header = {
+        "sample_rate_hz": float(fs),
+        "g": float(truth.g),
+        "latitude_deg": float(np.rad2deg(truth.latitude)),
+        "heading_deg": float(np.rad2deg(truth.heading)),
+        "accel_lsb": float(truth.accel.nominal_lsb),
+        "gyro_lsb": float(truth.gyro.nominal_lsb),
+        "device_serial": int(truth.serial if serial is None else serial),
+    }
+    return recording_from_columns(
+        header,
+        t=np.concatenate([b.t_s for b in blocks]),
+        accel=np.concatenate([b.accel for b in blocks]),
+        gyro=np.concatenate([b.gyro for b in blocks]),
+        counter=np.arange(index.size) % 65536,
+        position=index,
+        alpha_deg=angles[:, 0],
+        beta_deg=angles[:, 1],
+        psi_deg=angles[:, 2],
+        temp_c=np.concatenate([b.temp_c for b in blocks]),
+    )
+
+
+def _as_set_by_operator(plan: Plan, rng: np.random.Generator) -> Plan:
+    """The plan's poses, each angle off by a draw from its 1σ ``tolerance``."""
+    return Plan(
+        plan.name,
+        tuple(
+            PlannedPosition(
+                *(p.angles + rng.normal(0.0, p.tolerance, 3)), p.tolerance, p.seconds
+            )
+            for p in plan.positions
+        ),
+    )

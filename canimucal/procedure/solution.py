@@ -1,0 +1,180 @@
+"""From position averages to a calibration record: the solve step shared by `canimucal solve`,
+the guided procedure and the demo.
+
+Known angles: the joint estimator (model/joint.py). No angles: the scalar |f| = g fit
+(model/scalar.py). Parameters the plan cannot determine are held at nominal and come out
+``null`` with the reason; poorly separable ones keep their (large) σ and a warning.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.stats import chi2 as chi2_distribution
+
+from canimucal.io.calibration import (
+    CalibrationRecord,
+    Conditions,
+    Device,
+    Fit,
+    RecordingRef,
+    record_from_estimates,
+    summarize_position,
+)
+from canimucal.model.joint import JointResult, solve_joint
+from canimucal.model.layout import JointSpec
+from canimucal.model.plan import builtin_plan
+from canimucal.model.positions import PositionAverage
+from canimucal.model.scalar import ScalarFit, fit_scalar_averages
+
+BUILTIN_PLANS = ("two", "five", "recommended")
+LACK_OF_FIT_P = 1e-3
+"""A fit whose χ² has a p-value below this gets a lack-of-fit warning."""
+_ANGLE_MATCH_RAD = float(np.deg2rad(0.05))
+
+
+@dataclass(frozen=True)
+class SiteConditions:
+    """g (m/s²), latitude and heading (radians or None), nominal LSBs, temperature."""
+
+    g: float
+    latitude: float | None = None
+    heading: float = 0.0
+    height_m: float | None = None
+    accel_lsb: float = 9.80665 / 2048.0
+    gyro_lsb: float = float(np.pi / (180.0 * 16.4))
+    temp_c: float | None = None
+
+    def as_record_conditions(self) -> Conditions:
+        """The ``conditions`` block of the calibration JSON (degrees)."""
+        return Conditions(
+            g=self.g,
+            latitude_deg=None if self.latitude is None else float(np.rad2deg(self.latitude)),
+            height_m=self.height_m,
+            heading_deg=float(np.rad2deg(self.heading)),
+            temp_c=self.temp_c,
+        )
+
+
+@dataclass(frozen=True)
+class Solution:
+    """A solved calibration: the record to save/write, the fit behind it, and its warnings."""
+
+    record: CalibrationRecord
+    joint: JointResult | None = None
+    scalar: ScalarFit | None = None
+    undetermined: dict[str, str] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+
+
+def plan_name_of(averages: Sequence[PositionAverage]) -> str:
+    """``two``/``five``/``recommended`` when the poses are a built-in plan's, else ``custom``."""
+    angles = np.array([a.pose.angles for a in averages])
+    for name in BUILTIN_PLANS:
+        plan = np.array([p.angles for p in builtin_plan(name).positions])
+        if plan.shape == angles.shape and np.allclose(plan, angles, atol=_ANGLE_MATCH_RAD):
+            return name
+    return "custom"
+
+
+def solve_positions(
+    averages: Sequence[PositionAverage],
+    spec: JointSpec,
+    site: SiteConditions,
+    device: Device,
+    *,
+    recording: RecordingRef | None = None,
+    plan_name: str | None = None,
+) -> Solution:
+    """Joint least squares over labelled positions with known angles."""
+    result = solve_joint(
+        averages,
+        spec,
+        g=site.g,
+        latitude=site.latitude,
+        heading=site.heading,
+        accel_lsb=site.accel_lsb,
+        gyro_lsb=site.gyro_lsb,
+        allow_undetermined=True,
+    )
+    keep = [i for i, n in enumerate(result.names) if n not in result.undetermined]
+    names = [result.names[i] for i in keep]
+    record = record_from_estimates(
+        names,
+        result.values[keep],
+        result.covariance[np.ix_(keep, keep)],
+        device=device,
+        held_fixed=dict(result.undetermined),
+        plan=plan_name or plan_name_of(averages),
+        conditions=site.as_record_conditions(),
+        positions=[summarize_position(a) for a in averages],
+        fit=Fit(rms=result.rms_accel_ms2, dof=result.dof),
+        recording=recording,
+    )
+    warnings = _correlation_warnings(result) + _lack_of_fit_warning(result)
+    if not result.converged:
+        warnings += (f"the least-squares fit did not converge: {result.message}",)
+    return Solution(record, joint=result, undetermined=dict(result.undetermined),
+                    warnings=warnings)
+
+
+def _lack_of_fit_warning(result: JointResult) -> tuple[str, ...]:
+    """A warning when the residuals exceed the predicted noise and angle errors (χ² test)."""
+    if result.dof <= 0:
+        return ()
+    p = float(chi2_distribution.sf(result.chi2, result.dof))
+    if p >= LACK_OF_FIT_P:
+        return ()
+    return (
+        f"the model does not fit the data: chi2 {result.chi2:.1f} on {result.dof} dof "
+        f"(p = {p:.1e}); a term is missing (try --tilt, --model full) or a position moved",
+    )
+
+
+def _correlation_warnings(result: JointResult) -> tuple[str, ...]:
+    """Warnings for parameter pairs correlated beyond 0.999 in the fit (DESIGN §3).
+
+    Only the correlation criterion is used here: in a real fit the channels' precisions differ
+    by orders of magnitude (level channels see no angle error, tilted ones do), so the
+    eigenvalue ratios of the whitened information measure precision, not separability. The
+    plan table (`canimucal plan`) applies both criteria at DESIGN §3's reference noise.
+    """
+    seen: set[frozenset[str]] = set()
+    out = []
+    for f in result.separability.findings:
+        key = frozenset(f.parameters)
+        if f.correlation is None or key in seen:
+            continue
+        seen.add(key)
+        out.append(f"{f.message}: the data barely tell them apart; their σ says how much")
+    return tuple(out)
+
+
+def solve_scalar(
+    averages: Sequence[PositionAverage],
+    site: SiteConditions,
+    device: Device,
+    *,
+    full: bool,
+    recording: RecordingRef | None = None,
+) -> Solution:
+    """The scalar |f| = g fit (6 or 9 parameters) over static means of unknown orientation."""
+    fit = fit_scalar_averages(averages, site.g, model="9" if full else "6", accel_lsb=site.accel_lsb)
+    names = [f"accel.{n}" for n in fit.param_names]
+    record = record_from_estimates(
+        names,
+        fit.params,
+        fit.covariance,
+        device=device,
+        plan="scalar",
+        conditions=site.as_record_conditions(),
+        positions=[summarize_position(a) for a in averages],
+        fit=Fit(rms=fit.rms_mps2, dof=fit.dof),
+        recording=recording,
+    )
+    warnings: tuple[str, ...] = ()
+    if not fit.converged:
+        warnings = (f"the scalar fit did not converge: {fit.message}",)
+    return Solution(record, scalar=fit, warnings=warnings)
