@@ -70,9 +70,7 @@ def earth_rate_level(latitude: float, heading: float = 0.0) -> Vector:
     At heading 0: ``[0, -Ω sin φ, Ω cos φ]``. A heading is a turn about the vertical, the same
     rotation as ``psi`` at the level pose, so ``w_L(h) = Ay(h) w_L(0)``.
     """
-    w0 = np.array(
-        [0.0, -EARTH_RATE_RAD_S * np.sin(latitude), EARTH_RATE_RAD_S * np.cos(latitude)]
-    )
+    w0 = np.array([0.0, -EARTH_RATE_RAD_S * np.sin(latitude), EARTH_RATE_RAD_S * np.cos(latitude)])
     return ay(heading) @ w0
 
 
