@@ -1,5 +1,7 @@
-"""`canimucal allan`: Allan deviation of a recording's longest still stretch, noise terms and
-the averaging time they recommend (DESIGN §2 noise conventions)."""
+"""`canimucal allan`: Allan deviation of a recording's longest still stretch.
+
+Also the fitted noise terms and the averaging time they recommend (DESIGN §2 conventions).
+"""
 
 from __future__ import annotations
 
@@ -78,9 +80,7 @@ def _still_stretch(rec: Recording, position: int | None) -> tuple[int, int, str]
         return int(idx[0]), int(idx[-1]) + 1, f"position {position}"
     labels = rec.position
     if np.any(labels >= 0):
-        best = max(
-            (np.flatnonzero(labels == p) for p in np.unique(labels[labels >= 0])), key=len
-        )
+        best = max((np.flatnonzero(labels == p) for p in np.unique(labels[labels >= 0])), key=len)
         return int(best[0]), int(best[-1]) + 1, f"position {int(labels[best[0]])} (longest)"
     finite = np.all(np.isfinite(rec.accel), axis=1)
     filled = np.where(finite[:, None], rec.accel, np.nanmedian(rec.accel, axis=0))
@@ -88,9 +88,10 @@ def _still_stretch(rec: Recording, position: int | None) -> tuple[int, int, str]
     if not intervals:
         raise InputError("no still stretch found (no labelled position, no static interval)")
     longest = max(intervals, key=lambda i: i.stop - i.start)
-    if (longest.stop - longest.start) < MIN_STILL_SECONDS * rec.sample_rate_hz:
+    seconds = (longest.stop - longest.start) / rec.sample_rate_hz
+    if seconds < MIN_STILL_SECONDS:
         raise InputError(
-            f"the longest still stretch lasts {(longest.stop - longest.start) / rec.sample_rate_hz:.1f} s;"
+            f"the longest still stretch lasts {seconds:.1f} s;"
             f" an Allan deviation needs at least {MIN_STILL_SECONDS:g} s"
         )
     return longest.start, longest.stop, f"samples {longest.start}–{longest.stop} (longest static)"

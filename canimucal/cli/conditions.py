@@ -43,8 +43,11 @@ def _number(rec: Recording, key: str) -> float | None:
 
 
 def recording_conditions(rec: Recording, g_override: float | None = None) -> RecordingConditions:
-    """g: the flag, else the header's ``g``, else WGS-84 normal gravity from latitude and
-    height, else 9.80665 with a warning (DESIGN §2)."""
+    """Read the conditions of a recording.
+
+    g: the flag, else the header's ``g``, else WGS-84 normal gravity from latitude and
+    height, else 9.80665 with a warning (DESIGN §2).
+    """
     latitude = _number(rec, "latitude_deg")
     height = _number(rec, "height_m")
     if g_override is not None:

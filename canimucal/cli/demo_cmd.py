@@ -53,8 +53,10 @@ def run(args: argparse.Namespace) -> int:
         plan = plan.with_total_seconds(args.seconds * len(plan.positions))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    print(f"simulating plan '{plan.name}': {len(plan.positions)} positions, "
-          f"{plan.total_seconds:g} s of averaging at {truth.sample_rate_hz:g} Hz")
+    print(
+        f"simulating plan '{plan.name}': {len(plan.positions)} positions, "
+        f"{plan.total_seconds:g} s of averaging at {truth.sample_rate_hz:g} Hz"
+    )
     rec = simulate_plan_recording(truth, plan, seed=args.seed + 1)
     rec_path = write_recording(out / "recording.csv", rec, overwrite=True)
     spec = JointSpec(accel_k="full", tilt=truth.tilt_model, gyro="mems")
@@ -73,8 +75,9 @@ def run(args: argparse.Namespace) -> int:
         recording=RecordingRef(file=rec_path.name, sha256=sha256_of(rec_path)),
         plan_name=plan.name,
     )
-    write_text_atomic(out / "calibration.json", calibration_to_json(solution.record),
-                      overwrite=True)
+    write_text_atomic(
+        out / "calibration.json", calibration_to_json(solution.record), overwrite=True
+    )
     write_text_atomic(out / "truth.json", dumps(truth.to_dict()), overwrite=True)
     print(comparison_report(solution, truth))
     for warning in solution.warnings:

@@ -28,7 +28,7 @@ EXIT_INTERRUPTED = 130
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The full argument parser (every verb registered)."""
+    """Build the full argument parser (every verb registered)."""
     parser = argparse.ArgumentParser(
         prog="canimucal",
         description="Field calibration of a CANopen IMU from small rotations.",

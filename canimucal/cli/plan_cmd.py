@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def bound_document(table: BoundTable, total_seconds: float) -> dict[str, Any]:
-    """The JSON form of a bound table."""
+    """Return the JSON form of a bound table."""
     worst = table.worst_case_counts
     return {
         "plan": table.plan,
@@ -95,12 +95,17 @@ def bound_document(table: BoundTable, total_seconds: float) -> dict[str, Any]:
 
 def _spec_dict(table: BoundTable) -> dict[str, Any]:
     s = table.spec
-    return {"accel_k": s.accel_k, "tilt": s.tilt, "gyro": s.gyro, "gyro_s": s.gyro_s,
-            "gyro_g": s.gyro_g}
+    return {
+        "accel_k": s.accel_k,
+        "tilt": s.tilt,
+        "gyro": s.gyro,
+        "gyro_s": s.gyro_s,
+        "gyro_g": s.gyro_g,
+    }
 
 
 def bound_report(table: BoundTable, total_seconds: float) -> str:
-    """The bound table as text (fits 80 columns)."""
+    """Format the bound table as text (fits 80 columns)."""
     lines = [
         f"plan {table.plan}: {total_seconds:g} s of averaging in all; "
         "white noise 1 count/√Hz, K = I/LSB, zero tilt",

@@ -86,7 +86,7 @@ def _mean_temp(rec: Recording) -> float | None:
 
 
 def _unlabelled_averages(rec: Recording) -> list[PositionAverage]:
-    """Static means for the scalar fit: labelled positions, else detected static intervals."""
+    """Average the still stretches for the scalar fit: labels, else detected intervals."""
     if np.any(rec.position >= 0):
         return position_averages(rec, require_angles=False)
     finite = np.all(np.isfinite(rec.accel), axis=1)
@@ -96,8 +96,9 @@ def _unlabelled_averages(rec: Recording) -> list[PositionAverage]:
     intervals = detect_static_intervals(filled, rec.sample_rate_hz)
     unknown = Pose(np.nan, np.nan, np.nan)
     return [
-        average_position(unknown, rec.accel[i.start : i.stop], rec.gyro[i.start : i.stop],
-                         rec.sample_rate_hz)
+        average_position(
+            unknown, rec.accel[i.start : i.stop], rec.gyro[i.start : i.stop], rec.sample_rate_hz
+        )
         for i in intervals
     ]
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from canimucal.errors import InputError
-from canimucal.model.layout import JointSpec
+from canimucal.model.layout import GyroSpec, JointSpec
 
 
 def add_model_options(parser: argparse.ArgumentParser, *, default_tilt: bool) -> None:
@@ -45,7 +45,7 @@ def add_model_options(parser: argparse.ArgumentParser, *, default_tilt: bool) ->
 
 def spec_from_args(args: argparse.Namespace, *, has_gyro: bool = False) -> JointSpec:
     """Build the :class:`JointSpec` the flags ask for."""
-    gyro = args.gyro or ("mems" if has_gyro else "none")
+    gyro: GyroSpec = args.gyro or ("mems" if has_gyro else "none")
     if gyro == "nav" and args.latitude_deg is None:
         raise InputError("--gyro nav needs --latitude-deg (the gyro scale comes from Earth rate)")
     return JointSpec(

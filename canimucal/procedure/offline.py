@@ -72,13 +72,9 @@ def simulate_plan_recording(
 
 
 def _as_set_by_operator(plan: Plan, rng: np.random.Generator) -> Plan:
-    """The plan's poses, each angle off by a draw from its 1σ ``tolerance``."""
-    return Plan(
-        plan.name,
-        tuple(
-            PlannedPosition(
-                *(p.angles + rng.normal(0.0, p.tolerance, 3)), p.tolerance, p.seconds
-            )
-            for p in plan.positions
-        ),
-    )
+    """Return the plan's poses, each angle off by a draw from its 1σ ``tolerance``."""
+    positions = []
+    for p in plan.positions:
+        alpha, beta, psi = p.angles + rng.normal(0.0, p.tolerance, 3)
+        positions.append(PlannedPosition(alpha, beta, psi, p.tolerance, p.seconds))
+    return Plan(plan.name, tuple(positions))

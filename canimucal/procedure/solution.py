@@ -1,5 +1,6 @@
-"""From position averages to a calibration record: the solve step shared by `canimucal solve`,
-the guided procedure and the demo.
+"""From position averages to a calibration record.
+
+The solve step shared by `canimucal solve`, the guided procedure and the demo.
 
 Known angles: the joint estimator (model/joint.py). No angles: the scalar |f| = g fit
 (model/scalar.py). Parameters the plan cannot determine are held at nominal and come out
@@ -48,7 +49,7 @@ class SiteConditions:
     temp_c: float | None = None
 
     def as_record_conditions(self) -> Conditions:
-        """The ``conditions`` block of the calibration JSON (degrees)."""
+        """Return the ``conditions`` block of the calibration JSON (degrees)."""
         return Conditions(
             g=self.g,
             latitude_deg=None if self.latitude is None else float(np.rad2deg(self.latitude)),
@@ -116,12 +117,11 @@ def solve_positions(
     warnings = _correlation_warnings(result) + _lack_of_fit_warning(result)
     if not result.converged:
         warnings += (f"the least-squares fit did not converge: {result.message}",)
-    return Solution(record, joint=result, undetermined=dict(result.undetermined),
-                    warnings=warnings)
+    return Solution(record, joint=result, undetermined=dict(result.undetermined), warnings=warnings)
 
 
 def _lack_of_fit_warning(result: JointResult) -> tuple[str, ...]:
-    """A warning when the residuals exceed the predicted noise and angle errors (χ² test)."""
+    """Warn when the residuals exceed the predicted noise and angle errors (χ² test)."""
     if result.dof <= 0:
         return ()
     p = float(chi2_distribution.sf(result.chi2, result.dof))
@@ -160,8 +160,10 @@ def solve_scalar(
     full: bool,
     recording: RecordingRef | None = None,
 ) -> Solution:
-    """The scalar |f| = g fit (6 or 9 parameters) over static means of unknown orientation."""
-    fit = fit_scalar_averages(averages, site.g, model="9" if full else "6", accel_lsb=site.accel_lsb)
+    """Fit |f| = g (6 or 9 parameters) to static means of unknown orientation."""
+    fit = fit_scalar_averages(
+        averages, site.g, model="9" if full else "6", accel_lsb=site.accel_lsb
+    )
     names = [f"accel.{n}" for n in fit.param_names]
     record = record_from_estimates(
         names,
