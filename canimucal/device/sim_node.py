@@ -1,0 +1,396 @@
+"""``SimulatedImuNode``: a real canopen ``LocalNode`` built from the EDS, driven by the simulator.
+
+What canopen's ``LocalNode`` lacks and this class adds (STYLE.md, DESIGN §4): TPDOs on their
+event timer or on SYNC, only while OPERATIONAL; storing on 0x1010 and restoring defaults on
+0x1011 (effective at the next reset); NMT reset node / reset communication with a new
+boot-up; range checks on writes; live values for SDO reads of 0x2000–0x2002. Calibration
+objects stay raw on the bus: the firmware semantics are exposed as :meth:`corrected_sample`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import struct
+import threading
+from collections.abc import Callable
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import can
+import canopen
+import numpy as np
+from canopen.objectdictionary import ODVariable
+from canopen.objectdictionary.datatypes import SIGNED_TYPES
+from numpy.typing import NDArray
+
+from canimucal.device import od
+from canimucal.device.sim_checks import check_subindex_exists, check_write
+from canimucal.device.sim_pdo import TpdoLayout, read_layout
+from canimucal.device.sim_producer import SampleProducer
+from canimucal.device.sim_store import (
+    COMM_PARAMETERS,
+    NonVolatileStore,
+    factory_values,
+    group_of,
+)
+from canimucal.errors import InputError, NoDeviceError
+from canimucal.model.positions import Plan
+from canimucal.sim.imu import ImuSimulator
+from canimucal.sim.truth import Truth
+
+log = logging.getLogger(__name__)
+
+NMT_START, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x81, 0x82
+SYNC_COB_ID = 0x80
+NMT_COB_ID = 0x000
+POSE_TRANSIENT_S = 1.0
+NOTIFIER_CYCLE_S = 0.1
+"""Receive-poll period of a network the node creates (how long ``stop()`` may wait)."""
+_LIVE_INDICES = (od.ACCEL_RAW, od.GYRO_RAW, od.SAMPLE_INFO, od.ERROR_REGISTER)
+
+Key = tuple[int, int]
+
+
+class SimulatedImuNode:
+    """The simulated IMU on a CAN bus (python-can bus or canopen ``Network``).
+
+    ``truth`` defaults to a nominal unit; ``state_file`` is the node's non-volatile memory
+    (JSON); ``time_scale`` is simulated seconds per wall second; ``seed`` seeds the noise.
+    """
+
+    def __init__(
+        self,
+        bus_or_network: can.BusABC | canopen.Network,
+        node_id: int = 0x10,
+        truth: Truth | None = None,
+        *,
+        state_file: Path | None = None,
+        time_scale: float = 1.0,
+        seed: int | None = None,
+    ) -> None:
+        if not 1 <= int(node_id) <= 127:
+            raise InputError(f"node id must be 1..127, got {node_id}")
+        if not (math.isfinite(time_scale) and time_scale > 0.0):
+            raise InputError(f"time_scale must be a positive number, got {time_scale}")
+        self.node_id = int(node_id)
+        self.truth = truth if truth is not None else Truth.from_dict({})
+        self.time_scale = float(time_scale)
+        self._lock = threading.RLock()
+        self._network, self._own_network = _network_of(bus_or_network)
+        eds = od.eds_path()
+        if not eds.is_file():
+            raise InputError(f"object dictionary not found: {eds}")
+        self._node = _ImuLocalNode(self.node_id, canopen.import_od(str(eds), self.node_id))
+        self._node.after_store = self._after_write
+        self._node.add_read_callback(self._on_read)
+        self._node.add_write_callback(self._on_write)
+        self._store = NonVolatileStore(state_file)
+        self._simulator = ImuSimulator(self.truth, seed=seed)
+        self._producer = SampleProducer(
+            self._simulator,
+            self._lock,
+            time_scale=self.time_scale,
+            layouts=self._layouts,
+            operational=self._operational,
+            send=self._send,
+            cal_active=self.calibration_active,
+        )
+        self._layout_cache: tuple[TpdoLayout, ...] | None = None
+        self._cal_cache: bool | None = None
+        self._pending_plan: Plan | None = None
+        self._started = False
+        self._booting = False
+        self._load_defaults(comm_only=False)  # od_value() answers before start() too
+
+    # -- public API --------------------------------------------------------------------------
+
+    @property
+    def simulator(self) -> ImuSimulator:
+        """The :class:`ImuSimulator` behind the node (take care: the producer thread uses it)."""
+        return self._simulator
+
+    @property
+    def local_node(self) -> canopen.LocalNode:
+        """The canopen ``LocalNode`` (for tests and tools)."""
+        return self._node
+
+    @property
+    def nmt_state(self) -> str:
+        """The node's own NMT state (``PRE-OPERATIONAL``, ``OPERATIONAL``, ...)."""
+        return str(self._node.nmt.state)
+
+    @property
+    def samples_produced(self) -> int:
+        """Samples produced since start (OPERATIONAL or not)."""
+        return self._producer.samples_produced
+
+    def start(self) -> SimulatedImuNode:
+        """Join the network, send the boot-up message, enter PRE-OPERATIONAL, start sampling."""
+        if self._started:
+            return self
+        self._network.add_node(self._node)
+        self._network.subscribe(NMT_COB_ID, self._on_nmt)
+        self._network.subscribe(SYNC_COB_ID, self._on_sync)
+        self._boot(reload=None)
+        self._producer.start(self._odr_hz())
+        self._started = True
+        log.info("simulated IMU node %d started (time scale %g)", self.node_id, self.time_scale)
+        return self
+
+    def stop(self) -> None:
+        """Stop sampling and heartbeats and leave the network (the bus stays open)."""
+        if not self._started:
+            return
+        self._started = False
+        self._producer.stop()
+        self._node.nmt.stop_heartbeat()
+        self._network.unsubscribe(NMT_COB_ID, self._on_nmt)
+        self._network.unsubscribe(SYNC_COB_ID, self._on_sync)
+        if self._network.nodes.get(self.node_id) is self._node:
+            del self._network[self.node_id]
+        if self._own_network and self._network.notifier is not None:
+            self._network.notifier.stop(self._network.NOTIFIER_SHUTDOWN_TIMEOUT)
+        log.info("simulated IMU node %d stopped", self.node_id)
+
+    def __enter__(self) -> SimulatedImuNode:
+        return self.start()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+    def set_pose(self, alpha: float, beta: float, psi: float = 0.0) -> None:
+        """Move the unit to a pose (radians), with a short motion transient."""
+        with self._lock:
+            self._pending_plan = None
+            self._simulator.set_pose(alpha, beta, psi, transient_s=POSE_TRANSIENT_S)
+
+    def set_schedule(self, plan: Plan) -> None:
+        """Follow ``plan`` from the next NMT start (at once if already OPERATIONAL)."""
+        with self._lock:
+            if self.nmt_state == "OPERATIONAL":
+                self._simulator.set_schedule(plan, transient_s=POSE_TRANSIENT_S)
+                self._pending_plan = None
+            else:
+                self._pending_plan = plan
+
+    def reboot(self) -> None:
+        """Power-cycle the node: unsaved values are lost, stored ones reloaded, boot-up again."""
+        if not self._started:
+            raise InputError("reboot() needs a started node")
+        self._node.nmt.stop_heartbeat()
+        self._boot(reload=od.STORE_ALL_SUB)
+
+    def od_value(self, index: int, sub: int = 0) -> Any:
+        """Return the current decoded value of an object, as an SDO read would."""
+        entry = self._node.object_dictionary[index]
+        var = entry if isinstance(entry, ODVariable) else entry[sub]
+        return var.decode_raw(self._node.get_data(index, sub))
+
+    def calibration_block(self) -> od.CalibrationBlock:
+        """Return the calibration block the node holds now (0x2100–0x2121:04)."""
+        with self._lock:
+            return od.CalibrationBlock.from_objects(self._calibration_values())
+
+    def calibration_active(self) -> bool:
+        """Tell whether valid = 1 and the stored CRC matches (the firmware applies it)."""
+        with self._lock:
+            if self._cal_cache is None:
+                values = self._calibration_values()
+                valid = self.od_value(od.CAL_INFO, od.CAL_VALID_SUB) == 1
+                crc = self.od_value(od.CAL_INFO, od.CAL_CRC_SUB)
+                self._cal_cache = valid and crc == od.block_crc(values)
+            return self._cal_cache
+
+    def corrected_sample(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Return the latest sample as the firmware corrects it: (m/s², rad/s), §4."""
+        with self._lock:
+            live = self._producer.live
+            if not live:
+                raise NoDeviceError("no sample produced yet")
+            accel = [live[(od.ACCEL_RAW, k)] for k in (1, 2, 3)]
+            gyro = [live[(od.GYRO_RAW, k)] for k in (1, 2, 3)]
+            block, active = self.calibration_block(), self.calibration_active()
+        lsbs = self.truth.accel.nominal_lsb, self.truth.gyro.nominal_lsb
+        return od.apply_firmware(block, active, active, accel, gyro, *lsbs)
+
+    # -- boot and reset ----------------------------------------------------------------------
+
+    def _boot(self, reload: int | None) -> None:
+        """Reload the object dictionary (``reload``: None/1 all, 2 comm) and boot up."""
+        self._booting = True  # no TPDO from here until the boot-up is done
+        try:
+            with self._lock:
+                self._load_defaults(comm_only=reload == od.STORE_COMM_SUB)
+                self._producer.reset_counter()
+                self._invalidate()
+            nmt = self._node.nmt
+            nmt.send_command(NMT_RESET_NODE)  # INITIALISING: boot-up frame 0x700+id [0]
+            nmt.send_command(0x80)  # PRE-OPERATIONAL; starts the producer heartbeat (0x1017)
+        finally:
+            self._booting = False
+        if self._started:
+            self._producer.set_rate(self._odr_hz())
+
+    def _load_defaults(self, *, comm_only: bool) -> None:
+        store = self._node.data_store
+        if comm_only:
+            for index in list(store):
+                if 0x1000 <= index < 0x2000:
+                    del store[index]
+        else:
+            store.clear()
+        odr = int(self.od_value(od.NOMINAL, 3)) if comm_only else None
+        for key, raw in factory_values(self.truth, odr).items():
+            store.setdefault(key[0], {})[key[1]] = raw
+        for key, raw in self._store.values().items():
+            if not comm_only or key[0] in COMM_PARAMETERS:
+                store.setdefault(key[0], {})[key[1]] = raw
+
+    # -- canopen callbacks (receive thread: no SDO calls, no blocking) ----------------------
+
+    def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        """Complete what ``NmtSlave`` leaves out: resets boot again; a start runs the plan."""
+        if len(data) < 2 or data[1] not in (0, self.node_id):
+            return
+        command = data[0]
+        if command == NMT_RESET_NODE:
+            self._node.nmt.stop_heartbeat()
+            self._boot(reload=od.STORE_ALL_SUB)
+        elif command == NMT_RESET_COMM:
+            self._node.nmt.stop_heartbeat()
+            self._boot(reload=od.STORE_COMM_SUB)
+        elif command == NMT_START:
+            with self._lock:
+                if self._pending_plan is not None:
+                    self._simulator.set_schedule(self._pending_plan, transient_s=POSE_TRANSIENT_S)
+                    self._pending_plan = None
+
+    def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if not self._operational():
+            return
+        for cob_id, frame in self._producer.on_sync():
+            self._send(cob_id, frame)
+
+    def _on_read(self, index: int, subindex: int, **_: Any) -> int | None:
+        check_subindex_exists(self._node, index, subindex)
+        if index in _LIVE_INDICES:
+            with self._lock:
+                return self._producer.live.get((index, subindex), None)
+        if index in (od.STORE, od.RESTORE) and subindex >= 1:
+            return 1  # CiA 301: the device saves / restores on command
+        return None
+
+    def _on_write(self, index: int, subindex: int, data: bytes, **_: Any) -> None:
+        """Refuse a write before ``LocalNode`` stores it (raising ``SdoAbortedError``)."""
+        check_write(
+            self._node,
+            index,
+            subindex,
+            bytes(data),
+            self._node.get_data,
+            self.truth.accel.nominal_lsb,
+            self.truth.gyro.nominal_lsb,
+        )
+
+    def _after_write(self, index: int, subindex: int, data: bytes) -> None:
+        """Side effects of a write every callback accepted and ``LocalNode`` stored."""
+        with self._lock:
+            if group_of((index, subindex)) == od.STORE_CALIBRATION_SUB:
+                self._cal_cache = None
+            if index in od.TPDO_COMM or index in od.TPDO_MAP:
+                self._layout_cache = None
+        if index == od.NOMINAL and subindex == 3:
+            self._set_odr(struct.unpack("<H", data)[0])
+        elif index == od.STORE:
+            self._store.store(self._current_raw(), subindex)
+        elif index == od.RESTORE:
+            self._store.forget(subindex)
+
+    # -- helpers ----------------------------------------------------------------------------
+
+    def _set_odr(self, odr_hz: int) -> None:
+        """0x2010:03 written: TPDO1/2 event timers become 1000/ODR ms."""
+        with self._lock:
+            for comm in od.TPDO_COMM[:2]:
+                self._node.data_store.setdefault(comm, {})[5] = od.encode("u16", 1000 // odr_hz)
+            self._layout_cache = None
+        self._producer.set_rate(odr_hz)
+        log.info("output data rate set to %d Hz", odr_hz)
+
+    def _odr_hz(self) -> int:
+        return int(self.od_value(od.NOMINAL, 3))
+
+    def _current_raw(self) -> dict[Key, bytes]:
+        """Raw current value of every storable object."""
+        out: dict[Key, bytes] = {}
+        for index in self._node.object_dictionary:
+            entry = self._node.object_dictionary[index]
+            subs = [0] if isinstance(entry, ODVariable) else list(entry.subindices)
+            for sub in subs:
+                if group_of((index, sub)) is not None:
+                    out[(index, sub)] = self._node.get_data(index, sub)
+        return out
+
+    def _calibration_values(self) -> dict[Key, float | int]:
+        return {(i, s): self.od_value(i, s) for i, s, _ in od.CRC_ORDER}
+
+    def _invalidate(self) -> None:
+        self._layout_cache = None
+        self._cal_cache = None
+
+    def _layouts(self) -> tuple[TpdoLayout, ...]:
+        with self._lock:
+            if self._layout_cache is None:
+                self._layout_cache = tuple(
+                    read_layout(n, self._node.get_data, self._is_signed) for n in (1, 2, 3)
+                )
+            return self._layout_cache
+
+    def _is_signed(self, key: Key) -> bool:
+        entry = self._node.object_dictionary[key[0]]
+        var = entry if isinstance(entry, ODVariable) else entry[key[1]]
+        return var.data_type in SIGNED_TYPES
+
+    def _operational(self) -> bool:
+        return not self._booting and self._node.nmt.state == "OPERATIONAL"
+
+    def _send(self, cob_id: int, data: bytes) -> None:
+        if self._started:
+            self._network.send_message(cob_id, data)
+
+
+class _ImuLocalNode(canopen.LocalNode):
+    """A ``LocalNode`` that reports each stored write (its callbacks run *before* storing)."""
+
+    after_store: Callable[[int, int, bytes], None] | None = None
+
+    def set_data(
+        self, index: int, subindex: int, data: bytes, check_writable: bool = False
+    ) -> None:
+        """Store as ``LocalNode`` does (callbacks may refuse), then run ``after_store``."""
+        super().set_data(index, subindex, data, check_writable)
+        if self.after_store is not None:
+            self.after_store(index, subindex, bytes(data))
+
+
+def _network_of(bus_or_network: can.BusABC | canopen.Network) -> tuple[canopen.Network, bool]:
+    """Return the network to join and whether this node created it (and its notifier)."""
+    if isinstance(bus_or_network, canopen.Network):
+        network = bus_or_network
+        if network.bus is None:
+            raise NoDeviceError("the canopen network is not connected to a bus")
+        if network.notifier is None:
+            network.connect()
+        return network, False
+    if isinstance(bus_or_network, can.BusABC):
+        network = canopen.Network(bus_or_network)
+        network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
+        return network.connect(), True
+    raise InputError(f"need a python-can bus or a canopen Network, got {type(bus_or_network)}")

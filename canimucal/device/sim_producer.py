@@ -1,0 +1,198 @@
+"""The sampling thread of the simulated node: simulator blocks in, TPDO frames out.
+
+Samples are produced at the output data rate in *simulated* time; ``time_scale`` simulated
+seconds pass per wall second. The thread wakes every millisecond or so and produces the
+samples that are due, in small batches, so a fast time scale paces frames onto the bus
+instead of flooding it in one burst. Event-driven TPDOs (transmission type 254/255) follow
+their event timers in simulated time; SYNC-driven ones (1..240) are sent from
+:meth:`SampleProducer.on_sync`. Nothing is sent unless the node is OPERATIONAL.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from canimucal.device import od
+from canimucal.device.sim_pdo import EventTimer, TpdoLayout
+from canimucal.sim.imu import ImuSimulator, SimBlock
+
+log = logging.getLogger(__name__)
+
+Key = tuple[int, int]
+Frame = tuple[int, bytes]
+
+MAX_BATCH = 32
+"""Most samples produced per wake-up (64 PDO frames at most), to pace a fast time scale."""
+MIN_SLEEP_S = 0.001
+MAX_SLEEP_S = 0.02
+INT16_MIN, INT16_MAX = -32768, 32767
+
+
+def _int16_rows(values: object) -> list[Any]:
+    """Round to INT16, saturating (the simulator saturates already; this guards rounding)."""
+    arr = np.clip(np.rint(np.asarray(values, dtype=float)), INT16_MIN, INT16_MAX)
+    return arr.astype(np.int64).tolist()
+
+
+class SampleProducer:
+    """Produces samples from an :class:`ImuSimulator` and sends TPDO1–3.
+
+    ``layouts()`` returns the current TPDO layouts, ``operational()`` whether the node is
+    OPERATIONAL, ``send(cob_id, data)`` puts a frame on the bus and ``cal_active()`` whether
+    the firmware applies the calibration (status bit 2). ``lock`` guards the simulator and
+    the live values; the node takes it too.
+    """
+
+    def __init__(
+        self,
+        simulator: ImuSimulator,
+        lock: threading.RLock,
+        *,
+        time_scale: float,
+        layouts: Callable[[], Sequence[TpdoLayout]],
+        operational: Callable[[], bool],
+        send: Callable[[int, bytes], None],
+        cal_active: Callable[[], bool],
+    ) -> None:
+        self.simulator = simulator
+        self.lock = lock
+        self.time_scale = float(time_scale)
+        self._layouts = layouts
+        self._operational = operational
+        self._send = send
+        self._cal_active = cal_active
+        self.live: dict[Key, int] = {}
+        self.last_block: SimBlock | None = None
+        self.counter = 0
+        self.samples_produced = 0
+        self._rate_hz = 0.0
+        self._anchor_wall = 0.0
+        self._anchor_count = 0
+        self._timers = [EventTimer() for _ in od.TPDO_COMM]
+        self._sync_counts = [0 for _ in od.TPDO_COMM]
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.error: BaseException | None = None
+
+    # -- lifecycle -------------------------------------------------------------------------
+
+    def start(self, rate_hz: float) -> None:
+        """Start the thread producing at ``rate_hz`` (simulated)."""
+        self.set_rate(rate_hz)
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="sim-imu-producer", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop the thread and wait for it."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+
+    def set_rate(self, rate_hz: float) -> None:
+        """Change the output data rate; pacing restarts from now."""
+        with self.lock:
+            self.simulator.set_sample_rate(rate_hz)
+            self._rate_hz = float(rate_hz)
+            self._anchor_wall = time.monotonic()
+            self._anchor_count = 0
+            for timer in self._timers:
+                timer.reset()
+
+    def reset_counter(self) -> None:
+        """Counter back to 0 and event timers restarted (NMT reset)."""
+        with self.lock:
+            self.counter = 0
+            self._sync_counts = [0 for _ in od.TPDO_COMM]
+            for timer in self._timers:
+                timer.reset()
+
+    # -- the loop --------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                frames, wait_s = self._step()
+                if frames and self._operational():
+                    for cob_id, data in frames:
+                        self._send(cob_id, data)
+                if wait_s > 0.0:
+                    self._stop.wait(wait_s)
+        except Exception as exc:  # a dead producer must be visible, not silent
+            self.error = exc
+            log.exception("simulated IMU producer stopped")
+
+    def _step(self) -> tuple[list[Frame], float]:
+        """Produce the samples due now (at most MAX_BATCH); return frames and a sleep."""
+        with self.lock:
+            rate = self._rate_hz * self.time_scale
+            elapsed = time.monotonic() - self._anchor_wall
+            due = int(elapsed * rate) - self._anchor_count
+            if due <= 0:
+                next_in = (self._anchor_count + 1) / rate - elapsed
+                return [], min(MAX_SLEEP_S, max(MIN_SLEEP_S, next_in))
+            n = min(due, MAX_BATCH)
+            block = self.simulator.next_block(n)
+            self._anchor_count += n
+            frames = self._consume(block)
+        return frames, (MIN_SLEEP_S if due <= MAX_BATCH else 0.0)
+
+    def _consume(self, block: SimBlock) -> list[Frame]:
+        """Update live values sample by sample and collect the event-driven frames."""
+        self.last_block = block
+        sending = self._operational()
+        layouts = (
+            [lay for lay in self._layouts() if lay.enabled and lay.on_event] if sending else []
+        )
+        frames: list[Frame] = []
+        accel = _int16_rows(block.accel)
+        gyro = _int16_rows(block.gyro)
+        temps = _int16_rows(np.asarray(block.temp_c, dtype=float) * 100.0)  # 0.01 °C
+        base_status = od.STATUS_CAL_ACTIVE if self._cal_active() else 0
+        saturated = np.asarray(block.saturated, dtype=bool)
+        moving = np.asarray(block.moving, dtype=bool)
+        for i, t_s in enumerate(np.asarray(block.t_s, dtype=float).tolist()):
+            status = base_status
+            status |= od.STATUS_SATURATED if saturated[i] else 0
+            status |= od.STATUS_MOVING if moving[i] else 0
+            self._update_live(accel[i], gyro[i], temps[i], status)
+            for layout in layouts:
+                if self._timers[layout.number - 1].due(t_s, layout.event_timer_ms / 1000.0):
+                    frames.append((layout.cob_id, layout.pack(self.live)))
+        return frames
+
+    def _update_live(self, accel: list[int], gyro: list[int], temp: int, status: int) -> None:
+        self.counter = (self.counter + 1) & 0xFFFF  # 0x2002:02 wraps at 65536
+        self.samples_produced += 1
+        live = self.live
+        live[(od.ACCEL_RAW, 1)], live[(od.ACCEL_RAW, 2)], live[(od.ACCEL_RAW, 3)] = accel
+        live[(od.GYRO_RAW, 1)], live[(od.GYRO_RAW, 2)], live[(od.GYRO_RAW, 3)] = gyro
+        live[(od.SAMPLE_INFO, 1)] = temp
+        live[(od.SAMPLE_INFO, 2)] = self.counter
+        live[(od.SAMPLE_INFO, 3)] = status
+        live[(od.ERROR_REGISTER, 0)] = 0
+
+    # -- SYNC ------------------------------------------------------------------------------
+
+    def on_sync(self) -> list[Frame]:
+        """Frames due on this SYNC (every n-th SYNC for transmission type n; 0 = every)."""
+        frames: list[Frame] = []
+        with self.lock:
+            if not self.live:
+                return frames
+            for layout in self._layouts():
+                if not (layout.enabled and layout.on_sync):
+                    continue
+                k = layout.number - 1
+                self._sync_counts[k] += 1
+                every = max(1, layout.trans_type)
+                if self._sync_counts[k] % every == 0:
+                    frames.append((layout.cob_id, layout.pack(self.live)))
+        return frames

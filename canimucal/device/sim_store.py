@@ -1,0 +1,136 @@
+"""Non-volatile memory of the simulated node: what 0x1010 stores and 0x1011 restores.
+
+CiA 301 groups: sub 1 all parameters, sub 2 communication (0x1000–0x1FFF), sub 3
+application (0x2010:03, the output data rate), sub 4 calibration (0x2100–0x2121). Values are
+kept as the raw little-endian bytes the object dictionary holds, so a reload is bit-exact.
+With a ``state_file`` the memory is a JSON file (written atomically) and survives a new
+instance; without one it lives as long as the :class:`NonVolatileStore` object.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import threading
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+
+from canimucal.device import od
+from canimucal.errors import InputError
+from canimucal.sim.truth import Truth
+
+log = logging.getLogger(__name__)
+
+STATE_SCHEMA = "canimucal.simnode-state/1"
+
+COMM_PARAMETERS = (od.HEARTBEAT, *od.TPDO_COMM, *od.TPDO_MAP)
+"""Indices of the communication parameters that 0x1010:02 stores."""
+
+APP_PARAMETERS = ((od.NOMINAL, 3),)
+"""Application parameters 0x1010:03 stores (besides the calibration block)."""
+
+Key = tuple[int, int]
+
+
+def factory_values(truth: Truth, comm_odr_hz: int | None = None) -> dict[Key, bytes]:
+    """Raw values that differ from the EDS defaults for this unit (its truth).
+
+    The nominal LSBs, output data rate, factory calibration (with its CRC, valid = 0),
+    serial number and TPDO1/2 event timers (1000/ODR ms). With ``comm_odr_hz`` only the
+    communication objects, for that output data rate (NMT reset communication).
+    """
+    odr = int(truth.sample_rate_hz) if comm_odr_hz is None else int(comm_odr_hz)
+    values: dict[Key, bytes] = {
+        (od.TPDO_COMM[0], 5): od.encode("u16", 1000 // odr),
+        (od.TPDO_COMM[1], 5): od.encode("u16", 1000 // odr),
+        (od.IDENTITY, 4): od.encode("u32", truth.serial & 0xFFFFFFFF),
+    }
+    if comm_odr_hz is not None:
+        return values
+    accel_lsb, gyro_lsb = truth.accel.nominal_lsb, truth.gyro.nominal_lsb
+    values[(od.NOMINAL, 1)] = od.encode("f32", accel_lsb)
+    values[(od.NOMINAL, 2)] = od.encode("f32", gyro_lsb)
+    values[(od.NOMINAL, 3)] = od.encode("u16", odr)
+    factory = od.factory_block(accel_lsb, gyro_lsb).to_objects()
+    for index, sub, code in od.CRC_ORDER:
+        values[(index, sub)] = od.encode(code, factory[(index, sub)])
+    values[(od.CAL_INFO, od.CAL_VALID_SUB)] = od.encode("u8", 0)
+    values[(od.CAL_INFO, od.CAL_CRC_SUB)] = od.encode("u32", od.block_crc(factory))
+    return values
+
+
+def group_of(key: Key) -> int | None:
+    """Store group (0x1010 sub-index 2, 3 or 4) an object belongs to, None if not stored."""
+    index = key[0]
+    if index in COMM_PARAMETERS:
+        return od.STORE_COMM_SUB
+    if key in APP_PARAMETERS:
+        return od.STORE_APP_SUB
+    if key in od.OBJECT_CODES:
+        return od.STORE_CALIBRATION_SUB
+    return None
+
+
+def in_group(key: Key, store_sub: int) -> bool:
+    """Whether 0x1010/0x1011 sub-index ``store_sub`` covers object ``key`` (sub 1 = all)."""
+    group = group_of(key)
+    return group is not None and store_sub in (od.STORE_ALL_SUB, group)
+
+
+class NonVolatileStore:
+    """Stored object values, optionally persisted to a JSON ``state_file``."""
+
+    def __init__(self, state_file: Path | None = None) -> None:
+        self.state_file = None if state_file is None else Path(state_file)
+        self._lock = threading.Lock()
+        self._values: dict[Key, bytes] = {}
+        if self.state_file is not None and self.state_file.exists():
+            self._values = _read_state(self.state_file)
+            log.info("loaded %d stored objects from %s", len(self._values), self.state_file)
+
+    def values(self) -> dict[Key, bytes]:
+        """Return a copy of every stored ``(index, sub) -> raw bytes``."""
+        with self._lock:
+            return dict(self._values)
+
+    def store(self, objects: Mapping[Key, bytes], store_sub: int) -> None:
+        """Persist the objects of group ``store_sub`` among ``objects`` (0x1010 'save')."""
+        chosen = {k: bytes(v) for k, v in objects.items() if in_group(k, store_sub)}
+        with self._lock:
+            self._values.update(chosen)
+            self._flush()
+        log.info("stored %d objects (0x1010:%02X)", len(chosen), store_sub)
+
+    def forget(self, store_sub: int) -> None:
+        """Drop the stored objects of a group: defaults apply at the next reset (0x1011)."""
+        with self._lock:
+            dropped = [k for k in self._values if in_group(k, store_sub)]
+            for key in dropped:
+                del self._values[key]
+            self._flush()
+        log.info("defaults for %d objects at next reset (0x1011:%02X)", len(dropped), store_sub)
+
+    def _flush(self) -> None:
+        if self.state_file is None:
+            return
+        _write_state(self.state_file, self._values.items())
+
+
+def _read_state(path: Path) -> dict[Key, bytes]:
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+        if doc.get("schema") != STATE_SCHEMA:
+            raise InputError(f"{path}: schema must be {STATE_SCHEMA!r}")
+        return {od.parse_key(k): bytes.fromhex(v) for k, v in doc["objects"].items()}
+    except (OSError, ValueError, KeyError, AttributeError, TypeError) as exc:
+        raise InputError(f"cannot read simulated node state {path}: {exc}") from exc
+
+
+def _write_state(path: Path, items: Iterable[tuple[Key, bytes]]) -> None:
+    objects = {od.format_key(*k): v.hex() for k, v in sorted(items)}
+    doc = {"schema": STATE_SCHEMA, "objects": objects}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
