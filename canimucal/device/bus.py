@@ -1,0 +1,187 @@
+"""Bus settings (DESIGN §7) and the SDO transport policy (timeouts, retries, aborts).
+
+The flags win over the environment, which wins over the config file (python-can's
+``can.util.load_config`` order). ``interface`` defaults to ``socketcan`` when a channel is
+known and no source names an interface. Opening failures become :class:`NoDeviceError`
+(exit 4) with one line naming the interface and channel.
+
+SDO transfers time out after 0.5 s (2 s in the CAN VM); timeouts are retried with
+exponential backoff, aborts never (the node said no: retrying cannot change that).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import can
+import canopen
+from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
+
+from canimucal.device import od
+from canimucal.errors import DeviceError, InputError, NoDeviceError
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_SDO_TIMEOUT_S = 0.5
+"""SDO response timeout on a real or virtual bus."""
+
+VM_SDO_TIMEOUT_S = 2.0
+"""SDO response timeout inside the CAN VM (``IN_CAN_VM=1``, DESIGN §8)."""
+
+DEFAULT_INTERFACE_WITH_CHANNEL = "socketcan"
+
+BACKOFF_START_S = 0.1
+"""First retry delay after an SDO timeout; doubles on each further retry (0.1, 0.2, 0.4 s)."""
+
+
+def default_sdo_timeout_s(environ: Mapping[str, str] | None = None) -> float:
+    """SDO timeout: 0.5 s, or 2 s when ``IN_CAN_VM=1`` (slow emulated CAN)."""
+    env = os.environ if environ is None else environ
+    if env.get("IN_CAN_VM", "").strip() == "1":
+        return VM_SDO_TIMEOUT_S
+    return DEFAULT_SDO_TIMEOUT_S
+
+
+@dataclass(frozen=True)
+class BusSettings:
+    """What the user gave on the command line; the rest comes from python-can's config.
+
+    ``config_path`` is a python-can config file (default: ``~/.canrc``, ``~/.can``,
+    ``/etc/can.conf``); ``context`` a section other than ``default`` of it; ``extra`` any
+    other keyword python-can's backend accepts (e.g. ``receive_own_messages``).
+    """
+
+    interface: str | None = None
+    channel: str | int | None = None
+    bitrate: int | None = None
+    config_path: str | None = None
+    context: str | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def flags(self) -> dict[str, Any]:
+        """Return the values given explicitly (``None`` left out), as python-can keys."""
+        given: dict[str, Any] = dict(self.extra)
+        for key in ("interface", "channel", "bitrate"):
+            value = getattr(self, key)
+            if value is not None:
+                given[key] = value
+        return given
+
+    def resolve(self) -> dict[str, Any]:
+        """Merge the bus configuration: flags, ``can.rc``, ``CAN_*`` environment, config file.
+
+        Raises :class:`InputError` for an interface name python-can does not know and
+        :class:`NoDeviceError` when no source names a channel or an interface.
+        """
+        given = self.flags()
+        if "interface" not in given and not self._interface_named_elsewhere():
+            channel = given.get("channel") or self._channel_named_elsewhere()
+            if channel is None:
+                raise NoDeviceError(
+                    "no CAN bus configured: give --channel (and --interface), "
+                    "CAN_INTERFACE/CAN_CHANNEL or a python-can config file"
+                )
+            given["interface"] = DEFAULT_INTERFACE_WITH_CHANNEL
+        try:
+            config = can.util.load_config(path=self.config_path, config=given, context=self.context)
+        except can.CanInterfaceNotImplementedError as exc:
+            raise InputError(f"unknown CAN interface: {exc}") from exc
+        except ValueError as exc:
+            raise InputError(f"bad CAN bus configuration: {exc}") from exc
+        return dict(config)
+
+    def _file_and_env(self) -> list[Mapping[str, Any]]:
+        """Return the sources below the flags, in python-can's order (highest first)."""
+        return [
+            can.rc,
+            can.util.load_environment_config(self.context),
+            can.util.load_environment_config(),
+            can.util.load_file_config(self.config_path, self.context or "default"),
+            can.util.load_file_config(self.config_path),
+        ]
+
+    def _interface_named_elsewhere(self) -> bool:
+        return any(src.get("interface") or src.get("bustype") for src in self._file_and_env())
+
+    def _channel_named_elsewhere(self) -> Any:
+        for src in self._file_and_env():
+            if src.get("channel") not in (None, ""):
+                return src["channel"]
+        return None
+
+
+def describe(config: Mapping[str, Any]) -> str:
+    """``interface/channel`` of a resolved configuration, for messages."""
+    return f"{config.get('interface')}/{config.get('channel')}"
+
+
+def open_bus(settings: BusSettings) -> can.BusABC:
+    """Open the configured bus; :class:`NoDeviceError` (exit 4) when it cannot be opened."""
+    config = settings.resolve()
+    where = describe(config)
+    try:
+        bus = can.Bus(**config)
+    except can.CanInterfaceNotImplementedError as exc:
+        raise NoDeviceError(f"CAN interface {where} is not available here: {exc}") from exc
+    except (can.CanError, OSError, ValueError, TypeError, ImportError) as exc:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise NoDeviceError(f"cannot open CAN bus {where}: {reason}") from exc
+    logger.info("opened CAN bus %s", where)
+    return bus
+
+
+class SdoAbort(DeviceError):
+    """The node refused an SDO transfer (abort code in ``code``); never retried."""
+
+    def __init__(self, message: str, code: int) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+class DeviceSilentError(DeviceError):
+    """An SDO transfer timed out after every retry."""
+
+
+class SdoChannel:
+    """Raw SDO upload/download with the retry policy and error mapping."""
+
+    def __init__(self, node: canopen.RemoteNode, timeout_s: float, retries: int) -> None:
+        node.sdo.RESPONSE_TIMEOUT = timeout_s
+        node.sdo.MAX_RETRIES = 1  # our own retry loop, with backoff
+        self._sdo = node.sdo
+        self._retries = retries
+        self._lock = threading.Lock()
+
+    def upload(self, index: int, sub: int) -> bytes:
+        """Read ``index:sub`` as bytes."""
+        return bytes(self._call("read", index, sub, lambda: self._sdo.upload(index, sub)))
+
+    def download(self, index: int, sub: int, data: bytes) -> None:
+        """Write ``data`` to ``index:sub`` (expedited when ≤ 4 bytes)."""
+        self._call("write", index, sub, lambda: self._sdo.download(index, sub, data))
+
+    def _call(self, what: str, index: int, sub: int, op: Any) -> Any:
+        name = od.format_key(index, sub)
+        delay = BACKOFF_START_S
+        for attempt in range(self._retries + 1):
+            try:
+                with self._lock:
+                    return op()
+            except SdoAbortedError as exc:
+                text = od.abort_text(int(exc.code))
+                raise SdoAbort(f"device refused {what} of {name}: {text}", int(exc.code)) from exc
+            except (SdoCommunicationError, can.CanError) as exc:
+                if attempt == self._retries:
+                    raise DeviceSilentError(
+                        f"no SDO answer to {what} of {name} after {attempt + 1} tries: {exc}"
+                    ) from exc
+                logger.warning("SDO %s of %s: %s; retry in %.1f s", what, name, exc, delay)
+                time.sleep(delay)
+                delay *= 2
+        raise AssertionError("unreachable")

@@ -1,0 +1,393 @@
+"""``ImuClient``: the tool's side of one IMU node (DESIGN §4, STYLE "CANopen").
+
+SDO access with a retry policy (timeouts retried with exponential backoff, aborts never),
+node discovery, identity, nominal LSBs, the PDO layout read from the node, the calibration
+block, heartbeat watching and streaming of paired samples. Quiet by default: NMT only to
+the target node, no SYNC unless ``sync_producer=True``, no ODR change unless asked.
+
+Receive callbacks (canopen's notifier thread) only enqueue raw frames; decoding and pairing
+run on the client's consumer thread (:mod:`canimucal.device.stream`).
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from typing import NamedTuple
+
+import can
+import canopen
+from canopen.nmt import NMT_STATES
+
+from canimucal.device import od
+from canimucal.device.bus import DeviceSilentError, SdoAbort, SdoChannel, default_sdo_timeout_s
+from canimucal.device.stream import (
+    SampleBlock,
+    SampleLayout,
+    SamplePairer,
+    concat_blocks,
+    layout_from_mapping,
+)
+from canimucal.errors import DeviceError, NoDeviceError
+
+logger = logging.getLogger(__name__)
+
+NMT_START, NMT_PRE_OPERATIONAL = 0x01, 0x80
+BATCH_INTERVAL_S = 0.02
+"""The consumer thread hands out a :class:`SampleBlock` at most every 20 ms (or 256 rows)."""
+BATCH_MAX_ROWS = 256
+NOTIFIER_CYCLE_S = 0.1
+"""Receive-thread wake-up of a network the client makes itself (bounds :meth:`close`)."""
+
+
+class Identity(NamedTuple):
+    """0x1018:01–04 and 0x1008."""
+
+    vendor_id: int
+    product_code: int
+    revision: int
+    serial: int
+    device_name: str
+
+
+class CalibrationReadout(NamedTuple):
+    """The calibration block as read: values, valid flag, stored CRC and whether it matches.
+
+    ``objects`` holds every :data:`od.CALIBRATION_OBJECTS` value (valid and CRC included);
+    ``raw`` re-encodes them: the bytes the node returned (decode/encode is exact for every
+    finite value, and the node refuses non-finite ones).
+    """
+
+    block: od.CalibrationBlock
+    valid: int
+    crc_stored: int
+    crc_ok: bool
+    objects: dict[tuple[int, int], float | int]
+
+    @property
+    def raw(self) -> dict[tuple[int, int], bytes]:
+        """Little-endian SDO bytes of every object."""
+        return {key: od.encode(od.OBJECT_CODES[key], v) for key, v in self.objects.items()}
+
+
+class _Heartbeat:
+    """What the node last said about itself (boot-up and heartbeat frames)."""
+
+    def __init__(self) -> None:
+        self.seen = threading.Event()
+        self.booted = threading.Event()
+        self.last_time_s: float | None = None
+        self.state_code: int | None = None
+
+    def on_frame(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        """Receive callback: record only (no SDO here)."""
+        if not data:
+            return
+        self.state_code = data[0] & 0x7F
+        self.last_time_s = timestamp
+        if self.state_code == 0:
+            self.booted.set()
+        self.seen.set()
+
+    @property
+    def state(self) -> str | None:
+        """NMT state name the node reported, or None before any heartbeat."""
+        if self.state_code is None:
+            return None
+        return NMT_STATES.get(self.state_code, f"UNKNOWN {self.state_code}")
+
+
+class ImuClient:
+    """One IMU node on a canopen :class:`~canopen.Network` (or a python-can bus).
+
+    Given a bus, the client makes its own network (and notifier) on it and leaves the bus
+    open on :meth:`close`; given a network, it only adds and removes its node.
+    """
+
+    def __init__(
+        self,
+        network_or_bus: canopen.Network | can.BusABC,
+        node_id: int,
+        *,
+        sdo_timeout_s: float | None = None,
+        sdo_retries: int = 2,
+        sync_producer: bool = False,
+        sync_period_s: float = 0.005,
+    ) -> None:
+        if not 1 <= node_id <= 127:
+            raise ValueError(f"node id must be 1..127, got {node_id}")
+        self._owns_network = isinstance(network_or_bus, can.BusABC)
+        if isinstance(network_or_bus, can.BusABC):
+            network = canopen.Network(network_or_bus)
+            network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
+            network.connect()
+        else:
+            network = network_or_bus
+        self.network = network
+        self.node_id = node_id
+        self.node = canopen.RemoteNode(node_id, canopen.ObjectDictionary())
+        network.add_node(self.node)
+        timeout = default_sdo_timeout_s() if sdo_timeout_s is None else sdo_timeout_s
+        self.sdo = SdoChannel(self.node, timeout, sdo_retries)
+        self.heartbeat = _Heartbeat()
+        network.subscribe(0x700 + node_id, self.heartbeat.on_frame)
+        self.sync_producer = sync_producer
+        self.sync_period_s = sync_period_s
+        self.samples: queue.Queue[SampleBlock] = queue.Queue()
+        self._stream: _Stream | None = None
+
+    # ----------------------------------------------------------------- typed SDO access
+    def read_value(self, index: int, sub: int, code: str) -> float | int:
+        """Read one object and decode it as ``code`` (``f32``, ``u32``, ``u16``, ``u8``)."""
+        return od.decode(code, self.read_raw(index, sub, code))
+
+    def read_raw(self, index: int, sub: int, code: str) -> bytes:
+        """Read one object's bytes, checked against the size of ``code``."""
+        data = self.sdo.upload(index, sub)
+        size = len(od.encode(code, 0))
+        if len(data) > size and not any(data[size:]):
+            data = data[:size]  # some devices answer U8/U16 objects with 4 bytes
+        if len(data) != size:
+            raise DeviceError(
+                f"{od.format_key(index, sub)} answered {len(data)} bytes, expected {size}"
+            )
+        return data
+
+    def write_value(self, index: int, sub: int, code: str, value: float | int) -> None:
+        """Encode ``value`` as ``code`` and write it (expedited download)."""
+        self.sdo.download(index, sub, od.encode(code, value))
+
+    # ------------------------------------------------------------------ node and identity
+    def find_node(self, timeout_s: float = 1.0) -> str:
+        """Confirm the node is there: ``"boot-up"``/``"heartbeat"`` seen, else ``"sdo"``.
+
+        Waits up to ``timeout_s`` for a boot-up or heartbeat frame, then probes 0x1018:01 by
+        SDO. Raises :class:`NoDeviceError` (exit 4) when nothing answers.
+        """
+        if self.heartbeat.seen.wait(timeout_s):
+            return "boot-up" if self.heartbeat.booted.is_set() else "heartbeat"
+        try:
+            self.read_value(od.IDENTITY, 1, "u32")
+        except DeviceSilentError as exc:
+            raise NoDeviceError(
+                f"no CANopen node {self.node_id} on the bus: no boot-up or heartbeat "
+                f"within {timeout_s:g} s and no SDO answer"
+            ) from exc
+        return "sdo"
+
+    def identity(self) -> Identity:
+        """Read 0x1018:01–04 and the device name 0x1008."""
+        vendor, product, revision, serial = (
+            int(self.read_value(od.IDENTITY, sub, "u32")) for sub in (1, 2, 3, 4)
+        )
+        try:
+            name = self.sdo.upload(od.DEVICE_NAME, 0).decode("ascii", "replace").rstrip("\0")
+        except SdoAbort:
+            name = ""
+        return Identity(vendor, product, revision, serial, name)
+
+    def nominal_lsb(self) -> tuple[float, float]:
+        """Nominal accel (m/s² per count) and gyro (rad/s per count) LSB, signed (0x2010)."""
+        return (
+            float(self.read_value(od.NOMINAL, 1, "f32")),
+            float(self.read_value(od.NOMINAL, 2, "f32")),
+        )
+
+    def output_data_rate(self) -> int:
+        """Output data rate (Hz, 0x2010:03)."""
+        return int(self.read_value(od.NOMINAL, 3, "u16"))
+
+    def set_output_data_rate(self, rate_hz: int) -> None:
+        """Change the output data rate (only when the user asks: DESIGN §4 quiet bus)."""
+        if rate_hz not in od.ODR_CHOICES_HZ:
+            raise ValueError(f"output data rate must be one of {od.ODR_CHOICES_HZ}, got {rate_hz}")
+        self.write_value(od.NOMINAL, 3, "u16", rate_hz)
+
+    def pdo_mapping(self) -> SampleLayout:
+        """Read TPDO1–3 COB-IDs (0x1800–0x1802) and mappings (0x1A00–0x1A02) from the node."""
+        cob_ids: dict[int, int] = {}
+        entries: dict[int, list[int]] = {}
+        for number, (comm, mapping) in enumerate(
+            zip(od.TPDO_COMM, od.TPDO_MAP, strict=True), start=1
+        ):
+            cob = int(self.read_value(comm, 1, "u32"))
+            count = int(self.read_value(mapping, 0, "u8"))
+            if cob & 0x8000_0000 or count == 0:
+                continue  # PDO not valid or nothing mapped
+            cob_ids[number] = cob & (0x1FFF_FFFF if cob & 0x2000_0000 else 0x7FF)
+            entries[number] = [
+                int(self.read_value(mapping, sub, "u32")) for sub in range(1, count + 1)
+            ]
+        if 1 not in entries or 2 not in entries:
+            raise DeviceError("TPDO1 and TPDO2 must be valid and mapped to stream samples")
+        try:
+            return layout_from_mapping(cob_ids, entries)
+        except ValueError as exc:
+            raise DeviceError(f"unusable PDO mapping: {exc}") from exc
+
+    def read_calibration_block(self) -> CalibrationReadout:
+        """Read every calibration object (DESIGN §4), the valid flag and the stored CRC."""
+        objects: dict[tuple[int, int], float | int] = {}
+        for index, sub, code in od.CALIBRATION_OBJECTS:
+            objects[(index, sub)] = od.decode(code, self.read_raw(index, sub, code))
+        crc_stored = int(objects[(od.CAL_INFO, od.CAL_CRC_SUB)])
+        valid = int(objects[(od.CAL_INFO, od.CAL_VALID_SUB)])
+        crc_ok = od.block_crc(objects) == crc_stored
+        return CalibrationReadout(
+            od.CalibrationBlock.from_objects(objects), valid, crc_stored, crc_ok, objects
+        )
+
+    def store_calibration(self) -> None:
+        """Persist the calibration objects: 0x1010:04 = 'save'."""
+        self.write_value(od.STORE, od.STORE_CALIBRATION_SUB, "u32", od.SAVE_SIGNATURE)
+
+    # ----------------------------------------------------------------------- streaming
+    @property
+    def node_state(self) -> str | None:
+        """NMT state the node last reported by heartbeat (None before any)."""
+        return self.heartbeat.state
+
+    @property
+    def last_heartbeat_s(self) -> float | None:
+        """CAN timestamp of the last heartbeat or boot-up frame."""
+        return self.heartbeat.last_time_s
+
+    def start_streaming(
+        self,
+        *,
+        layout: SampleLayout | None = None,
+        rate_hz: float | None = None,
+        nmt_start: bool = True,
+    ) -> SampleLayout:
+        """Read the layout and ODR, subscribe TPDO1–3, then NMT start the target node only.
+
+        ``layout``/``rate_hz`` skip the SDO reads (a known device); ``nmt_start=False``
+        listens to a node someone else started.
+        """
+        if self._stream is not None:
+            return self._stream.pairer.layout
+        layout = self.pdo_mapping() if layout is None else layout
+        rate = self.output_data_rate() if rate_hz is None else rate_hz
+        period_s = 1.0 / max(rate, 1)
+        self._stream = _Stream(SamplePairer(layout, period_s), self.samples)
+        for cob_id in self._stream.cob_ids():
+            self.network.subscribe(cob_id, self._stream.on_frame)
+        self._stream.start()
+        if self.sync_producer:
+            self.network.sync.start(self.sync_period_s)
+        if nmt_start:
+            self.node.nmt.send_command(NMT_START)
+        return layout
+
+    def stop_streaming(self, *, keep_operational: bool = False) -> None:
+        """Stop the node's TPDOs (NMT pre-operational, target only) and drain the stream."""
+        stream, self._stream = self._stream, None
+        if stream is None:
+            return
+        if not keep_operational:
+            self.node.nmt.send_command(NMT_PRE_OPERATIONAL)
+        if self.sync_producer:
+            self.network.sync.stop()
+        for cob_id in stream.cob_ids():
+            self.network.unsubscribe(cob_id, stream.on_frame)
+        stream.stop()
+
+    @property
+    def consumer_cpu_s(self) -> float:
+        """CPU seconds the consumer thread has used (0 when not streaming)."""
+        return self._stream.cpu_s if self._stream is not None else 0.0
+
+    @property
+    def consumer_thread(self) -> threading.Thread | None:
+        """The decode/pairing thread while streaming."""
+        return self._stream.thread if self._stream is not None else None
+
+    def get_block(self, timeout_s: float | None = None) -> SampleBlock | None:
+        """Return the next block of paired samples, or None if none came within ``timeout_s``."""
+        try:
+            return self.samples.get(timeout=timeout_s)
+        except queue.Empty:
+            return None
+
+    def read_samples(self, n: int, timeout_s: float) -> SampleBlock:
+        """At least ``n`` samples (blocks joined), or whatever came within ``timeout_s``."""
+        blocks: list[SampleBlock] = []
+        deadline = time.monotonic() + timeout_s
+        while sum(b.n for b in blocks) < n:
+            block = self.get_block(max(deadline - time.monotonic(), 0.0))
+            if block is None:
+                break
+            blocks.append(block)
+        return concat_blocks(blocks)
+
+    def close(self) -> None:
+        """Stop streaming, remove the node; stop our own notifier (the bus stays open)."""
+        self.stop_streaming()
+        self.network.unsubscribe(0x700 + self.node_id, self.heartbeat.on_frame)
+        if self.node_id in self.network:
+            del self.network[self.node_id]
+        if self._owns_network and self.network.notifier is not None:
+            self.network.notifier.stop(self.network.NOTIFIER_SHUTDOWN_TIMEOUT)
+
+    def __enter__(self) -> ImuClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class _Stream:
+    """Raw-frame queue (filled by the callback) and the consumer thread that pairs."""
+
+    def __init__(self, pairer: SamplePairer, out: queue.Queue[SampleBlock]) -> None:
+        self.pairer = pairer
+        self.out = out
+        self.raw: queue.SimpleQueue[tuple[int, bytes, float]] = queue.SimpleQueue()
+        self.stopping = threading.Event()
+        self.thread = threading.Thread(target=self._run, name="canimucal-stream", daemon=True)
+        self.cpu_s = 0.0
+
+    def cob_ids(self) -> list[int]:
+        """COB-IDs of the TPDOs the layout uses."""
+        layout = self.pairer.layout
+        ids = [layout.accel.cob_id, layout.gyro.cob_id]
+        return ids + ([layout.info.cob_id] if layout.info is not None else [])
+
+    def on_frame(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        """Receive callback (notifier thread): enqueue only."""
+        self.raw.put((can_id, bytes(data), timestamp))
+
+    def start(self) -> None:
+        """Start the consumer thread."""
+        self.thread.start()
+
+    def stop(self) -> None:
+        """Drain what was received, flush pending halves, hand out the last block."""
+        self.stopping.set()
+        self.thread.join()
+
+    def _run(self) -> None:
+        pairer, last_put = self.pairer, time.monotonic()
+        idle_s = max(2.0 * pairer.period_s, 0.005)
+        while True:
+            try:
+                pairer.feed(*self.raw.get(timeout=idle_s))
+                for _ in range(1024):
+                    pairer.feed(*self.raw.get_nowait())
+            except queue.Empty:
+                if self.stopping.is_set():
+                    break
+                pairer.expire(time.time())
+            now = time.monotonic()
+            if pairer.ready >= BATCH_MAX_ROWS or (
+                pairer.has_news() and now - last_put >= BATCH_INTERVAL_S
+            ):
+                self.out.put(pairer.take())
+                last_put = now
+            self.cpu_s = time.thread_time()
+        pairer.flush()
+        if pairer.has_news():
+            self.out.put(pairer.take())
+        self.cpu_s = time.thread_time()

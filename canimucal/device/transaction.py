@@ -1,0 +1,301 @@
+"""The transactional calibration write of DESIGN §4 ("Writing is transactional").
+
+(1) identity, serial check before anything is written; (2) nominal LSBs, the block, range
+checks before writing; (3) backup of the whole current block to a never-overwritten JSON;
+(4) clear valid; (5) write the block in CRC order; (6) read every value back, bytes compared
+bit-exactly; (7) write the CRC; (8) set valid; (9) verify valid and CRC; (10) store with
+0x1010:04 unless told not to, only after verification. Any failure after (4): the backup is
+written back (valid last) and verified; if that fails too, valid is left 0 if at all possible
+and :class:`RollbackIncompleteError` names the backup. Never valid = 1 over a mixed set.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from canimucal.device import od
+from canimucal.device.bus import SdoAbort
+from canimucal.device.calibration_map import (
+    backup_objects,
+    block_from_record,
+    record_dict,
+    record_from_readout,
+)
+from canimucal.device.client import CalibrationReadout, Identity, ImuClient
+from canimucal.errors import DeviceError, InputError
+from canimucal.io.atomic import unique_path, write_text_atomic
+from canimucal.io.calibration import calibration_to_json
+
+logger = logging.getLogger(__name__)
+
+ObjectKey = tuple[int, int]
+VALID_KEY: ObjectKey = (od.CAL_INFO, od.CAL_VALID_SUB)
+CRC_KEY: ObjectKey = (od.CAL_INFO, od.CAL_CRC_SUB)
+STORE_KEY: ObjectKey = (od.STORE, od.STORE_CALIBRATION_SUB)
+_BACKUP_ATTEMPTS = 20
+
+
+class RollbackIncompleteError(DeviceError):
+    """The backup could not be written back; the device is left invalid (exit 3)."""
+
+    title = "Rollback incomplete"
+
+    def __init__(self, backup_path: Path) -> None:
+        super().__init__(
+            f"rollback incomplete; device invalidated; restore with canimucal write-params "
+            f"{backup_path}"
+        )
+        self.backup_path = backup_path
+
+
+@dataclass(frozen=True)
+class PlannedWrite:
+    """One SDO download of the plan: object, encoding code, value and the exact bytes."""
+
+    index: int
+    sub: int
+    code: str
+    value: float | int
+    data: bytes
+
+    @property
+    def key(self) -> str:
+        """``"0x2100:01"``."""
+        return od.format_key(self.index, self.sub)
+
+
+@dataclass(frozen=True)
+class WriteReport:
+    """What the transaction did (or, with ``dry_run``, would do)."""
+
+    identity: Identity
+    accel_lsb: float
+    gyro_lsb: float
+    block: od.CalibrationBlock
+    crc: int
+    writes: tuple[PlannedWrite, ...]
+    backup_path: Path | None
+    stored: bool
+    dry_run: bool
+    serial_forced: bool
+    restore: bool
+
+
+def default_backup_dir(environ: Mapping[str, str] | None = None) -> Path:
+    """``$XDG_STATE_HOME/canimucal/backups``, else ``~/.local/state/canimucal/backups``."""
+    env = os.environ if environ is None else environ
+    state = env.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(state) / "canimucal" / "backups"
+
+
+def _planned(index: int, sub: int, code: str, value: float | int) -> PlannedWrite:
+    return PlannedWrite(index, sub, code, value, od.encode(code, value))
+
+
+def plan_writes(
+    target: Mapping[ObjectKey, float | int], crc: int, final_valid: int, *, store: bool
+) -> tuple[PlannedWrite, ...]:
+    """List the SDO downloads of steps 4–10 in order: valid 0, block, CRC, valid, store."""
+    writes = [_planned(*VALID_KEY, "u8", 0)]
+    writes += [_planned(i, s, c, target[(i, s)]) for i, s, c in od.CRC_ORDER]
+    writes += [_planned(*CRC_KEY, "u32", crc), _planned(*VALID_KEY, "u8", final_valid)]
+    if store:
+        writes.append(_planned(*STORE_KEY, "u32", od.SAVE_SIGNATURE))
+    return tuple(writes)
+
+
+def _target(
+    record: Any, accel_lsb: float, gyro_lsb: float
+) -> tuple[od.CalibrationBlock, dict[ObjectKey, float | int], int, int, bool]:
+    """Block, CRC-set values, CRC, final valid flag; a backup's ``objects`` taken verbatim."""
+    objects = backup_objects(record)
+    if objects is None:
+        block = block_from_record(record, accel_lsb, gyro_lsb)
+        values = block.to_objects()
+        return block, values, od.block_crc(values), 1, False
+    values = {(i, s): objects[(i, s)] for i, s, _ in od.CRC_ORDER}
+    block = od.CalibrationBlock.from_objects(values)
+    return block, values, int(objects[CRC_KEY]), int(objects[VALID_KEY]), True
+
+
+def _check_serial(identity: Identity, record: Any, force: bool) -> bool:
+    """Step 1: refuse another device's calibration unless forced; True if forced over one."""
+    wanted = int(record_dict(record)["device"]["serial"])
+    if identity.serial == wanted:
+        return False
+    if not force:
+        raise DeviceError(
+            f"device serial {identity.serial} differs from the calibration file's {wanted}; "
+            "nothing written (use --force to write anyway)"
+        )
+    logger.warning("writing serial %d's calibration to device %d (forced)", wanted, identity.serial)
+    return True
+
+
+def write_calibration_transaction(
+    client: ImuClient,
+    record: Any,
+    *,
+    force: bool = False,
+    store: bool = True,
+    backup_dir: str | os.PathLike[str] | None = None,
+    dry_run: bool = False,
+) -> WriteReport:
+    """Write ``record`` (a calibration or a backup with ``objects``) to the node, DESIGN §4.
+
+    Raises :class:`DeviceError` (exit 3) for a serial mismatch (nothing written) or a
+    failure that was rolled back, :class:`RollbackIncompleteError` when the rollback failed,
+    :class:`InputError` (exit 2) for values out of the device's ranges (nothing written).
+    """
+    identity = client.identity()  # step 1
+    forced = _check_serial(identity, record, force)
+    accel_lsb, gyro_lsb = client.nominal_lsb()  # step 2
+    block, values, crc, final_valid, restore = _target(record, accel_lsb, gyro_lsb)
+    problems = od.block_range_problems(block, accel_lsb, gyro_lsb)
+    if problems:
+        more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+        raise InputError(f"calibration outside the device's ranges: {problems[0]}{more}")
+    if final_valid == 1 and restore and od.block_crc(values) != crc:
+        logger.warning("backup's CRC does not match its values: restoring it verbatim")
+    writes = plan_writes(values, crc, final_valid, store=store)
+    report = WriteReport(
+        identity, accel_lsb, gyro_lsb, block, crc, writes, None, False, dry_run, forced, restore
+    )
+    if dry_run:
+        return report
+    before = client.read_calibration_block()  # step 3
+    backup_path = save_backup(before, identity, client.node_id, backup_dir)
+    _run_with_rollback(client, writes, before, backup_path)
+    return replace(report, backup_path=backup_path, stored=store)
+
+
+def save_backup(
+    readout: CalibrationReadout,
+    identity: Identity,
+    node_id: int,
+    backup_dir: str | os.PathLike[str] | None,
+) -> Path:
+    """Step 3: write the current block as ``<serial>-<UTC ms>[-N].json`` (never overwritten)."""
+    directory = Path(backup_dir) if backup_dir is not None else default_backup_dir()
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create backup directory {directory}: {exc.strerror}") from exc
+    now = datetime.now(UTC)
+    stamp = now.strftime("%Y%m%dT%H%M%S.") + f"{now.microsecond // 1000:03d}Z"
+    record = record_from_readout(readout, identity, node_id)
+    text = calibration_to_json(record)
+    for _ in range(_BACKUP_ATTEMPTS):
+        path = unique_path(directory, f"{identity.serial}-{stamp}", ".json")
+        try:
+            write_text_atomic(path, text, overwrite=False)
+        except InputError:
+            if path.exists():
+                continue  # taken between the check and the write: next name
+            raise
+        logger.info("backup of the device's calibration: %s", path)
+        return path
+    raise InputError(f"no free backup name in {directory}")
+
+
+def _run_with_rollback(
+    client: ImuClient,
+    writes: tuple[PlannedWrite, ...],
+    before: CalibrationReadout,
+    backup_path: Path,
+) -> None:
+    """Run steps 4–10; on failure restore ``before`` or raise RollbackIncompleteError."""
+    step = "clear valid"
+    try:
+        for step, batch in _steps(writes):
+            _do_step(client, step, batch)
+    except KeyboardInterrupt:
+        logger.error("interrupted at %s; rolling back", step)
+        _rollback(client, before, backup_path)
+        raise
+    except DeviceError as exc:
+        verb = "refused" if isinstance(exc, SdoAbort) else "failed"
+        logger.error("calibration write %s at %s: %s; rolling back", verb, step, exc)
+        _rollback(client, before, backup_path)
+        raise DeviceError(
+            f"calibration write {verb} at {step}: {exc}; previous calibration restored from "
+            f"{backup_path}"
+        ) from exc
+
+
+def _rollback(client: ImuClient, before: CalibrationReadout, backup_path: Path) -> None:
+    """Write the backup back; RollbackIncompleteError (valid left 0 if possible) on failure."""
+    try:
+        restore_readout(client, before)
+    except DeviceError as rollback_exc:
+        logger.error("rollback failed: %s", rollback_exc)
+        _invalidate_best_effort(client)
+        raise RollbackIncompleteError(backup_path) from rollback_exc
+
+
+def _steps(writes: tuple[PlannedWrite, ...]) -> list[tuple[str, list[PlannedWrite]]]:
+    """Group the plan into named steps; ``verify`` steps read back what precedes them."""
+    n_block = len(od.CRC_ORDER)
+    block = list(writes[1 : 1 + n_block])
+    crc, valid = writes[1 + n_block], writes[2 + n_block]
+    steps = [
+        ("clear valid", [writes[0]]),
+        ("write block", block),
+        ("verify block", block),
+        ("write CRC", [crc]),
+        ("set valid", [valid]),
+        ("verify valid and CRC", [crc, valid]),
+    ]
+    if len(writes) > 3 + n_block:
+        steps.append(("store", [writes[3 + n_block]]))
+    return steps
+
+
+def _do_step(client: ImuClient, step: str, batch: list[PlannedWrite]) -> None:
+    if step.startswith("verify"):
+        verify_bytes(client, batch)
+        return
+    for write in batch:
+        client.sdo.download(write.index, write.sub, write.data)
+
+
+def verify_bytes(client: ImuClient, writes: list[PlannedWrite]) -> None:
+    """Read each object back; DeviceError naming the first whose bytes differ."""
+    for write in writes:
+        got = client.read_raw(write.index, write.sub, write.code)
+        if got != write.data:
+            raise DeviceError(
+                f"{write.key} read back {got.hex()}, wrote {write.data.hex()} (mismatch)"
+            )
+
+
+def restore_readout(client: ImuClient, before: CalibrationReadout) -> None:
+    """Write a read-out block back byte for byte (valid 0 first, valid last) and verify."""
+    raw = before.raw
+    writes = [_planned(*VALID_KEY, "u8", 0)]
+    for index, sub, code in od.CRC_ORDER:
+        data = raw[(index, sub)]
+        writes.append(PlannedWrite(index, sub, code, od.decode(code, data), data))
+    crc_raw, valid_raw = raw[CRC_KEY], raw[VALID_KEY]
+    crc_write = PlannedWrite(*CRC_KEY, "u32", od.decode("u32", crc_raw), crc_raw)
+    valid_write = PlannedWrite(*VALID_KEY, "u8", od.decode("u8", valid_raw), valid_raw)
+    for write in writes + [crc_write]:
+        client.sdo.download(write.index, write.sub, write.data)
+    verify_bytes(client, writes[1:] + [crc_write])
+    client.sdo.download(valid_write.index, valid_write.sub, valid_write.data)
+    verify_bytes(client, [valid_write, crc_write])
+    logger.info("previous calibration written back and verified")
+
+
+def _invalidate_best_effort(client: ImuClient) -> None:
+    """Try once more to leave valid = 0; a silent device cannot be helped."""
+    try:
+        client.sdo.download(*VALID_KEY, od.encode("u8", 0))
+    except DeviceError as exc:
+        logger.error("could not clear the valid flag either: %s", exc)
