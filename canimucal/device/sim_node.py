@@ -142,6 +142,7 @@ class SimulatedImuNode:
     def stop(self) -> None:
         """Stop sampling and heartbeats and leave the network (the bus stays open)."""
         if not self._started:
+            self._stop_own_notifier()
             return
         self._started = False
         self._producer.stop()
@@ -150,9 +151,13 @@ class SimulatedImuNode:
         self._network.unsubscribe(SYNC_COB_ID, self._on_sync)
         if self._network.nodes.get(self.node_id) is self._node:
             del self._network[self.node_id]
+        self._stop_own_notifier()
+        log.info("simulated IMU node %d stopped", self.node_id)
+
+    def _stop_own_notifier(self) -> None:
+        """Stop the notifier of a network this node made itself (never a caller's)."""
         if self._own_network and self._network.notifier is not None:
             self._network.notifier.stop(self._network.NOTIFIER_SHUTDOWN_TIMEOUT)
-        log.info("simulated IMU node %d stopped", self.node_id)
 
     def __enter__(self) -> SimulatedImuNode:
         return self.start()

@@ -1,0 +1,115 @@
+"""Atomic file writes and collision-free names (DESIGN §7: `--overwrite` rules).
+
+A file is written to a temporary sibling, flushed and fsynced, then moved into place in one
+``rename``: a reader sees either the old file or the complete new one, never a partial file.
+Without ``overwrite`` the move is a hard link, which the kernel refuses when the target exists,
+so even a file created concurrently is never replaced.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import secrets
+from pathlib import Path
+
+from canimucal.errors import InputError
+
+logger = logging.getLogger(__name__)
+
+_MAX_UNIQUE = 10_000
+"""How many ``stem-N`` candidates :func:`unique_path` tries before giving up."""
+
+
+def write_text_atomic(path: str | os.PathLike[str], text: str, *, overwrite: bool) -> Path:
+    """Write ``text`` (UTF-8, LF line ends) to ``path`` atomically and return the path.
+
+    Raises :class:`InputError` when ``path`` exists and ``overwrite`` is false, or when the
+    file cannot be written (missing directory, permissions). No temporary file is left behind.
+    """
+    return write_bytes_atomic(path, text.encode("utf-8"), overwrite=overwrite)
+
+
+def write_bytes_atomic(path: str | os.PathLike[str], data: bytes, *, overwrite: bool) -> Path:
+    """Write ``data`` to ``path`` atomically (see :func:`write_text_atomic`)."""
+    target = Path(path)
+    refuse_existing(target, overwrite=overwrite)
+    tmp = temporary_sibling(target)
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        move_into_place(tmp, target, overwrite=overwrite)
+    except OSError as exc:
+        raise InputError(f"cannot write {target}: {exc.strerror or exc}") from exc
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+    logger.debug("wrote %s (%d bytes)", target, len(data))
+    return target
+
+
+def refuse_existing(path: Path, *, overwrite: bool) -> None:
+    """Raise :class:`InputError` when ``path`` exists and ``overwrite`` is false."""
+    if not overwrite and os.path.lexists(path):
+        raise InputError(f"{path} exists; use --overwrite to replace it")
+
+
+def temporary_sibling(path: Path) -> Path:
+    """Return a fresh hidden name next to ``path`` (same directory, so a rename is atomic)."""
+    return path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
+
+
+def move_into_place(source: Path, target: Path, *, overwrite: bool) -> None:
+    """Rename ``source`` to ``target``; without ``overwrite`` never replace an existing file.
+
+    The directory is fsynced afterwards so the new name survives a power cut.
+    """
+    if overwrite:
+        os.replace(source, target)
+    else:
+        try:
+            os.link(source, target)
+        except FileExistsError as exc:
+            raise InputError(f"{target} exists; use --overwrite to replace it") from exc
+        except OSError:
+            # File systems without hard links: a check-then-rename is the best available.
+            refuse_existing(target, overwrite=False)
+            os.replace(source, target)
+        else:
+            os.unlink(source)
+    _fsync_directory(target.parent)
+
+
+def _fsync_directory(directory: Path) -> None:
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def unique_path(directory: str | os.PathLike[str], stem: str, suffix: str) -> Path:
+    """First free name of ``stem.suffix``, ``stem-1.suffix``, ``stem-2.suffix``, … in ``directory``.
+
+    Used for backups, which are never overwritten. ``suffix`` may be given with or without
+    its dot. The name is only free at the time of the call: write it with ``overwrite=False``.
+    """
+    if not stem or "/" in stem or os.sep in stem:
+        raise InputError(f"invalid file stem {stem!r}")
+    dot_suffix = suffix if suffix.startswith(".") or not suffix else f".{suffix}"
+    base = Path(directory)
+    for number in range(_MAX_UNIQUE):
+        name = f"{stem}{dot_suffix}" if number == 0 else f"{stem}-{number}{dot_suffix}"
+        candidate = base / name
+        if not os.path.lexists(candidate):
+            return candidate
+    raise InputError(f"no free name for {stem}{dot_suffix} in {base}")

@@ -1,0 +1,113 @@
+"""From a recording to per-position averages: rows grouped by their ``position`` label.
+
+Angles come from the recording (degrees in the file, radians in the :class:`Pose`). A
+recording without angles for its positions supports only the scalar ``|f| = g`` methods:
+check :func:`has_angles` first, or ask for poses with NaN angles (``require_angles=False``).
+
+``lost`` of a position counts its samples with a PDO half missing: rows with an empty accel
+or gyro half (gyro only when the recording has gyro data at all) plus the samples absent
+altogether, seen as gaps in the wrapping 16-bit sample counter between consecutive rows.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+from numpy.typing import NDArray
+
+from canimucal.errors import InputError
+from canimucal.io.recording import Recording
+from canimucal.model.positions import Pose, PositionAverage, average_position
+
+logger = logging.getLogger(__name__)
+
+COUNTER_MODULUS = 65536
+"""The sample counter 0x2002:02 is a U16 that wraps (DESIGN §4)."""
+
+
+def position_labels(recording: Recording) -> list[int]:
+    """Return the distinct position labels of ``recording``, ascending (empty rows skipped)."""
+    labels = np.unique(recording.position[recording.position >= 0])
+    return [int(x) for x in labels.tolist()]
+
+
+def has_angles(recording: Recording) -> bool:
+    """Tell whether there are labelled positions and every one carries its angles."""
+    labelled = recording.position >= 0
+    if not labelled.any():
+        return False
+    angles = np.column_stack([recording.alpha_deg, recording.beta_deg, recording.psi_deg])
+    return bool(np.isfinite(angles[labelled]).all())
+
+
+def position_averages(
+    recording: Recording, *, tolerance_deg: float = 0.1, require_angles: bool = True
+) -> list[PositionAverage]:
+    """One :class:`PositionAverage` per position label, in ascending label order.
+
+    ``tolerance_deg`` becomes each pose's 1σ angle-setting error. A labelled position without
+    angles raises :class:`InputError` unless ``require_angles`` is false, in which case its
+    pose has NaN angles (for the scalar methods only).
+    """
+    if not np.isfinite(tolerance_deg) or tolerance_deg < 0:
+        raise InputError(f"tolerance_deg must be a finite number >= 0, got {tolerance_deg}")
+    labels = position_labels(recording)
+    if not labels:
+        raise InputError(f"{recording.source or 'recording'}: no labelled position")
+    return [
+        _average_one(recording, label, float(np.deg2rad(tolerance_deg)), require_angles)
+        for label in labels
+    ]
+
+
+def _average_one(
+    recording: Recording, label: int, tolerance_rad: float, require_angles: bool
+) -> PositionAverage:
+    rows = np.flatnonzero(recording.position == label)
+    first = rows[0]
+    angles_deg = [recording.alpha_deg[first], recording.beta_deg[first], recording.psi_deg[first]]
+    if not np.all(np.isfinite(angles_deg)) and require_angles:
+        raise InputError(
+            f"{recording.source or 'recording'}: position {label} has no angles "
+            "(only scalar |f| = g methods apply)"
+        )
+    alpha, beta, psi = (float(x) for x in np.deg2rad(angles_deg))
+    temps = recording.temp_c[rows]
+    temp_c = float(np.mean(temps[np.isfinite(temps)])) if np.isfinite(temps).any() else None
+    try:
+        return average_position(
+            Pose(alpha, beta, psi, tolerance_rad),
+            recording.accel[rows],
+            recording.gyro[rows] if np.isfinite(recording.gyro).any() else None,
+            sample_rate_hz=recording.sample_rate_hz,
+            temp_c=temp_c,
+            lost=lost_samples(recording, rows),
+        )
+    except ValueError as exc:
+        raise InputError(f"{recording.source or 'recording'}: position {label}: {exc}") from exc
+
+
+def lost_samples(recording: Recording, rows: NDArray[np.intp]) -> int:
+    """Count samples of ``rows`` (one position) with a PDO half missing, counter gaps included."""
+    half_missing = np.isnan(recording.accel[rows, 0])
+    if np.isfinite(recording.gyro).any():
+        half_missing |= np.isnan(recording.gyro[rows, 0])
+    return int(half_missing.sum()) + _counter_gaps(recording.counter[rows], rows)
+
+
+def _counter_gaps(counter: NDArray[np.float64], rows: NDArray[np.intp]) -> int:
+    """Count samples skipped between consecutive rows of one run (the counter wraps).
+
+    A run ends where rows of another label (motion, another position) come in between: the
+    samples there are not lost. A row with an empty counter is a sample present, not a gap.
+    """
+    run = np.concatenate([[0], np.cumsum(np.diff(rows) > 1)])
+    known = np.flatnonzero(np.isfinite(counter))
+    if known.size < 2:
+        return 0
+    step = np.mod(np.diff(counter[known]), COUNTER_MODULUS)
+    skipped = np.diff(known) - 1  # rows present between them whose counter is empty
+    same_run = np.diff(run[known]) == 0
+    gaps = np.where(same_run, np.maximum(step - 1 - skipped, 0), 0)
+    return int(gaps.sum())

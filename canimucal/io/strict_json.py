@@ -1,0 +1,317 @@
+"""Strict JSON for the tool's files: parsing with located errors, and dataclass schemas.
+
+``parse_json`` refuses ``NaN``/``Infinity`` literals and duplicate keys and reports syntax
+errors as ``FILE:LINE:COLUMN``. A schema is a frozen dataclass whose fields carry a checker
+in their metadata (``field(metadata=number(...))``); :func:`build` turns a parsed object into
+it, refusing unknown keys and naming the key path of every problem.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import re
+from collections.abc import Callable
+from dataclasses import MISSING, fields, is_dataclass
+from datetime import datetime
+from pathlib import Path
+from typing import Any, TypeVar
+
+from canimucal.errors import InputError
+
+T = TypeVar("T")
+Checker = Callable[[Any, str], Any]
+"""Validates one non-null value found at a key path and returns it normalised."""
+
+PARAMETER_NAME = re.compile(
+    r"(accel|gyro)\.bias\[[0-2]\]|(accel\.K|gyro\.S|gyro\.G)\[[0-2]\]\[[0-2]\]"
+    r"|base_tilt\.(alpha0|beta0)"
+)
+"""Names of the parameter vector (the calibration JSON's ``covariance.order``)."""
+
+OBJECT_KEY = re.compile(r"0x[0-9A-Fa-f]{4}:[0-9A-Fa-f]{2}")
+"""Keys of a backup's ``objects`` map, e.g. ``0x2100:01``."""
+
+
+class SchemaError(Exception):
+    """A value that does not fit its schema; the message starts with the key path."""
+
+
+class _NotFinite(ValueError):
+    pass
+
+
+class _DuplicateKey(ValueError):
+    pass
+
+
+# ------------------------------------------------------------------------- text and JSON
+
+
+def load_text(path_or_text: str | os.PathLike[str], what: str) -> tuple[str, str]:
+    """Return ``(source name, text)``: a ``str`` starting with ``{`` is text, else a path."""
+    if isinstance(path_or_text, str) and path_or_text.lstrip().startswith("{"):
+        return what, path_or_text
+    return str(path_or_text), read_text(path_or_text)
+
+
+def read_text(path: str | os.PathLike[str]) -> str:
+    """Read a UTF-8 file; unreadable or undecodable files raise :class:`InputError`."""
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not UTF-8 text") from None
+    except OSError as exc:
+        raise InputError(f"cannot read {path}: {exc.strerror or exc}") from exc
+
+
+def parse_json(text: str, source: str) -> Any:
+    """Parse JSON text; syntax errors, non-finite literals and duplicate keys are refused."""
+    try:
+        return json.loads(text, parse_constant=_refuse_constant, object_pairs_hook=_no_dupes)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{source}:{exc.lineno}:{exc.colno}: invalid JSON ({exc.msg})") from None
+    except _NotFinite as exc:
+        raise InputError(f"{source}: {exc} is not allowed (numbers must be finite)") from None
+    except _DuplicateKey as exc:
+        raise InputError(f"{source}: duplicate key {exc}") from None
+    except RecursionError:
+        raise InputError(f"{source}: JSON nested too deeply") from None
+
+
+def _refuse_constant(name: str) -> Any:
+    raise _NotFinite(name)
+
+
+def _no_dupes(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise _DuplicateKey(repr(key))
+        out[key] = value
+    return out
+
+
+def sha256_of(path: str | os.PathLike[str]) -> str:
+    """Hex SHA-256 of a file's bytes; unreadable files raise :class:`InputError`."""
+    digest = hashlib.sha256()
+    try:
+        with open(path, "rb") as handle:
+            for chunk in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(chunk)
+    except OSError as exc:
+        raise InputError(f"cannot read {path}: {exc.strerror or exc}") from exc
+    return digest.hexdigest()
+
+
+# ----------------------------------------------------------------------------- schemas
+
+
+def build(cls: type[T], obj: Any, path: str) -> T:
+    """Instantiate the schema dataclass ``cls`` from the parsed object ``obj``."""
+    if not isinstance(obj, dict):
+        raise SchemaError(f"{path or 'top level'}: must be an object")
+    known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]
+    for key in obj:
+        if key not in known:
+            raise SchemaError(f"unknown key {_join(path, key)!r}")
+    kwargs = {}
+    for name, spec in known.items():
+        sub = _join(path, name)
+        value = obj.get(name)
+        if value is None:
+            if spec.default is MISSING and spec.default_factory is MISSING:
+                raise SchemaError(f"{sub}: required" + (" (null given)" if name in obj else ""))
+            continue
+        kwargs[name] = spec.metadata["check"](value, sub)
+    return cls(**kwargs)
+
+
+def to_plain(value: Any) -> Any:
+    """Convert a schema dataclass to plain JSON types (``None`` fields omitted, tuples as lists)."""
+    if is_dataclass(value) and not isinstance(value, type):
+        return {
+            f.name: to_plain(getattr(value, f.name))
+            for f in fields(value)
+            if getattr(value, f.name) is not None
+        }
+    if isinstance(value, tuple | list):
+        return [to_plain(v) for v in value]
+    if isinstance(value, dict):
+        return {k: to_plain(v) for k, v in value.items()}
+    return value
+
+
+def _join(path: str, key: str) -> str:
+    return f"{path}.{key}" if path else key
+
+
+def _meta(check: Checker) -> dict[str, Checker]:
+    return {"check": check}
+
+
+def as_number(value: Any, path: str) -> float:
+    """Check a finite JSON number (bools refused) and return it as float."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise SchemaError(f"{path}: must be a number, got {type(value).__name__}")
+    try:
+        number = float(value)
+    except OverflowError:
+        raise SchemaError(f"{path}: number out of range") from None
+    if not math.isfinite(number):
+        raise SchemaError(f"{path}: must be finite")
+    return number
+
+
+def number(
+    low: float | None = None, high: float | None = None, *, open_low: bool = False
+) -> dict[str, Checker]:
+    """Field metadata: a finite number within ``[low, high]`` (``(low`` with ``open_low``)."""
+
+    def check(value: Any, path: str) -> float:
+        x = as_number(value, path)
+        if low is not None and (x < low or (open_low and x == low)):
+            raise SchemaError(f"{path}: must be {'>' if open_low else '≥'} {low:g}, got {x:g}")
+        if high is not None and x > high:
+            raise SchemaError(f"{path}: must be ≤ {high:g}, got {x:g}")
+        return x
+
+    return _meta(check)
+
+
+def integer(low: int, high: int | None) -> dict[str, Checker]:
+    """Field metadata: an integer (not a bool, not a float) within ``[low, high]``."""
+
+    def check(value: Any, path: str) -> int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise SchemaError(f"{path}: must be an integer, got {type(value).__name__}")
+        if value < low or (high is not None and value > high):
+            bound = f"{low}..{high}" if high is not None else f"≥ {low}"
+            raise SchemaError(f"{path}: must be {bound}, got {value}")
+        return value
+
+    return _meta(check)
+
+
+def text(choices: tuple[str, ...] | None = None, pattern: str | None = None) -> dict[str, Checker]:
+    """Field metadata: a string, optionally one of ``choices`` or matching ``pattern``."""
+
+    def check(value: Any, path: str) -> str:
+        if not isinstance(value, str):
+            raise SchemaError(f"{path}: must be a string, got {type(value).__name__}")
+        if choices is not None and value not in choices:
+            raise SchemaError(f"{path}: must be one of {', '.join(choices)}, got {value!r}")
+        if pattern is not None and not re.fullmatch(pattern, value):
+            raise SchemaError(f"{path}: malformed value {value[:40]!r}")
+        return value
+
+    return _meta(check)
+
+
+def boolean() -> dict[str, Checker]:
+    """Field metadata: ``true`` or ``false``."""
+
+    def check(value: Any, path: str) -> bool:
+        if not isinstance(value, bool):
+            raise SchemaError(f"{path}: must be true or false")
+        return value
+
+    return _meta(check)
+
+
+def timestamp() -> dict[str, Checker]:
+    """Field metadata: an ISO 8601 time such as ``2026-01-01T00:00:00Z``."""
+
+    def check(value: Any, path: str) -> str:
+        if not isinstance(value, str):
+            raise SchemaError(f"{path}: must be an ISO 8601 time string")
+        try:
+            datetime.fromisoformat(value)
+        except ValueError:
+            raise SchemaError(f"{path}: not an ISO 8601 time: {value[:40]!r}") from None
+        return value
+
+    return _meta(check)
+
+
+def array(shape: tuple[int, ...]) -> dict[str, Checker]:
+    """Field metadata: nested lists of the given shape; entries are numbers or ``null``."""
+
+    def check(value: Any, path: str, depth: int = 0) -> tuple[Any, ...]:
+        dims = "x".join(map(str, shape[depth:]))
+        if not isinstance(value, list) or len(value) != shape[depth]:
+            raise SchemaError(f"{path}: must be a {dims} array")
+        if depth == len(shape) - 1:
+            return tuple(
+                None if v is None else as_number(v, f"{path}[{i}]") for i, v in enumerate(value)
+            )
+        return tuple(check(v, f"{path}[{i}]", depth + 1) for i, v in enumerate(value))
+
+    return _meta(check)
+
+
+def block(cls: type) -> dict[str, Checker]:
+    """Field metadata: a nested object of schema ``cls``."""
+    return _meta(lambda value, path: build(cls, value, path))
+
+
+def block_list(cls: type) -> dict[str, Checker]:
+    """Field metadata: a list of objects of schema ``cls``."""
+
+    def check(value: Any, path: str) -> tuple[Any, ...]:
+        if not isinstance(value, list):
+            raise SchemaError(f"{path}: must be a list")
+        return tuple(build(cls, item, f"{path}[{i}]") for i, item in enumerate(value))
+
+    return _meta(check)
+
+
+def names() -> dict[str, Checker]:
+    """Field metadata: distinct parameter names (``accel.bias[0]``, ``base_tilt.alpha0``…)."""
+
+    def check(value: Any, path: str) -> tuple[str, ...]:
+        if not isinstance(value, list):
+            raise SchemaError(f"{path}: must be a list of parameter names")
+        for i, name in enumerate(value):
+            if not isinstance(name, str) or not PARAMETER_NAME.fullmatch(name):
+                raise SchemaError(f"{path}[{i}]: unknown parameter name {str(name)[:40]!r}")
+        if len(set(value)) != len(value):
+            raise SchemaError(f"{path}: repeated parameter name")
+        return tuple(value)
+
+    return _meta(check)
+
+
+def square() -> dict[str, Checker]:
+    """Field metadata: an n×n matrix of finite numbers (no ``null``)."""
+
+    def check(value: Any, path: str) -> tuple[tuple[float, ...], ...]:
+        if not isinstance(value, list):
+            raise SchemaError(f"{path}: must be a square matrix")
+        rows = []
+        for i, row in enumerate(value):
+            if not isinstance(row, list) or len(row) != len(value):
+                raise SchemaError(f"{path}: must be a square matrix (row {i})")
+            rows.append(tuple(as_number(v, f"{path}[{i}][{j}]") for j, v in enumerate(row)))
+        return tuple(rows)
+
+    return _meta(check)
+
+
+def objects() -> dict[str, Checker]:
+    """Field metadata: ``{"0x2100:01": value}`` raw device values, type (int/float) kept."""
+
+    def check(value: Any, path: str) -> dict[str, int | float]:
+        if not isinstance(value, dict):
+            raise SchemaError(f"{path}: must be an object")
+        out: dict[str, int | float] = {}
+        for key, raw in value.items():
+            if not OBJECT_KEY.fullmatch(key):
+                raise SchemaError(f"{path}: malformed object key {key[:40]!r} (want 0x2100:01)")
+            as_number(raw, f"{path}.{key}")
+            out[key] = raw
+        return out
+
+    return _meta(check)
