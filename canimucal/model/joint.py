@@ -1,0 +1,392 @@
+"""Joint least-squares calibration of bias, K, base tilt and gyro terms, with uncertainty.
+
+All positions and channels are fitted at once with ``scipy.optimize.least_squares`` on
+residuals whitened by each position's covariance. The angle-setting tolerances enter that
+covariance (errors in variables): ``Σ_i = cov_i + J_i diag(tol²) J_iᵀ`` with ``J_i`` the
+derivative of the predicted mean with respect to the position's angles, plus the
+second-order terms (a mean shift and a covariance ``½ tr(H_a T H_b T)``) that matter at
+tolerances near 1°; all re-evaluated at the estimate over a few passes. The forward model
+lives in :mod:`canimucal.model.layout`; the information analysis in :mod:`.plan`.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.linalg import qr
+from scipy.optimize import OptimizeResult, least_squares
+
+from canimucal.errors import ModelError
+from canimucal.model.frames import body_vectors
+from canimucal.model.layout import (
+    JointSpec,
+    ModelContext,
+    ModelParams,
+    ParameterLayout,
+    angle_error_moments,
+    nominal_theta,
+    predict,
+)
+from canimucal.model.plan import NOT_IDENTIFIABLE_RATIO, Separability, analyse_information
+from canimucal.model.positions import PositionAverage
+from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, AccelParams, GyroParams
+
+log = logging.getLogger(__name__)
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class JointResult:
+    """Frozen result of :func:`solve_joint` (units: counts, counts per m/s², radians).
+
+    ``values`` and ``covariance`` follow ``names``; undetermined parameters are NaN there and
+    listed with their reason in ``undetermined``. ``residuals`` are observed − predicted,
+    ``(n_positions, channels)`` counts; ``jacobian`` is that of the whitened residuals.
+    """
+
+    names: tuple[str, ...]
+    values: Array
+    covariance: Array
+    residuals: Array
+    whitened_residuals: Array
+    jacobian: Array
+    dof: int
+    chi2: float
+    converged: bool
+    message: str
+    rms_accel_ms2: float
+    separability: Separability
+    spec: JointSpec
+    accel_lsb: float = DEFAULT_ACCEL_LSB
+    gyro_lsb: float = DEFAULT_GYRO_LSB
+    undetermined: Mapping[str, str] = field(default_factory=dict)
+
+    def value(self, name: str) -> float:
+        """Return the estimate of parameter ``name`` (NaN when undetermined)."""
+        return float(self.values[self._index(name)])
+
+    def sigma(self, name: str) -> float:
+        """Return the standard deviation of parameter ``name`` (NaN when undetermined)."""
+        k = self._index(name)
+        return float(np.sqrt(self.covariance[k, k]))
+
+    def _index(self, name: str) -> int:
+        if name not in self.names:
+            raise ModelError(f"no parameter {name!r} in this result")
+        return self.names.index(name)
+
+    def _params(self) -> ModelParams:
+        layout = ParameterLayout.of(self.spec)
+        nominal = nominal_theta(layout, self.accel_lsb, self.gyro_lsb)
+        theta = np.where(np.isnan(self.values), nominal, self.values)
+        return layout.unpack(theta, self.gyro_lsb)
+
+    def accel_params(self) -> AccelParams:
+        """Accelerometer bias and K (undetermined entries at their nominal values)."""
+        p = self._params()
+        return AccelParams(p.accel_bias, p.K)
+
+    def gyro_params(self) -> GyroParams | None:
+        """Gyro bias, S and G, or None when no gyro was fitted (nominal where not estimated)."""
+        if self.spec.gyro == "none":
+            return None
+        p = self._params()
+        return GyroParams(p.gyro_bias, p.S, p.G)
+
+    @property
+    def tilt(self) -> tuple[float, float]:
+        """Base tilt ``(alpha0, beta0)`` in radians (zeros when not estimated)."""
+        p = self._params()
+        return p.alpha0, p.beta0
+
+
+@dataclass(frozen=True)
+class _Data:
+    """Validated input arrays: angles ``(n, 3)``, observations ``(n, m)``, covariances."""
+
+    angles: Array
+    observed: Array
+    base_cov: Array
+    tolerances: Array
+
+
+def solve_joint(
+    averages: Sequence[PositionAverage],
+    spec: JointSpec,
+    *,
+    g: float,
+    latitude: float | None = None,
+    heading: float = 0.0,
+    accel_lsb: float = DEFAULT_ACCEL_LSB,
+    gyro_lsb: float = DEFAULT_GYRO_LSB,
+    initial: Mapping[str, float] | None = None,
+    allow_undetermined: bool = False,
+    passes: int = 3,
+) -> JointResult:
+    """Fit ``spec`` to the position averages by whitened nonlinear least squares.
+
+    ``g`` m/s², ``latitude``/``heading`` radians (the Earth-rate term of the gyro model).
+    ``initial`` overrides starting values by parameter name. A plan that cannot determine
+    some parameters raises :class:`ModelError`, or with ``allow_undetermined`` holds them at
+    their starting values and reports them in ``JointResult.undetermined`` (values NaN).
+    """
+    data = _validate(averages, spec, g, latitude, allow_undetermined)
+    layout = ParameterLayout.of(spec)
+    ctx = ModelContext.build(g, latitude, heading, gyro_lsb)
+    theta = _initial_guess(layout, data, ctx, accel_lsb, gyro_lsb)
+    for name, value in (initial or {}).items():
+        theta[layout.index(name)] = float(value)
+    scales = layout.effect_scales(g, 1.0 / accel_lsb)
+    check = analyse_information(*_whitened_information(layout, theta, data, ctx), scales)
+    free = _free_mask(layout, check, allow_undetermined)
+    message, converged = "", True
+    for _ in range(max(1, passes)):
+        weights = _weights(layout, theta, data, ctx)
+        fit = _least_squares(_Problem(layout, theta, free, weights, data, ctx))
+        theta[free] = fit.x
+        message, converged = str(fit.message), bool(fit.status > 0)
+    return _result(layout, theta, free, data, ctx, (converged, message), (accel_lsb, gyro_lsb))
+
+
+def _validate(
+    averages: Sequence[PositionAverage],
+    spec: JointSpec,
+    g: float,
+    latitude: float | None,
+    allow_undetermined: bool,
+) -> _Data:
+    if not np.isfinite(g) or g <= 0:
+        raise ModelError(f"g must be a positive finite number, got {g!r}")
+    if spec.gyro == "nav" and latitude is None:
+        raise ModelError("gyro model 'nav' needs a latitude (its scale comes from Earth rate)")
+    n, m = len(averages), spec.channels
+    p = ParameterLayout.of(spec).size
+    if n == 0:
+        raise ModelError("no positions given")
+    if n * m < p and not allow_undetermined:
+        need = -(-p // m)
+        raise ModelError(
+            f"the model has {p} parameters but {n} positions give only {n * m} equations; "
+            f"need at least {need} positions"
+        )
+    obs, cov = np.zeros((n, m)), np.zeros((n, m, m))
+    for k, a in enumerate(averages):
+        obs[k, :3], cov[k, :3, :3] = _checked(k, "accel", a.mean_accel, a.cov_accel)
+        if m == 6:
+            if a.mean_gyro is None or a.cov_gyro is None:
+                raise ModelError(f"gyro model {spec.gyro!r} needs gyro data; position {k} has none")
+            obs[k, 3:], cov[k, 3:, 3:] = _checked(k, "gyro", a.mean_gyro, a.cov_gyro)
+    angles = np.array([a.pose.angles for a in averages], dtype=float)
+    tol = np.array([a.pose.tolerance for a in averages], dtype=float)
+    if not (np.all(np.isfinite(angles)) and np.all(np.isfinite(tol)) and np.all(tol >= 0)):
+        raise ModelError("position angles and tolerances must be finite (tolerance >= 0)")
+    return _Data(angles, obs, cov, tol)
+
+
+def _checked(k: int, what: str, mean: object, cov: object) -> tuple[Array, Array]:
+    mu = np.asarray(mean, dtype=float)
+    c = np.asarray(cov, dtype=float)
+    if mu.shape != (3,) or c.shape != (3, 3):
+        raise ModelError(f"position {k}: {what} mean must be (3,) and covariance (3, 3)")
+    if not (np.all(np.isfinite(mu)) and np.all(np.isfinite(c))):
+        raise ModelError(f"position {k}: {what} mean or covariance has NaN/infinite values")
+    try:
+        np.linalg.cholesky(0.5 * (c + c.T))
+    except np.linalg.LinAlgError:
+        raise ModelError(f"position {k}: {what} covariance is not positive definite") from None
+    return mu, c
+
+
+def _initial_guess(
+    layout: ParameterLayout, data: _Data, ctx: ModelContext, accel_lsb: float, gyro_lsb: float
+) -> Array:
+    """Nominal K and S (sign kept), biases (and K, S, G where possible) from a linear fit.
+
+    The fit assumes zero base tilt: ``U_i = b_i + Σ_j K_ij f_j`` per channel (eq. 8).
+    """
+    nominal = layout.unpack(nominal_theta(layout, accel_lsb, gyro_lsb), gyro_lsb)
+    f = body_vectors(data.angles, ctx.f_level)
+    w = body_vectors(data.angles, ctx.w_level)
+    u, v = data.observed[:, :3], data.observed[:, 3:]
+    bias, k = _linear_rows(u, f, nominal.K, layout.k_entries)
+    gb, s, gg = nominal.gyro_bias, nominal.S, nominal.G
+    if layout.spec.gyro != "none":
+        gb, s = _linear_rows(v - f @ gg.T, w, nominal.S, layout.s_entries)
+        if layout.g_entries:
+            gb, gg = _linear_rows(v - w @ s.T, f, gg, layout.g_entries)
+    return layout.pack(ModelParams(bias, k, 0.0, 0.0, gb, s, gg))
+
+
+def _linear_rows(
+    y: Array, x: Array, nominal: Array, entries: Sequence[tuple[int, int]]
+) -> tuple[Array, Array]:
+    """Per-row linear fit ``y_i = c_i + Σ_j M_ij x_j`` over ``entries``; nominal if singular."""
+    mat = nominal.copy()
+    offset = np.zeros(3)
+    for i in range(3):
+        cols = [j for r, j in entries if r == i]
+        fixed = [j for j in range(3) if j not in cols]
+        target = y[:, i] - x[:, fixed] @ nominal[i, fixed]
+        design = np.column_stack([np.ones(len(y)), x[:, cols]])
+        norms = np.linalg.norm(design, axis=0)
+        norms[norms == 0] = 1.0
+        sol, _res, rank, _sv = np.linalg.lstsq(design / norms, target, rcond=None)
+        if rank < design.shape[1]:
+            offset[i] = float(np.mean(y[:, i] - x @ nominal[i]))
+            continue
+        sol = sol / norms
+        offset[i] = sol[0]
+        mat[i, cols] = sol[1:]
+    return offset, mat
+
+
+@dataclass(frozen=True)
+class _Weights:
+    """Whitening of one pass: ``L_i⁻¹`` of each position's covariance, and the mean shift.
+
+    Both come from the angle errors' moments at one estimate and are held over a pass.
+    """
+
+    whitener: Array
+    shift: Array
+
+
+def _weights(layout: ParameterLayout, theta: Array, data: _Data, ctx: ModelContext) -> _Weights:
+    moments = angle_error_moments(layout, theta, data.angles, ctx, data.tolerances)
+    covs = data.base_cov + moments.covariance
+    chol = np.linalg.cholesky(0.5 * (covs + np.swapaxes(covs, 1, 2)))
+    return _Weights(np.linalg.inv(chol), moments.shift)
+
+
+def _whitened_information(
+    layout: ParameterLayout, theta: Array, data: _Data, ctx: ModelContext
+) -> tuple[Array, tuple[str, ...]]:
+    pred = predict(layout, theta, data.angles, ctx)
+    jw = np.einsum("nij,njp->nip", _weights(layout, theta, data, ctx).whitener, pred.d_theta)
+    jw = jw.reshape(-1, layout.size)
+    return jw.T @ jw, layout.names
+
+
+def _free_mask(layout: ParameterLayout, check: Separability, allow: bool) -> NDArray[np.bool_]:
+    """Parameters to fit; with ``allow``, hold enough undetermined ones to restore the rank."""
+    free = np.ones(layout.size, dtype=bool)
+    if not check.undetermined:
+        return free
+    if not allow:
+        raise ModelError(
+            "the plan cannot determine "
+            + ", ".join(check.undetermined)
+            + f" for this model ({check.findings[0].message})"
+        )
+    null_vectors = check.eigenvectors[:, check.eigenvalue_ratios < NOT_IDENTIFIABLE_RATIO]
+    _q, _r, pivots = qr(null_vectors.T, pivoting=True)
+    free[pivots[: null_vectors.shape[1]]] = False
+    log.warning(
+        "holding %s at their starting values", [layout.names[k] for k in np.flatnonzero(~free)]
+    )
+    return free
+
+
+class _Problem:
+    """Whitened residuals and Jacobian of the free parameters, sharing one model evaluation."""
+
+    def __init__(
+        self,
+        layout: ParameterLayout,
+        theta: Array,
+        free: NDArray[np.bool_],
+        weights: _Weights,
+        data: _Data,
+        ctx: ModelContext,
+    ) -> None:
+        self.layout, self.theta, self.free = layout, theta.copy(), free
+        self.whitener, self.data, self.ctx = weights.whitener, data, ctx
+        self.target = data.observed - weights.shift
+        self._key: bytes | None = None
+        self._pred = predict(layout, theta, data.angles, ctx)
+
+    def _update(self, x: Array) -> None:
+        key = x.tobytes()
+        if key != self._key:
+            self.theta[self.free] = x
+            self._pred = predict(self.layout, self.theta, self.data.angles, self.ctx)
+            self._key = key
+
+    def residuals(self, x: Array) -> Array:
+        """Whitened predicted − observed, flattened by position then channel."""
+        self._update(x)
+        r = self._pred.mean - self.target
+        return np.einsum("nij,nj->ni", self.whitener, r).ravel()
+
+    def jacobian(self, x: Array) -> Array:
+        """d(whitened residuals)/d(free parameters)."""
+        self._update(x)
+        jw = np.einsum("nij,njp->nip", self.whitener, self._pred.d_theta[:, :, self.free])
+        return jw.reshape(-1, int(np.sum(self.free)))
+
+    @property
+    def start(self) -> Array:
+        """The free parameters' starting values."""
+        return self.theta[self.free].copy()
+
+
+def _least_squares(problem: _Problem) -> OptimizeResult:
+    return least_squares(
+        problem.residuals,
+        problem.start,
+        jac=problem.jacobian,
+        method="lm",
+        x_scale="jac",
+        xtol=1e-12,
+        ftol=1e-12,
+        gtol=1e-12,
+    )
+
+
+def _result(
+    layout: ParameterLayout,
+    theta: Array,
+    free: NDArray[np.bool_],
+    data: _Data,
+    ctx: ModelContext,
+    status: tuple[bool, str],
+    lsbs: tuple[float, float],
+) -> JointResult:
+    pred = predict(layout, theta, data.angles, ctx)
+    weights = _weights(layout, theta, data, ctx)
+    residuals = data.observed - weights.shift - pred.mean
+    whitened = np.einsum("nij,nj->ni", weights.whitener, residuals)
+    jac = np.einsum("nij,njp->nip", weights.whitener, pred.d_theta).reshape(-1, layout.size)
+    sep = analyse_information(jac.T @ jac, layout.names, layout.effect_scales(ctx.g, 1 / lsbs[0]))
+    values = theta.copy()
+    undetermined = dict(sep.undetermined)
+    for name in layout.names:
+        if not free[layout.index(name)] and name not in undetermined:
+            undetermined[name] = "held at its starting value to restore the rank"
+    values[[layout.index(n) for n in undetermined]] = np.nan
+    rank = int(np.sum(sep.eigenvalue_ratios >= NOT_IDENTIFIABLE_RATIO))
+    k_matrix = layout.unpack(theta, lsbs[1]).K
+    rms = float(np.sqrt(np.mean(np.linalg.solve(k_matrix, residuals[:, :3].T) ** 2)))
+    return JointResult(
+        names=layout.names,
+        values=values,
+        covariance=sep.covariance,
+        residuals=residuals,
+        whitened_residuals=whitened,
+        jacobian=jac,
+        dof=int(residuals.size - rank),
+        chi2=float(np.sum(whitened**2)),
+        converged=status[0],
+        message=status[1],
+        rms_accel_ms2=rms,
+        separability=sep,
+        spec=layout.spec,
+        accel_lsb=lsbs[0],
+        gyro_lsb=lsbs[1],
+        undetermined=undetermined,
+    )

@@ -1,0 +1,350 @@
+"""Position plans, their Fisher information, Cramér–Rao bounds and identifiability (DESIGN §3).
+
+The bounds are evaluated at the nominal model: ``K = k·I`` (k from the nominal LSB), zero
+tilt, white noise of density N counts/√Hz per axis, so a position averaged T seconds has a
+mean of variance N²/T counts²; optionally plus each position's angle tolerance. The Jacobian
+is the joint estimator's own (:func:`canimucal.model.layout.predict`).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from canimucal.errors import ModelError
+from canimucal.model.layout import (
+    JointSpec,
+    ModelContext,
+    ModelParams,
+    ParameterLayout,
+    angle_error_moments,
+    predict,
+)
+from canimucal.model.positions import Plan, PlannedPosition
+from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, STANDARD_GRAVITY
+
+log = logging.getLogger(__name__)
+
+Array = NDArray[np.float64]
+
+NOT_IDENTIFIABLE_RATIO = 1e-10
+"""An eigenvalue of the normalised Fisher information below this × the largest: rank loss."""
+POORLY_SEPARABLE_RATIO = 1e-4
+"""An eigenvalue below this × the largest: poorly separable (DESIGN §3)."""
+CORRELATION_LIMIT = 0.999
+"""A correlation above this in magnitude: poorly separable (DESIGN §3)."""
+CARRIER_WEIGHT = 0.9
+"""Name the parameters that carry this share of an eigenvector's squared weight."""
+_NULL_WEIGHT = 1e-6  # a parameter with more weight than this in the null space is undetermined
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One identifiability problem: ``not_identifiable`` or ``poorly_separable``."""
+
+    kind: Literal["not_identifiable", "poorly_separable"]
+    parameters: tuple[str, ...]
+    message: str
+    eigenvalue_ratio: float | None = None
+    correlation: float | None = None
+
+
+@dataclass(frozen=True)
+class Separability:
+    """Eigen-analysis of the Fisher information, normalised by each parameter's effect at 1 g.
+
+    ``covariance`` is the (pseudo-)inverse of the information in the parameters' own units,
+    NaN for undetermined parameters; ``eigenvalue_ratios`` ascending, over the largest.
+    """
+
+    names: tuple[str, ...]
+    findings: tuple[Finding, ...]
+    undetermined: Mapping[str, str]
+    eigenvalue_ratios: Array
+    eigenvectors: Array
+    covariance: Array
+    correlation: Array
+
+    @property
+    def identifiable(self) -> bool:
+        """True when the information has full rank."""
+        return not self.undetermined
+
+    @property
+    def separable(self) -> bool:
+        """True when every parameter is identifiable and none is poorly separable."""
+        return not self.findings
+
+
+def analyse_information(fisher: Array, names: Sequence[str], scales: Array) -> Separability:
+    """Analyse identifiability and separability of the parameters from their information.
+
+    Each parameter is scaled by ``scales`` (its effect at 1 g in counts: bias 1, K and G
+    entries g, tilt angles k·g) before the eigen-analysis, so that units do not dominate.
+    Not identifiable: eigenvalue < 1e-10 × the largest; poorly separable: < 1e-4 × the
+    largest, or a correlation above 0.999 in magnitude (DESIGN §3).
+    """
+    names = tuple(names)
+    d = np.asarray(scales, dtype=float)
+    lam, vec = np.linalg.eigh(fisher / np.outer(d, d))
+    lmax = float(lam[-1]) if lam.size and lam[-1] > 0 else 1.0
+    ratio = lam / lmax
+    null = ratio < NOT_IDENTIFIABLE_RATIO
+    cov_n = (vec[:, ~null] / lam[~null]) @ vec[:, ~null].T
+    null_weight = np.sum(vec[:, null] ** 2, axis=1)
+    undetermined_mask = null_weight > _NULL_WEIGHT
+    cov = cov_n / np.outer(d, d)
+    cov[undetermined_mask, :] = np.nan
+    cov[:, undetermined_mask] = np.nan
+    sd = np.sqrt(np.abs(np.diag(cov)))
+    corr = cov / np.outer(sd, sd)
+    findings = _eigen_findings(names, ratio, vec)
+    findings += _correlation_findings(names, corr)
+    undetermined = {
+        names[j]: _undetermined_reason(names, vec, null, int(j))
+        for j in np.flatnonzero(undetermined_mask)
+    }
+    return Separability(names, tuple(findings), undetermined, ratio, vec, cov, corr)
+
+
+def _carriers(names: Sequence[str], v: Array) -> tuple[str, ...]:
+    order = np.argsort(-(v**2))
+    share = np.cumsum(v[order] ** 2) / np.sum(v**2)
+    count = int(np.searchsorted(share, CARRIER_WEIGHT) + 1)
+    return tuple(names[k] for k in order[:count])
+
+
+def _eigen_findings(names: Sequence[str], ratio: Array, vec: Array) -> list[Finding]:
+    out = []
+    for k in np.flatnonzero(ratio < POORLY_SEPARABLE_RATIO):
+        who = _carriers(names, vec[:, k])
+        if ratio[k] < NOT_IDENTIFIABLE_RATIO:
+            kind: Literal["not_identifiable", "poorly_separable"] = "not_identifiable"
+            text = f"not identifiable: {', '.join(who)} (eigenvalue ratio {ratio[k]:.1e})"
+        else:
+            kind = "poorly_separable"
+            text = f"poorly separable: {', '.join(who)} (eigenvalue ratio {ratio[k]:.1e})"
+        out.append(Finding(kind, who, text, eigenvalue_ratio=float(ratio[k])))
+    return out
+
+
+def _correlation_findings(names: Sequence[str], corr: Array) -> list[Finding]:
+    out = []
+    rows, cols = np.nonzero(np.triu(np.abs(np.nan_to_num(corr)) > CORRELATION_LIMIT, k=1))
+    for i, j in zip(rows.tolist(), cols.tolist(), strict=True):
+        r = float(corr[i, j])
+        text = f"poorly separable: {names[i]} and {names[j]} (correlation {r:+.4f})"
+        out.append(Finding("poorly_separable", (names[i], names[j]), text, correlation=r))
+    return out
+
+
+def _undetermined_reason(names: Sequence[str], vec: Array, null: NDArray[np.bool_], j: int) -> str:
+    k = int(np.flatnonzero(null)[np.argmax(vec[j, null] ** 2)])
+    who = ", ".join(_carriers(names, vec[:, k]))
+    return f"not identifiable from these positions (null direction carried by {who})"
+
+
+def _plan(name: str, degrees: Sequence[tuple[float, float, float]]) -> Plan:
+    return Plan(
+        name,
+        tuple(
+            PlannedPosition(
+                float(np.deg2rad(a)), float(np.deg2rad(b)), float(np.deg2rad(p)), seconds=30.0
+            )
+            for a, b, p in degrees
+        ),
+    )
+
+
+TWO = _plan("two", [(0, 0, 0), (45, 5, 0)])
+"""The paper's two positions (eq. 1-14): level and (45°, 5°); 30 s each, tolerance 0.1°."""
+
+FIVE = _plan("five", [(0, 0, 0), (22.5, 0, 0), (22.5, 2.5, 0), (45, 2.5, 0), (45, 5, 0)])
+"""The paper's five positions (eq. 15-34), degrees; 30 s each, tolerance 0.1°."""
+
+RECOMMENDED = _plan(
+    "recommended",
+    [(0, 0, 0), (0, 0, 90), (0, 0, 180), (0, 0, 270)]
+    + [(45, 45, 0), (45, 45, 90), (45, 45, 180), (45, 45, 270)],
+)
+"""Ours: two stands (level, and alpha = beta = 45°), the unit turned by psi 0/90/180/270° on each.
+
+Eight positions, 30 s each; the second stand is a double wedge (45° about z, then 45° about
+the new x: gravity 60° off the unit's y axis). The level turns separate the x/z biases from
+the base tilt (the tilt reverses under a 180° turn, the biases do not); the tilted turns put
+±0.5 g on x and z and -0.5 g on y, so bias, FULL K and the rigid tilt are identifiable and
+separable (smallest normalised eigenvalue ratio 0.014, largest |correlation| 0.96). Found
+with ``benchmarks/plan_search.py`` (exchange search over round poses; its best, 0.327
+counts, needs mixed poses). At equal total averaging time (150 s, white noise 1 count/√Hz,
+k = 2048/g) the worst-case bound for bias + diagonal K + rigid tilt is 0.383 counts
+(K[1][1]) against FIVE's 4.21 counts (bias z, correlated -0.9996 with beta0): a ratio of
+11.0; with the 0.1° angle tolerances included, 3.99 against 63.7 counts (16×). With the
+tolerances included, bias y and K[1][1] correlate at +0.9996 (every plan with tilts ≤ 45°
+sees f_y only in [-g, -g/2]); repeating the poses is what reduces that.
+"""
+
+
+_BUILTIN = {"two": TWO, "five": FIVE, "recommended": RECOMMENDED}
+
+
+def builtin_plan(name: str) -> Plan:
+    """Return the built-in plan ``two``, ``five`` or ``recommended``."""
+    try:
+        return _BUILTIN[name]
+    except KeyError:
+        raise ModelError(f"unknown plan {name!r}; built-in plans: {', '.join(_BUILTIN)}") from None
+
+
+def nominal_params(k_counts_per_ms2: float, gyro_lsb: float = DEFAULT_GYRO_LSB) -> ModelParams:
+    """Return the point where bounds are evaluated: zero biases and tilt, K = k·I, nominal S."""
+    zero = np.zeros(3)
+    return ModelParams(
+        zero, np.eye(3) * k_counts_per_ms2, 0.0, 0.0, zero, np.eye(3) / gyro_lsb, np.zeros((3, 3))
+    )
+
+
+def fisher_information(
+    plan: Plan,
+    spec: JointSpec,
+    *,
+    k_nominal_counts_per_ms2: float,
+    g: float,
+    noise_density: float = 1.0,
+    gyro_noise_density: float | None = None,
+    latitude: float | None = None,
+    heading: float = 0.0,
+    gyro_lsb: float = DEFAULT_GYRO_LSB,
+    include_tolerance: bool = False,
+    at: ModelParams | None = None,
+) -> Array:
+    """Fisher information of ``plan`` for the parameters of ``spec`` (in their own units).
+
+    White noise ``noise_density`` counts/√Hz per accelerometer axis (``gyro_noise_density``,
+    default the same, per gyro axis): a position of T seconds has a mean of covariance
+    ``N²/T · I``. With ``include_tolerance`` each position's angle tolerance is added (errors
+    in variables). Latitude and heading in radians. ``at`` moves the point of evaluation away
+    from DESIGN §3's nominal one (K = k·I, zero tilt, nominal S, zero biases and G).
+    """
+    if not plan.positions:
+        raise ModelError("the plan has no positions")
+    if spec.gyro == "nav" and latitude is None:
+        raise ModelError("gyro model 'nav' needs a latitude (its scale comes from Earth rate)")
+    layout = ParameterLayout.of(spec)
+    theta = layout.pack(at or nominal_params(k_nominal_counts_per_ms2, gyro_lsb))
+    ctx = ModelContext.build(g, latitude, heading, gyro_lsb)
+    angles = np.array([p.angles for p in plan.positions])
+    pred = predict(layout, theta, angles, ctx)
+    seconds = np.array([p.seconds for p in plan.positions], dtype=float)
+    if np.any(~np.isfinite(seconds) | (seconds <= 0)):
+        raise ModelError("every position needs a positive averaging time (seconds)")
+    density = np.full(spec.channels, float(noise_density))
+    density[3:] = noise_density if gyro_noise_density is None else gyro_noise_density
+    base = np.einsum("n,ij->nij", 1.0 / seconds, np.diag(density**2))
+    if include_tolerance:
+        tol = np.array([p.tolerance for p in plan.positions], dtype=float)
+        base = base + angle_error_moments(layout, theta, angles, ctx, tol).covariance
+    weighted = np.linalg.solve(base, pred.d_theta)
+    return np.einsum("nip,niq->pq", pred.d_theta, weighted)
+
+
+_UNITS = {
+    "accel.bias": "counts",
+    "accel.K": "counts/(m/s²)",
+    "base_tilt": "rad",
+    "gyro.bias": "counts",
+    "gyro.S": "counts/(rad/s)",
+    "gyro.G": "counts/(m/s²)",
+}
+
+
+@dataclass(frozen=True)
+class Bound:
+    """Cramér–Rao σ of one parameter in its own units and as its effect at 1 g in counts.
+
+    ``sigma`` and ``effect_counts`` are None when the plan cannot determine the parameter
+    (``reason`` says why).
+    """
+
+    name: str
+    unit: str
+    sigma: float | None
+    effect_counts: float | None
+    reason: str | None = None
+
+
+@dataclass(frozen=True)
+class BoundTable:
+    """What ``canimucal plan`` prints: per-parameter bounds, worst case, identifiability."""
+
+    plan: str
+    spec: JointSpec
+    rows: tuple[Bound, ...]
+    separability: Separability
+
+    @property
+    def worst_case_counts(self) -> float:
+        """Largest effect at 1 g over the parameters (inf when one is not identifiable)."""
+        effects = [r.effect_counts for r in self.rows]
+        return float("inf") if None in effects else max(e for e in effects if e is not None)
+
+    @property
+    def worst_parameter(self) -> str:
+        """The parameter whose effect is the worst case."""
+        effects = [np.inf if r.effect_counts is None else r.effect_counts for r in self.rows]
+        return self.rows[int(np.argmax(effects))].name
+
+    def bound(self, name: str) -> Bound:
+        """Return the row of parameter ``name``."""
+        for row in self.rows:
+            if row.name == name:
+                return row
+        raise ModelError(f"no parameter {name!r} in this bound table")
+
+
+def cramer_rao(
+    plan: Plan,
+    spec: JointSpec | None = None,
+    *,
+    k_nominal_counts_per_ms2: float = 1.0 / DEFAULT_ACCEL_LSB,
+    g: float = STANDARD_GRAVITY,
+    noise_density: float = 1.0,
+    latitude: float | None = None,
+    include_tolerance: bool = False,
+    at: ModelParams | None = None,
+    **kwargs: float,
+) -> BoundTable:
+    """Cramér–Rao bounds of ``plan`` for ``spec`` (default: bias + diagonal K + rigid tilt).
+
+    Each parameter's σ and its effect at 1 g in counts (σ_b, g·σ_Kij, |k|·g·σ_angle); the
+    identifiability analysis of :func:`analyse_information`. ``at`` and the extra keywords
+    go to :func:`fisher_information` (``gyro_noise_density``, ``heading``, ``gyro_lsb``).
+    """
+    spec = spec or JointSpec()
+    layout = ParameterLayout.of(spec)
+    fisher = fisher_information(
+        plan,
+        spec,
+        k_nominal_counts_per_ms2=k_nominal_counts_per_ms2,
+        g=g,
+        noise_density=noise_density,
+        latitude=latitude,
+        include_tolerance=include_tolerance,
+        at=at,
+        **kwargs,
+    )
+    scales = layout.effect_scales(g, k_nominal_counts_per_ms2)
+    sep = analyse_information(fisher, layout.names, scales)
+    rows = []
+    for j, name in enumerate(layout.names):
+        unit = _UNITS[name.split("[")[0] if "[" in name else "base_tilt"]
+        if name in sep.undetermined:
+            rows.append(Bound(name, unit, None, None, sep.undetermined[name]))
+            continue
+        sigma = float(np.sqrt(sep.covariance[j, j]))
+        rows.append(Bound(name, unit, sigma, sigma * float(scales[j])))
+    return BoundTable(plan.name, spec, tuple(rows), sep)
