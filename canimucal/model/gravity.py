@@ -13,7 +13,7 @@ _M = 0.00344978650684  # ω²a²b/GM
 
 
 def normal_gravity(latitude: float, height_m: float = 0.0) -> float:
-    """Normal gravity (m/s²) at geodetic ``latitude`` (radians) and ellipsoidal height.
+    """Return normal gravity (m/s²) at geodetic ``latitude`` (radians) and ellipsoidal height.
 
     Somigliana's closed form on the ellipsoid (TR8350.2 eq. 4-1) and the second-order
     height correction (eq. 4-3).

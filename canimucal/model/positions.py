@@ -56,7 +56,7 @@ class Plan:
         return float(sum(p.seconds for p in self.positions))
 
     def with_total_seconds(self, total: float) -> Plan:
-        """The same poses with the averaging time spread equally to ``total`` seconds."""
+        """Return the same poses with the averaging time spread equally to ``total`` seconds."""
         each = total / len(self.positions)
         return Plan(
             self.name,
