@@ -168,10 +168,7 @@ def _dense_plan() -> Plan:
     extra = [(45, 0, 0), (0, 45, 0), (-45, 0, 90), (0, -45, 270), (30, 30, 45)]
     return Plan(
         "dense",
-        tuple(
-            PlannedPosition(*_radians(a), tolerance=0.0, seconds=30.0)
-            for a in base + extra
-        ),
+        tuple(PlannedPosition(*_radians(a), tolerance=0.0, seconds=30.0) for a in base + extra),
     )
 
 
