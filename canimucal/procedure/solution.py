@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2 as chi2_distribution
 
+from canimucal.errors import ModelError
 from canimucal.io.calibration import (
     CalibrationRecord,
     Conditions,
@@ -26,8 +27,8 @@ from canimucal.io.calibration import (
 )
 from canimucal.model.joint import JointResult, solve_joint
 from canimucal.model.layout import JointSpec
-from canimucal.model.plan import builtin_plan
-from canimucal.model.positions import PositionAverage
+from canimucal.model.plan import builtin_plan, cramer_rao
+from canimucal.model.positions import Plan, PlannedPosition, PositionAverage
 from canimucal.model.scalar import ScalarFit, fit_scalar_averages
 
 BUILTIN_PLANS = ("two", "five", "recommended")
@@ -89,7 +90,11 @@ def solve_positions(
     recording: RecordingRef | None = None,
     plan_name: str | None = None,
 ) -> Solution:
-    """Joint least squares over labelled positions with known angles."""
+    """Joint least squares over labelled positions with known angles.
+
+    ModelError (exit 2) for fewer than two positions or a plan whose poses are all the same.
+    """
+    _check_positions(averages)
     result = solve_joint(
         averages,
         spec,
@@ -114,10 +119,68 @@ def solve_positions(
         fit=Fit(rms=result.rms_accel_ms2, dof=result.dof),
         recording=recording,
     )
-    warnings = _correlation_warnings(result) + _lack_of_fit_warning(result)
+    warnings = _correlation_warnings(result)
+    warnings += _plan_warnings(averages, spec, site, warnings) + _lack_of_fit_warning(result)
     if not result.converged:
         warnings += (f"the least-squares fit did not converge: {result.message}",)
     return Solution(record, joint=result, undetermined=dict(result.undetermined), warnings=warnings)
+
+
+def _check_positions(averages: Sequence[PositionAverage]) -> None:
+    """Refuse data no calibration can come from: one position, or one pose repeated."""
+    if len(averages) < 2:
+        raise ModelError(f"need at least 2 positions, got {len(averages)}")
+    poses = {tuple(np.round(np.rad2deg(a.pose.angles), 6).tolist()) for a in averages}
+    if len(poses) < 2:
+        alpha, beta, psi = next(iter(poses))
+        raise ModelError(
+            f"degenerate plan: all {len(averages)} positions have the same angles "
+            f"({alpha:g}, {beta:g}, {psi:g}) deg; a calibration needs different poses"
+        )
+
+
+def _plan_warnings(
+    averages: Sequence[PositionAverage],
+    spec: JointSpec,
+    site: SiteConditions,
+    already: tuple[str, ...],
+) -> tuple[str, ...]:
+    """Correlations above 0.999 of the positions as a plan at DESIGN §3's reference noise.
+
+    The fit's own correlations include the angle tolerances, which can mask a combination
+    the plan itself barely separates (bias z against beta0 in the paper's five positions,
+    -0.9996 in ``canimucal plan``); this names it too.
+    """
+    plan = Plan(
+        "recorded",
+        tuple(
+            PlannedPosition(
+                a.pose.alpha,
+                a.pose.beta,
+                a.pose.psi,
+                a.pose.tolerance,
+                a.seconds if a.seconds > 0 else 1.0,
+            )
+            for a in averages
+        ),
+    )
+    latitude = site.latitude if spec.gyro == "nav" else None
+    table = cramer_rao(
+        plan,
+        spec,
+        k_nominal_counts_per_ms2=1.0 / site.accel_lsb,
+        g=site.g,
+        latitude=latitude,
+        gyro_lsb=site.gyro_lsb,
+    )
+    out = []
+    for f in table.separability.findings:
+        if f.correlation is None or any(all(n in w for n in f.parameters) for w in already):
+            continue
+        out.append(
+            f"{f.message} in this plan: the positions barely tell them apart; their σ says how much"
+        )
+    return tuple(out)
 
 
 def _lack_of_fit_warning(result: JointResult) -> tuple[str, ...]:

@@ -1,0 +1,296 @@
+"""`canimucal solve` on simulated recordings: the calibration JSON, accuracy, bad input."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from canimucal.io.calibration import read_calibration
+from canimucal.sim.truth import Truth
+
+# the fixtures of conftest.py: cli(argv) -> CliRun(code, out, err); simulated(plan, kind,
+# seconds) -> Simulated(path, truth)
+Cli = Callable[[Sequence[Any]], Any]
+Sim = Callable[..., Any]
+
+MAX_DEVIATION_SIGMA = 4.0
+"""|estimate − truth| ≤ 4σ per parameter: for ~20 Gaussian estimates the chance that any one
+exceeds it is about 20 × 6.3e-5 ≈ 1e-3 (and the seeds are fixed)."""
+
+_NAME = re.compile(r"(accel|gyro)\.(bias|K|S|G)\[(\d)\](?:\[(\d)\])?")
+
+
+def estimates(doc: dict[str, Any]) -> dict[str, tuple[float | None, float | None]]:
+    """``{name: (value, sigma)}`` for every entry of the document (tilt in degrees)."""
+    out: dict[str, tuple[float | None, float | None]] = {}
+    for sensor, blocks in (("accel", ("bias", "K")), ("gyro", ("bias", "S", "G"))):
+        for block in blocks:
+            values = (doc.get(sensor) or {}).get(block)
+            sigmas = (doc.get(sensor) or {}).get(f"{block}_sigma")
+            if values is None:
+                continue
+            for i, row in enumerate(values):
+                if isinstance(row, list):
+                    for j, v in enumerate(row):
+                        s = None if sigmas is None else sigmas[i][j]
+                        out[f"{sensor}.{block}[{i}][{j}]"] = (v, s)
+                else:
+                    out[f"{sensor}.{block}[{i}]"] = (row, None if sigmas is None else sigmas[i])
+    tilt = doc.get("base_tilt_deg")
+    if tilt is not None:
+        sig = tilt.get("sigma") or [None, None]
+        out["base_tilt.alpha0"] = (tilt["alpha0"], sig[0])
+        out["base_tilt.beta0"] = (tilt["beta0"], sig[1])
+    return out
+
+
+def truth_value(truth: Truth, name: str) -> float:
+    """The true value of parameter ``name`` (tilt in degrees, like the JSON)."""
+    if name == "base_tilt.alpha0":
+        return float(np.rad2deg(truth.alpha0))
+    if name == "base_tilt.beta0":
+        return float(np.rad2deg(truth.beta0))
+    m = _NAME.fullmatch(name)
+    assert m, name
+    sensor, block, i, j = m.groups()
+    part = truth.accel if sensor == "accel" else truth.gyro
+    table = {"bias": part.bias, "K": getattr(part, "K", None), "S": getattr(part, "S", None)}
+    table["G"] = getattr(part, "G", None)
+    arr = np.asarray(table[block])
+    return float(arr[int(i)] if j is None else arr[int(i), int(j)])
+
+
+def deviations(doc: dict[str, Any], truth: Truth) -> dict[str, float]:
+    """(estimate − truth)/σ for every parameter in the covariance order."""
+    est = estimates(doc)
+    out = {}
+    for name in doc["covariance"]["order"]:
+        value, sigma = est[name]
+        assert value is not None and sigma is not None and sigma > 0, name
+        out[name] = (value - truth_value(truth, name)) / sigma
+    return out
+
+
+def solve_json(cli: Cli, path: Path, *flags: str) -> tuple[dict[str, Any], Any]:
+    run = cli(["solve", str(path), *flags, "--json", "-"])
+    assert run.code == 0, run.err
+    return json.loads(run.out), run
+
+
+# ----------------------------------------------------------------------- the JSON document
+
+
+def test_two_positions_json_document(cli: Cli, simulated: Sim, tmp_path: Path) -> None:
+    sim = simulated("two", "level")
+    target = tmp_path / "cal.json"
+    run = cli(["solve", sim.path, "--json", target])
+    assert run.code == 0, run.err
+    assert f"wrote {target}" in run.out
+    record = read_calibration(target)  # validates schema, keys, shapes, covariance
+    doc = json.loads(target.read_text())
+    assert record.plan == "two" and doc["plan"] == "two"
+    assert record.device.serial == sim.truth.serial
+    est = estimates(doc)
+    order = doc["covariance"]["order"]
+    expected = [f"accel.bias[{i}]" for i in range(3)] + [f"accel.K[{i}][{i}]" for i in range(3)]
+    expected += [f"gyro.bias[{i}]" for i in range(3)]
+    assert order == expected
+    for name in order:  # σ for every estimated parameter
+        value, sigma = est[name]
+        assert value is not None and sigma is not None and sigma > 0, name
+    held = [f"accel.K[{i}][{j}]" for i in range(3) for j in range(3) if i != j]
+    held += [f"gyro.S[{i}][{j}]" for i in range(3) for j in range(3)]
+    for name in held:  # held fixed: no σ (and no row in the covariance)
+        assert est[name][1] is None, name
+        assert name not in order
+    assert all(v is None for row in doc["gyro"]["S"] for v in row)
+    assert "base_tilt_deg" not in doc or doc["base_tilt_deg"] is None
+    matrix = np.array(doc["covariance"]["matrix"])
+    assert matrix.shape == (len(order), len(order))
+    np.testing.assert_allclose(matrix, matrix.T, rtol=1e-9, atol=0)
+    sigmas = np.array([est[n][1] for n in order])
+    np.testing.assert_allclose(np.sqrt(np.diag(matrix)), sigmas, rtol=1e-9)
+    assert np.all(np.linalg.eigvalsh(matrix / np.outer(sigmas, sigmas)) > 0)
+    dev = deviations(doc, sim.truth)
+    assert max(abs(d) for d in dev.values()) < MAX_DEVIATION_SIGMA, dev
+    assert len(doc["positions"]) == 2 and doc["fit"]["dof"] >= 0
+
+
+def test_five_with_tilt_agrees_with_truth_and_warns_bias_z_beta0(cli: Cli, simulated: Sim) -> None:
+    sim = simulated("five", "diag")
+    doc, run = solve_json(cli, sim.path, "--tilt")
+    assert doc["plan"] == "five"
+    dev = deviations(doc, sim.truth)
+    assert "base_tilt.beta0" in dev and "accel.bias[2]" in dev
+    assert max(abs(d) for d in dev.values()) < MAX_DEVIATION_SIGMA, dev
+    warnings = [line for line in run.err.splitlines() if line.startswith("warning:")]
+    named = [w for w in warnings if "accel.bias[2]" in w and "base_tilt.beta0" in w]
+    assert named, run.err
+    assert re.search(r"correlation -0\.999\d", named[0]), named[0]
+    # the poorly separable pair keeps its value and its (large) σ
+    cov = np.array(doc["covariance"]["matrix"])
+    order = doc["covariance"]["order"]
+    i, j = order.index("accel.bias[2]"), order.index("base_tilt.beta0")
+    assert cov[i, j] < 0
+
+
+def test_recommended_full_model_recovers_cross_axis_and_tilt(cli: Cli, simulated: Sim) -> None:
+    sim = simulated("recommended", "full")
+    doc, run = solve_json(cli, sim.path, "--model", "full", "--tilt")
+    assert doc["plan"] == "recommended"
+    dev = deviations(doc, sim.truth)
+    off = [f"accel.K[{i}][{j}]" for i in range(3) for j in range(3) if i != j]
+    assert set(off) | {"base_tilt.alpha0", "base_tilt.beta0"} <= set(dev)
+    assert max(abs(d) for d in dev.values()) < MAX_DEVIATION_SIGMA, dev
+    est = estimates(doc)
+    true_off = np.array([truth_value(sim.truth, n) for n in off])
+    got_off = np.array([est[n][0] for n in off], dtype=float)
+    # the cross-axis terms are seen: much closer to the truth than to the nominal zero
+    assert np.linalg.norm(got_off - true_off) < 0.5 * np.linalg.norm(true_off)
+    tilt_true = np.array(
+        [truth_value(sim.truth, n) for n in ("base_tilt.alpha0", "base_tilt.beta0")]
+    )
+    tilt_sigma = np.array([est[n][1] for n in ("base_tilt.alpha0", "base_tilt.beta0")], float)
+    assert np.all(tilt_sigma < 0.1)  # degrees: a 1° tilt is resolved
+    assert np.max(np.abs(tilt_true)) > 5 * np.max(tilt_sigma)
+    assert "does not fit" not in run.err
+
+
+def test_two_positions_full_model_is_null_with_reason(cli: Cli, simulated: Sim) -> None:
+    sim = simulated("two", "level")
+    run = cli(["solve", sim.path, "--model", "full"])
+    assert run.code == 0, run.err
+    off = [f"accel.K[{i}][{j}]" for i in range(3) for j in range(3) if i != j]
+    for name in off:
+        line = next(x for x in run.out.splitlines() if x.startswith(f"not determined: {name}:"))
+        assert "not identifiable" in line
+    k_lines = [x for x in run.out.splitlines() if x.startswith("accel K")]
+    assert k_lines == ["accel K (counts per m/s²): null (held at nominal)"]
+    doc, _ = solve_json(cli, sim.path, "--model", "full")
+    est = estimates(doc)
+    for name in off:
+        assert est[name] == (None, None), name
+        assert name not in (doc.get("covariance") or {}).get("order", [])
+
+
+# ------------------------------------------------------------------------------ the outputs
+
+
+def test_json_dash_prints_only_json(cli: Cli, simulated: Sim) -> None:
+    sim = simulated("two", "level")
+    run = cli(["solve", sim.path, "--json", "-"])
+    assert run.code == 0
+    assert run.out.startswith("{") and run.out.rstrip().endswith("}")
+    doc = json.loads(run.out)
+    assert doc["schema"] == "canimucal.calibration/1"
+    read_calibration(json.dumps(doc))
+
+
+def test_existing_json_target_needs_overwrite(cli: Cli, simulated: Sim, tmp_path: Path) -> None:
+    sim = simulated("two", "level")
+    target = tmp_path / "cal.json"
+    target.write_text("keep me\n")
+    run = cli(["solve", sim.path, "--json", target])
+    assert run.code == 2
+    assert target.read_text() == "keep me\n"
+    assert run.err.count("\n") == 1 and run.err.startswith("error: ")
+    assert run.out == ""
+    run = cli(["solve", sim.path, "--json", target, "--overwrite"])
+    assert run.code == 0, run.err
+    read_calibration(target)
+
+
+# ------------------------------------------------------------------------------- bad input
+
+
+def _rewrite(source: Path, target: Path, edit: Callable[[list[str], list[str]], list[str]]) -> Path:
+    lines = source.read_text().splitlines(keepends=True)
+    n_head = sum(1 for line in lines if line.startswith("#"))
+    target.write_text("".join(edit(lines[: n_head + 1], lines[n_head + 1 :])))
+    return target
+
+
+def _only_first_position(head: list[str], rows: list[str]) -> list[str]:
+    return head + [r for r in rows if r.split(",")[2] in ("", "0")]
+
+
+def _all_level(head: list[str], rows: list[str]) -> list[str]:
+    def level(row: str) -> str:
+        f = row.split(",")
+        if f[2] != "":
+            f[3] = f[4] = f[5] = "0"
+        return ",".join(f)
+
+    return head + [level(r) for r in rows]
+
+
+def _nan_cell(head: list[str], rows: list[str]) -> list[str]:
+    f = rows[500].split(",")
+    f[6] = "nan"
+    return head + rows[:500] + [",".join(f)] + rows[501:]
+
+
+def _time_backwards(head: list[str], rows: list[str]) -> list[str]:
+    rows = list(rows)
+    rows[100], rows[101] = rows[101], rows[100]
+    return head + rows
+
+
+def _missing_column(head: list[str], rows: list[str]) -> list[str]:
+    head = head[:-1] + [head[-1].replace(",temp_c", "")]
+    return head + [r.rsplit(",", 1)[0] + "\n" for r in rows]
+
+
+def _missing_schema(head: list[str], rows: list[str]) -> list[str]:
+    return [h for h in head if not h.startswith("# schema")] + rows
+
+
+BAD_INPUTS = [
+    ("one_position", _only_first_position, "need at least 2 positions, got 1"),
+    ("degenerate", _all_level, "degenerate plan"),
+    ("nan", _nan_cell, "'nan' in column ax"),
+    ("backwards", _time_backwards, "t goes backwards"),
+    ("no_temp_c", _missing_column, "missing columns temp_c"),
+    ("no_schema", _missing_schema, "missing header line '# schema"),
+]
+
+
+@pytest.mark.parametrize(("label", "edit", "message"), BAD_INPUTS, ids=[b[0] for b in BAD_INPUTS])
+def test_bad_input_is_one_line_and_exit_2(
+    cli: Cli, simulated: Sim, tmp_path: Path, label: str, edit: Any, message: str
+) -> None:
+    path = _rewrite(simulated("two", "level").path, tmp_path / f"{label}.csv", edit)
+    run = cli(["solve", path])
+    assert run.code == 2
+    assert run.out == ""
+    assert run.err.count("\n") == 1, run.err
+    assert run.err.startswith("error: ") and message in run.err, run.err
+    assert "Traceback" not in run.err
+
+
+def test_nonexistent_file(cli: Cli, tmp_path: Path) -> None:
+    run = cli(["solve", tmp_path / "absent.csv"])
+    assert run.code == 2
+    assert run.err.startswith("error: cannot read ") and run.err.count("\n") == 1
+
+
+def test_python_dash_m_runs_solve(simulated: Sim) -> None:
+    sim = simulated("two", "level")
+    proc = subprocess.run(
+        [sys.executable, "-m", "canimucal", "solve", str(sim.path), "--json", "-"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["plan"] == "two"
+    assert "Traceback" not in proc.stderr
