@@ -1,119 +1,183 @@
-"""`canimucal demo`: the whole job against the built-in simulated IMU.
+"""`canimucal demo`: the guided procedure end to end against simulated IMU node(s) over CAN.
 
-Draws (or loads) a truth, records the plan from the simulated unit, solves it, and prints
-every estimate beside the truth with its σ and the deviation in σ. Writes the recording, the
-calibration JSON and the truth into ``--out`` (the tool's own directory: files there are
-replaced).
+``--headless``: the simulated node(s) (``--nodes N``, ids 0x10, 0x11, …, one truth each:
+``--truth FILE`` or drawn at random from ``--seed``) sit on python-can's ``virtual`` bus in
+this process; an automatic operator runs the same procedure the TUI runs (skips the warm-up,
+confirms each pose — the simulated unit is moved there —, accepts each position, solves,
+writes with the transactional write, verifies at level). ``--seconds S`` averages every
+position S seconds (skipping the long first recording); ``--time-scale`` runs the simulated
+clock faster than the wall clock. Into ``--out`` (the tool's own directory: files there are
+replaced) go per node the recording CSV, the verification CSV, the calibration JSON with the
+``readback`` block (DESIGN §5), the certificate, the truth and the device backup. Then it
+prints each value read back from the device beside the truth, with σ and the deviation in σ.
+
+Without ``--headless`` the TUI will run the demo (coming); for now it runs headless too.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import logging
+import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from canimucal.cli.output import dumps
+from canimucal.cli.output import add_json_option, check_outputs, dumps, emit
 from canimucal.io.atomic import write_text_atomic
-from canimucal.io.calibration import Device, RecordingRef, calibration_to_json, sha256_of
-from canimucal.io.grouping import position_averages
 from canimucal.io.plans import resolve_plan
-from canimucal.io.recording import write_recording
 from canimucal.io.truth_file import load_truth
-from canimucal.model.layout import JointSpec
 from canimucal.model.plan import builtin_plan
-from canimucal.procedure.offline import simulate_plan_recording
-from canimucal.procedure.solution import SiteConditions, Solution, solve_positions
+from canimucal.procedure import events as ev
+from canimucal.procedure.averaging import AveragingPolicy
+from canimucal.procedure.demo_rig import DemoRig, comparison_table, readback_deviations
+from canimucal.procedure.session import Session, output_name, run_automatic
 from canimucal.sim.truth import Truth
+
+log = logging.getLogger(__name__)
+
+DEFAULT_TIME_SCALE = 20.0
+PLAN_TRUTH_LIMITS: dict[str, dict[str, float]] = {
+    "two": {"cross_axis_max": 0.0, "tilt_max_deg": 0.0},
+    "five": {"cross_axis_max": 0.0},
+}
+"""A random truth for these plans leaves out what they cannot determine (see spec_for_plan)."""
 
 
 def add_subparser(subparsers: Any) -> None:
     """Register ``demo``."""
     p = subparsers.add_parser(
         "demo",
-        help="calibrate the built-in simulated IMU end to end",
-        description="Record a plan from the simulated IMU, solve it and compare with the truth.",
+        help="calibrate the built-in simulated IMU end to end (guided procedure over CAN)",
+        description="Run the guided calibration against simulated IMU node(s) on a virtual "
+        "CAN bus, write the result into them and compare what they hold with the truth.",
     )
+    p.add_argument("--headless", action="store_true", help="no TUI: an automatic operator")
     p.add_argument("--plan", default="recommended", help="two, five, recommended or a plan file")
-    p.add_argument("--truth", help="truth JSON for the simulated unit (default: drawn at random)")
+    p.add_argument("--truth", help="truth JSON for the simulated unit(s) (default: random)")
     p.add_argument("--seed", type=int, default=2026, help="random seed (truth and noise)")
-    p.add_argument("--seconds", type=float, help="averaging seconds per position")
+    p.add_argument("--seconds", type=float, help="averaging seconds of every position")
+    p.add_argument("--nodes", type=int, default=1, help="simulated nodes on one rigid body")
+    p.add_argument("--gyro", choices=("mems", "nav"), default="mems", help="gyro grade")
+    p.add_argument(
+        "--time-scale",
+        type=float,
+        default=DEFAULT_TIME_SCALE,
+        help=f"simulated seconds per wall second (default {DEFAULT_TIME_SCALE:g})",
+    )
     p.add_argument("--out", default="demo-out", help="directory for the demo's files")
-    p.add_argument("--headless", action="store_true", help="no TUI (the only mode for now)")
+    add_json_option(p)
     p.set_defaults(run=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    """Run the demo and print the comparison."""
+def _truths(args: argparse.Namespace) -> list[Truth]:
+    if not 1 <= args.nodes <= 8:
+        from canimucal.errors import InputError
+
+        raise InputError(f"--nodes must be 1..8, got {args.nodes}")
+    if args.truth:
+        base = load_truth(args.truth).to_dict()
+        return [Truth.from_dict({**base, "serial": base["serial"] + i}) for i in range(args.nodes)]
     rng = np.random.default_rng(args.seed)
-    truth = load_truth(args.truth) if args.truth else Truth.random(rng)
+    limits = PLAN_TRUTH_LIMITS.get(args.plan, {})
+    if limits:
+        print(
+            f"note: random truth drawn within what plan '{args.plan}' can determine ({limits})",
+            file=sys.stderr,
+        )
+    return [Truth.random(rng, **limits) for _ in range(args.nodes)]
+
+
+def _check_numbers(args: argparse.Namespace) -> None:
+    from canimucal.errors import InputError
+
+    if args.seconds is not None and not args.seconds > 0:
+        raise InputError(f"--seconds must be positive, got {args.seconds}")
+    if not args.time_scale > 0:
+        raise InputError(f"--time-scale must be positive, got {args.time_scale}")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the demo and print the comparison of the read-back values with the truth."""
+    check_outputs(args)
+    _check_numbers(args)
+    if not args.headless:
+        print("note: the TUI demo is coming; running the headless demo", file=sys.stderr)
     plan = resolve_plan(args.plan, builtin_plan)
-    if args.seconds is not None:
-        plan = plan.with_total_seconds(args.seconds * len(plan.positions))
+    plan_name = plan.name if plan.name in ("two", "five", "recommended") else "custom"
+    truths = _truths(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    print(
-        f"simulating plan '{plan.name}': {len(plan.positions)} positions, "
-        f"{plan.total_seconds:g} s of averaging at {truth.sample_rate_hz:g} Hz"
-    )
-    rec = simulate_plan_recording(truth, plan, seed=args.seed + 1)
-    rec_path = write_recording(out / "recording.csv", rec, overwrite=True)
-    spec = JointSpec(accel_k="full", tilt=truth.tilt_model, gyro="mems")
-    site = SiteConditions(
-        g=truth.g,
-        latitude=truth.latitude,
-        heading=truth.heading,
-        accel_lsb=truth.accel.nominal_lsb,
-        gyro_lsb=truth.gyro.nominal_lsb,
-    )
-    solution = solve_positions(
-        position_averages(rec),
-        spec,
-        site,
-        Device(serial=truth.serial),
-        recording=RecordingRef(file=rec_path.name, sha256=sha256_of(rec_path)),
-        plan_name=plan.name,
-    )
-    write_text_atomic(
-        out / "calibration.json", calibration_to_json(solution.record), overwrite=True
-    )
-    write_text_atomic(out / "truth.json", dumps(truth.to_dict()), overwrite=True)
-    print(comparison_report(solution, truth))
-    for warning in solution.warnings:
-        print(f"warning: {warning}")
-    print(f"wrote {rec_path}, {out / 'calibration.json'}, {out / 'truth.json'}")
-    return 0
+    policy = AveragingPolicy(fixed_s=args.seconds)
+    verify_s = min(args.seconds, 10.0) if args.seconds else 10.0
+    with DemoRig(truths, time_scale=args.time_scale, seed=args.seed + 1) as rig:
+        session = rig.session(
+            plan,
+            out,
+            plan_name=plan_name,
+            gyro=args.gyro,
+            averaging=policy,
+            warmup=False,
+            verify_seconds=verify_s,
+        )
+        history = run_automatic(session, write_anyway=True)
+        truth_by_node = dict(rig.truths)
+    documents, report = _results(session, history, truth_by_node, out)
+    document: Any = next(iter(documents.values())) if len(documents) == 1 else documents
+    emit(args, document, report)
+    return 0 if all("readback" in d for d in documents.values()) else 3
 
 
-def _truth_values(truth: Truth) -> dict[str, float]:
-    values = {f"accel.bias[{i}]": float(truth.accel.bias[i]) for i in range(3)}
-    values.update(
-        {f"accel.K[{i}][{j}]": float(truth.accel.K[i, j]) for i in range(3) for j in range(3)}
-    )
-    values["base_tilt.alpha0"] = float(truth.alpha0)
-    values["base_tilt.beta0"] = float(truth.beta0)
-    values.update({f"gyro.bias[{i}]": float(truth.gyro.bias[i]) for i in range(3)})
-    return values
-
-
-def comparison_report(solution: Solution, truth: Truth) -> str:
-    """Each estimated parameter beside the truth, with σ and the deviation in σ."""
-    joint = solution.joint
-    assert joint is not None
-    expected = _truth_values(truth)
-    lines = [f"{'parameter':<20}{'truth':>12}{'estimate':>12}{'σ':>10}{'dev/σ':>8}"]
-    devs = []
-    for k, name in enumerate(joint.names):
-        if name not in expected or name in solution.undetermined:
+def _results(
+    session: Session, history: list[ev.Event], truths: dict[int, Truth], out: Path
+) -> tuple[dict[str, Any], str]:
+    lines = [_narrative(e) for e in history]
+    lines = [line for line in lines if line]
+    documents: dict[str, Any] = {}
+    for node_id, link in session.links.items():
+        truth_path = output_name(out, "truth", node_id, session.several, ".json")
+        write_text_atomic(truth_path, dumps(truths[node_id].to_dict()), overwrite=True)
+        if link.record_path is None:
             continue
-        scale = float(np.rad2deg(1.0)) if name.startswith("base_tilt") else 1.0
-        est, sig = joint.values[k] * scale, np.sqrt(joint.covariance[k, k]) * scale
-        true = expected[name] * scale
-        dev = (est - true) / sig
-        devs.append(dev)
-        label = name.replace("base_tilt.", "tilt.") + (" °" if scale != 1.0 else "")
-        lines.append(f"{label:<20}{true:>12.5g}{est:>12.5g}{sig:>10.2g}{dev:>8.2f}")
-    rms = float(np.sqrt(np.mean(np.square(devs))))
-    lines.append(f"rms deviation {rms:.2f} σ over {len(devs)} parameters (expected ≈ 1)")
-    return "\n".join(lines)
+        record = json.loads(link.record_path.read_text())
+        documents[str(node_id)] = record
+        lines += [f"node {node_id} (serial {link.identity.serial}): read back from the device"]
+        lines.append(comparison_table(readback_deviations(record, truths[node_id])))
+        lines.append(f"wrote {link.record_path}, {link.certificate_path}, {truth_path}")
+    return documents, "\n".join(lines)
+
+
+def _narrative(event: ev.Event) -> str:
+    """One line per event worth telling (None for the rest)."""
+    if isinstance(event, ev.PoseInstructed):
+        if event.verification:
+            return f"{event.words} ({event.seconds:g} s)"
+        return f"position {event.index + 1}/{event.total}: {event.words} ({event.seconds:g} s)"
+    if isinstance(event, ev.PositionAveraged):
+        parts = [f"n={a.n} lost={a.lost}" for a in event.averages.values()]
+        return f"  averaged position {event.index + 1}: " + ", ".join(parts)
+    if isinstance(event, ev.PositionRejected | ev.PoseRefused):
+        text = event.reason if isinstance(event, ev.PositionRejected) else event.message
+        return f"  position {event.index + 1} rejected: {text}"
+    if isinstance(event, ev.AveragingTimeChosen):
+        return f"  averaging time {event.seconds:.0f} s ({event.source})"
+    if isinstance(event, ev.Solved):
+        verdicts = [
+            f"node {n}: " + ("passed" if a.passed else "NOT passed (demo writes anyway)")
+            for n, a in event.acceptance.items()
+        ]
+        return "solved; acceptance limits " + "; ".join(verdicts)
+    if isinstance(event, ev.WriteFinished):
+        return f"write node {event.node_id}: {event.message}"
+    if isinstance(event, ev.LevelChecked):
+        return (
+            f"level check node {event.node_id} ({event.stage}): |f|-g nominal "
+            f"{event.norm_error_nominal_ms2:+.4f} m/s², calibrated "
+            f"{event.norm_error_calibrated_ms2:+.4f} m/s²; tilt calibrated "
+            f"{event.tilt_calibrated_deg[0]:+.3f}°, {event.tilt_calibrated_deg[1]:+.3f}°"
+        )
+    if isinstance(event, ev.ProcedureFinished) and event.cancelled:
+        return "procedure cancelled"
+    return ""

@@ -1,0 +1,57 @@
+"""What the procedure is configured with, and the phases it goes through."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+from canimucal.io.calibration import Device
+from canimucal.model.layout import JointSpec
+from canimucal.model.positions import Plan, PlannedPosition
+from canimucal.procedure.acceptance import AcceptanceLimits
+from canimucal.procedure.averaging import AveragingPolicy
+from canimucal.procedure.solution import SiteConditions
+
+LEVEL = PlannedPosition(0.0, 0.0, 0.0)
+
+
+class Phase(StrEnum):
+    """Where the procedure is."""
+
+    WARMUP = "warmup"
+    INSTRUCT = "instruct"
+    SETTLING = "settling"
+    AVERAGING = "averaging"
+    REVIEW_POSITION = "review_position"
+    READY_TO_SOLVE = "ready_to_solve"
+    REVIEW = "review"
+    WRITING = "writing"
+    DONE = "done"
+    CANCELLED = "cancelled"
+
+
+@dataclass(frozen=True)
+class ProcedureConfig:
+    """Everything the procedure needs to know up front."""
+
+    plan: Plan
+    node_ids: tuple[int, ...]
+    sample_rate_hz: float
+    site: SiteConditions
+    spec: JointSpec = field(default_factory=lambda: JointSpec(gyro="mems"))
+    averaging: AveragingPolicy = field(default_factory=AveragingPolicy)
+    limits: AcceptanceLimits = field(default_factory=AcceptanceLimits)
+    devices: Mapping[int, Device] = field(default_factory=dict)
+    plan_name: str | None = None
+    warmup: bool = True
+    warmup_window_s: float = 60.0
+    warmup_threshold_c_per_min: float = 0.1
+    settle_s: float = 2.0
+    pose_tolerance_deg: float = 3.0
+    first_pose_tolerance_deg: float = 5.0
+    disturbance_k: float = 6.0
+    chunk_s: float = 0.5
+    verify_seconds: float = 10.0
+    live_period_s: float = 0.5
+    progress_period_s: float = 0.25

@@ -1,0 +1,47 @@
+"""The level check: |f| − g and the tilt at the level pose, nominal and with new parameters.
+
+The new accelerometer parameters are applied in software as the firmware would
+(DESIGN §4): ``a = M (U − b)`` with ``M = K⁻¹`` and nominal values where the record holds
+``null`` (:func:`canimucal.device.calibration_map.block_from_record`). The tilt is read from
+the direction of ``a`` with :func:`canimucal.model.frames.gravity_direction_angles`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from canimucal.device.calibration_map import block_from_record
+from canimucal.io.calibration import CalibrationRecord
+from canimucal.model.frames import gravity_direction_angles
+from canimucal.model.positions import PositionAverage
+from canimucal.procedure.events import LevelChecked
+from canimucal.procedure.solution import SiteConditions
+
+Array = NDArray[np.float64]
+
+
+def _norm_and_tilt(f: Array, g: float) -> tuple[float, tuple[float, float]]:
+    alpha, beta = gravity_direction_angles(f)
+    return float(np.linalg.norm(f) - g), (float(np.rad2deg(alpha)), float(np.rad2deg(beta)))
+
+
+def corrected_accel(record: CalibrationRecord, mean_counts: Array, site: SiteConditions) -> Array:
+    """Return ``a = M (U − b)`` (m/s²) with the record's parameters."""
+    block = block_from_record(record, site.accel_lsb, site.gyro_lsb)
+    m = np.asarray(block.accel_correction, dtype=float)
+    b = np.asarray(block.accel_bias, dtype=float)
+    return np.asarray(m @ (np.asarray(mean_counts, dtype=float) - b))
+
+
+def level_check(
+    node_id: int,
+    stage: str,
+    average: PositionAverage,
+    record: CalibrationRecord,
+    site: SiteConditions,
+) -> LevelChecked:
+    """Nominal and calibrated |f| − g and tilt of a level position's mean."""
+    nominal = _norm_and_tilt(site.accel_lsb * average.mean_accel, site.g)
+    calibrated = _norm_and_tilt(corrected_accel(record, average.mean_accel, site), site.g)
+    return LevelChecked(node_id, stage, nominal[0], nominal[1], calibrated[0], calibrated[1])

@@ -1,0 +1,399 @@
+"""The guided procedure as a state machine fed with sample blocks (no Textual, no CAN, no I/O).
+
+warm-up → for each position: instruct → (operator confirms) → wait for stillness → pose
+check → average with progress → accept or redo → solve → review → write (by the runner) →
+verification at the level pose → done. Every method returns the events it caused (see
+:mod:`canimucal.procedure.events`); a display shows them, an automatic operator reacts to them.
+
+Time is sample time (:class:`~canimucal.procedure.tracks.NodeTrack`): a simulated node run
+faster than real time finishes as fast. Several nodes on one rigid body share the poses:
+stillness and progress wait for the slowest node; motion on any node restarts the position.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import replace
+
+import numpy as np
+
+from canimucal.device.stream import SampleBlock
+from canimucal.io.calibration import Device
+from canimucal.model.positions import PlannedPosition, PositionAverage, average_position
+from canimucal.procedure import events as ev
+from canimucal.procedure.acceptance import check_acceptance
+from canimucal.procedure.averaging import choose_time
+from canimucal.procedure.config import LEVEL, Phase, ProcedureConfig
+from canimucal.procedure.level import level_check
+from canimucal.procedure.posecheck import (
+    check_pose,
+    describe_pose,
+    measured_force,
+    predicted_force,
+)
+from canimucal.procedure.solution import Solution, solve_positions
+from canimucal.procedure.tracks import Attempt, LabelledRows, NodeTrack, live_readout
+from canimucal.procedure.warmup import WarmupTracker, progress_event
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["LEVEL", "Phase", "Procedure", "ProcedureConfig"]
+
+
+class Procedure:
+    """The state machine; see the module doc. Commands raise nothing on a wrong phase."""
+
+    def __init__(self, config: ProcedureConfig) -> None:
+        self.config = config
+        site = config.site
+        self.tracks = {
+            n: NodeTrack(n, config.sample_rate_hz, site.accel_lsb, site.gyro_lsb)
+            for n in config.node_ids
+        }
+        self.warmups = {
+            n: WarmupTracker(
+                window_s=config.warmup_window_s,
+                threshold_c_per_min=config.warmup_threshold_c_per_min,
+            )
+            for n in config.node_ids
+        }
+        self.phase = Phase.WARMUP if config.warmup else Phase.INSTRUCT
+        self.index = 0
+        self.verifying = False
+        self.seconds_later: float | None = None
+        self.accepted: dict[int, dict[int, PositionAverage]] = {n: {} for n in config.node_ids}
+        self.skipped: set[int] = set()
+        self.pending_averages: dict[int, PositionAverage] = {}
+        self.solutions: dict[int, Solution] = {}
+        self.solved: ev.Solved | None = None
+        self.write_results: dict[int, ev.WriteFinished] = {}
+        self.level_checks: dict[tuple[int, str], ev.LevelChecked] = {}
+        self._still = False
+        self._last_progress_s = -np.inf
+        self._last_warm_s = -np.inf
+
+    # -- queries -----------------------------------------------------------------------------
+
+    @property
+    def target(self) -> PlannedPosition:
+        """The pose the unit should be in now."""
+        return LEVEL if self.verifying else self.config.plan.positions[self.index]
+
+    def seconds_for(self, index: int) -> float:
+        """Averaging time of position ``index``."""
+        policy = self.config.averaging
+        if self.verifying:
+            return self.config.verify_seconds
+        if index == 0:
+            return policy.first_seconds()
+        return policy.later_seconds(self.seconds_later)[0]
+
+    def averages(self, node_id: int) -> list[PositionAverage]:
+        """Return the accepted averages of one node, in plan order."""
+        return [self.accepted[node_id][i] for i in sorted(self.accepted[node_id])]
+
+    def take_rows(self, node_id: int) -> list[LabelledRows]:
+        """Rows ready for the recording of ``node_id`` (see :mod:`.tracks`)."""
+        return self.tracks[node_id].take_rows()
+
+    def start(self) -> list[ev.Event]:
+        """First events: warm-up, or the first instruction when warm-up is off."""
+        if self.phase is Phase.WARMUP:
+            return [ev.PhaseChanged(Phase.WARMUP.value, "")]
+        return self._instruct()
+
+    # -- samples -----------------------------------------------------------------------------
+
+    def feed(self, node_id: int, block: SampleBlock) -> list[ev.Event]:
+        """Process one block of one node; return the events it caused."""
+        track = self.tracks[node_id]
+        step = track.advance(block)
+        averaging = self.phase is Phase.AVERAGING and track.attempt is not None
+        track.record(block, undecided=averaging)
+        out: list[ev.Event] = []
+        out += self._live(track, block)
+        if self.phase is Phase.WARMUP:
+            out += self._warmup(track)
+        elif self.phase in (Phase.INSTRUCT, Phase.REVIEW_POSITION, Phase.READY_TO_SOLVE):
+            track.stillness.update(block.accel, step)
+        elif self.phase is Phase.SETTLING:
+            track.stillness.update(block.accel, step)
+            out += self._settling()
+        elif averaging:
+            out += self._averaging(track, block, step)
+        return out
+
+    def _live(self, track: NodeTrack, block: SampleBlock) -> list[ev.Event]:
+        cfg = self.config
+        event = live_readout(track, block, self.target, cfg.site.g, cfg.live_period_s)
+        return [] if event is None else [event]
+
+    def _warmup(self, track: NodeTrack) -> list[ev.Event]:
+        tracker = self.warmups[track.node_id]
+        tracker.add(track.time_s, track.temp_c)
+        if all(w.warm for w in self.warmups.values()):
+            return [progress_event(tracker, skipped=False), *self._instruct()]
+        if track.time_s - self._last_warm_s < 1.0:
+            return []
+        self._last_warm_s = track.time_s
+        return [progress_event(tracker, skipped=False)]
+
+    def _settling(self) -> list[ev.Event]:
+        cfg = self.config
+        still_for = min(t.stillness.still_for_s for t in self.tracks.values())
+        now_still = all(t.stillness.still_for_s > 0 for t in self.tracks.values())
+        out: list[ev.Event] = []
+        if now_still != self._still:
+            self._still = now_still
+            out.append(ev.StillnessChanged(now_still, still_for, cfg.settle_s))
+        if still_for < cfg.settle_s:
+            return out
+        return out + self._check_and_average()
+
+    def _check_and_average(self) -> list[ev.Event]:
+        cfg = self.config
+        first = not any(self.accepted[n] for n in cfg.node_ids)
+        tol = cfg.first_pose_tolerance_deg if first else cfg.pose_tolerance_deg
+        worst = None
+        for track in self.tracks.values():
+            accel, _ = track.recent_rows(cfg.settle_s)
+            f = measured_force(np.nanmean(accel, axis=0), track.accel_lsb, track.offset_ms2)
+            result = check_pose(self.target, f, cfg.site.g, tol)
+            if not result.passed:
+                self._set_phase(Phase.INSTRUCT)
+                return [
+                    ev.PoseRefused(
+                        self.index,
+                        track.node_id,
+                        result.measured_deg,
+                        result.target_deg,
+                        result.error_deg,
+                        tol,
+                        result.message(),
+                    )
+                ]
+            worst = result if worst is None or result.error_deg > worst.error_deg else worst
+            track.set_reference(cfg.settle_s)
+        for track in self.tracks.values():
+            track.attempt = Attempt()
+        self._last_progress_s = -np.inf
+        assert worst is not None
+        events: list[ev.Event] = self._set_phase(Phase.AVERAGING)
+        seconds = self.seconds_for(self.index)
+        return events + [ev.AveragingStarted(self.index, seconds, worst.tilt_error_deg)]
+
+    def _averaging(self, track: NodeTrack, block: SampleBlock, step: int) -> list[ev.Event]:
+        cfg = self.config
+        chunk_n = max(10, round(cfg.chunk_s * cfg.sample_rate_hz))
+        if not track.add_to_attempt(block, step, chunk_n, cfg.disturbance_k):
+            return self._reject(f"motion or a disturbance on node {track.node_id}", track.node_id)
+        total = self.seconds_for(self.index)
+        elapsed = min(t.attempt_s for t in self.tracks.values())
+        if elapsed >= total:
+            return self._position_done(total)
+        if track.time_s - self._last_progress_s < cfg.progress_period_s:
+            return []
+        self._last_progress_s = track.time_s
+        return [ev.AveragingProgressed(self.index, elapsed, total, total - elapsed)]
+
+    def _reject(self, reason: str, node_id: int | None) -> list[ev.Event]:
+        """Discard the attempt on every node (rows kept unlabelled) and settle again."""
+        for track in self.tracks.values():
+            track.attempt = None
+            track.decide(-1, None)
+            track.stillness.reset()
+        self._still = False
+        events = self._set_phase(Phase.SETTLING)
+        return [ev.PositionRejected(self.index, reason, node_id, restarting=True), *events]
+
+    def _position_done(self, total: float) -> list[ev.Event]:
+        pose = self.target
+        averages = {}
+        for track in self.tracks.values():
+            attempt = track.attempt
+            assert attempt is not None
+            accel, gyro = track.finish_attempt()
+            temps = [t for t in attempt.temps if np.isfinite(t)]
+            averages[track.node_id] = average_position(
+                pose,
+                accel,
+                gyro,
+                self.config.sample_rate_hz,
+                float(np.mean(temps)) if temps else None,
+                attempt.lost,
+            )
+        self.pending_averages = averages
+        if self.verifying:
+            return self._verified(averages)
+        events = self._set_phase(Phase.REVIEW_POSITION)
+        return events + [ev.PositionAveraged(self.index, averages, total)]
+
+    # -- operator commands ---------------------------------------------------------------------
+
+    def skip_warmup(self) -> list[ev.Event]:
+        """Stop waiting for warm-up (the demo, or an operator in a hurry)."""
+        if self.phase is not Phase.WARMUP:
+            return []
+        tracker = next(iter(self.warmups.values()))
+        return [progress_event(tracker, skipped=True), *self._instruct()]
+
+    def confirm_pose(self) -> list[ev.Event]:
+        """Take the pose as set: wait for stillness, then check and average."""
+        if self.phase is not Phase.INSTRUCT:
+            return []
+        for track in self.tracks.values():
+            track.stillness.reset()
+        self._still = False
+        return self._set_phase(Phase.SETTLING)
+
+    def accept(self) -> list[ev.Event]:
+        """Accept the averaged position and move on."""
+        if self.phase is not Phase.REVIEW_POSITION:
+            return []
+        index, pose = self.index, self.target
+        angles = tuple(float(np.rad2deg(x)) for x in pose.angles)
+        chosen = self._choose_time() if index == 0 else []
+        for node_id, average in self.pending_averages.items():
+            track = self.tracks[node_id]
+            self.accepted[node_id][index] = average
+            track.decide(index, (angles[0], angles[1], angles[2]))
+            track.attempt = None
+            track.stillness.learn_noise(average.std_accel)
+            if track.offset_ms2 is None:
+                f_pred = predicted_force(pose, self.config.site.g)
+                track.offset_ms2 = track.accel_lsb * average.mean_accel - f_pred
+        events: list[ev.Event] = [ev.PositionAccepted(index), *chosen]
+        return events + self._next_position()
+
+    def redo(self) -> list[ev.Event]:
+        """Discard the current attempt (averaged or under way) and instruct the pose again."""
+        if self.phase not in (Phase.REVIEW_POSITION, Phase.AVERAGING, Phase.SETTLING):
+            return []
+        for track in self.tracks.values():
+            track.attempt = None
+            track.decide(-1, None)
+        self.pending_averages = {}
+        rejected = ev.PositionRejected(self.index, "redo by the operator", None, restarting=True)
+        return [rejected, *self._instruct()]
+
+    def skip(self) -> list[ev.Event]:
+        """Leave the current position out (not allowed for the first, level one)."""
+        if self.phase not in (Phase.INSTRUCT, Phase.SETTLING) or self.index == 0:
+            return []
+        self.skipped.add(self.index)
+        return self._next_position()
+
+    def cancel(self) -> list[ev.Event]:
+        """Stop the procedure; what was recorded stays recorded."""
+        for track in self.tracks.values():
+            track.decide(-1, None)
+        events = self._set_phase(Phase.CANCELLED)
+        return events + [ev.ProcedureFinished(cancelled=True)]
+
+    def solve(self) -> list[ev.Event]:
+        """Solve every node and check the acceptance limits."""
+        if self.phase is not Phase.READY_TO_SOLVE:
+            return []
+        cfg = self.config
+        solutions, acceptance = {}, {}
+        for node_id in cfg.node_ids:
+            device = cfg.devices.get(node_id, Device(node_id=node_id, serial=0))
+            averages = self.averages(node_id)
+            temps = [a.temp_c for a in averages if a.temp_c is not None]
+            site = replace(cfg.site, temp_c=float(np.mean(temps)) if temps else cfg.site.temp_c)
+            solution = solve_positions(averages, cfg.spec, site, device, plan_name=cfg.plan_name)
+            solutions[node_id] = solution
+            acceptance[node_id] = check_acceptance(
+                solution, cfg.limits, cfg.site.accel_lsb, cfg.site.g
+            )
+        self.solutions = solutions
+        self.solved = ev.Solved(solutions, acceptance)
+        events = self._set_phase(Phase.REVIEW)
+        events.append(self.solved)
+        for node_id, solution in solutions.items():
+            level = [a for a in self.averages(node_id) if not np.any(a.pose.angles)]
+            if level:
+                events.append(self._level_event(node_id, "before", level[0], solution))
+        return events
+
+    def begin_write(self, *, override: bool = False) -> list[ev.Event]:
+        """Start the write the operator confirmed (the runner writes and reports back).
+
+        Refused (no event) unless every node passed the acceptance limits or ``override``.
+        """
+        if self.phase is not Phase.REVIEW or self.solved is None:
+            return []
+        if not (self.solved.acceptable or override):
+            return []
+        return self._set_phase(Phase.WRITING)
+
+    def write_finished(
+        self, node_id: int, ok: bool, message: str, backup_path: str | None = None
+    ) -> list[ev.Event]:
+        """Take the runner's report of one node's write; after the last, verify at level."""
+        result = ev.WriteFinished(node_id, ok, message, backup_path)
+        self.write_results[node_id] = result
+        if len(self.write_results) < len(self.config.node_ids):
+            return [result]
+        if not any(r.ok for r in self.write_results.values()):
+            return [result, *self._set_phase(Phase.DONE), ev.ProcedureFinished()]
+        self.verifying = True
+        return [result, *self._instruct()]
+
+    def finish_without_writing(self) -> list[ev.Event]:
+        """End after the review, leaving the devices as they are."""
+        if self.phase is not Phase.REVIEW:
+            return []
+        return [*self._set_phase(Phase.DONE), ev.ProcedureFinished(notes=("nothing written",))]
+
+    # -- helpers -------------------------------------------------------------------------------
+
+    def _set_phase(self, phase: Phase) -> list[ev.Event]:
+        previous, self.phase = self.phase, phase
+        return [ev.PhaseChanged(phase.value, previous.value)] if previous != phase else []
+
+    def _instruct(self) -> list[ev.Event]:
+        events = self._set_phase(Phase.INSTRUCT)
+        pose = self.target
+        total = len(self.config.plan.positions)
+        seconds = self.seconds_for(self.index)
+        words = describe_pose(pose)
+        if self.verifying:
+            words = "verification: " + words
+        return events + [ev.PoseInstructed(self.index, total, pose, words, seconds, self.verifying)]
+
+    def _next_position(self) -> list[ev.Event]:
+        self.pending_averages = {}
+        self.index += 1
+        while self.index in self.skipped:
+            self.index += 1
+        if self.index < len(self.config.plan.positions):
+            return self._instruct()
+        self.index = len(self.config.plan.positions) - 1
+        return self._set_phase(Phase.READY_TO_SOLVE)
+
+    def _choose_time(self) -> list[ev.Event]:
+        track = next(iter(self.tracks.values()))
+        accel = track.attempt.accel if track.attempt is not None else []
+        event = choose_time(self.config.averaging, accel, self.config.sample_rate_hz)
+        if event.source == "noise":
+            self.seconds_later = event.seconds
+        return [event]
+
+    def _level_event(
+        self, node_id: int, stage: str, average: PositionAverage, solution: Solution
+    ) -> ev.LevelChecked:
+        site = self.config.site
+        event = level_check(node_id, stage, average, solution.record, site)
+        self.level_checks[(node_id, stage)] = event
+        return event
+
+    def _verified(self, averages: dict[int, PositionAverage]) -> list[ev.Event]:
+        events: list[ev.Event] = []
+        for node_id, average in averages.items():
+            if node_id in self.solutions and self.write_results.get(node_id, None) is not None:
+                events.append(self._level_event(node_id, "after", average, self.solutions[node_id]))
+        for track in self.tracks.values():
+            track.attempt = None
+            track.decide(-1, None)
+        return events + self._set_phase(Phase.DONE) + [ev.ProcedureFinished()]

@@ -1,0 +1,367 @@
+"""The CAN runner: ImuClients in, the procedure machine in the middle, files out.
+
+:class:`Session` drives one or several :class:`~canimucal.device.client.ImuClient` (one per
+node on the same rigid body), feeds their sample blocks to the
+:class:`~canimucal.procedure.machine.Procedure`, writes **every** sample to one recording CSV
+per node as it comes (``RecordingWriter``: a ``.partial`` file until closed, so an
+interrupted session keeps what was measured), saves the calibration record and certificate
+before any write, writes with the transactional write and re-reads the result. In demo mode
+(``sims`` given) confirming a pose moves the simulated node(s) there first.
+
+Each call returns the procedure's events; a TUI polls :meth:`Session.poll` from its I/O
+worker and posts the events to its screen.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from canimucal.device.calibration_map import readback_dict
+from canimucal.device.client import Identity, ImuClient
+from canimucal.device.sim_node import SimulatedImuNode
+from canimucal.device.transaction import write_calibration_transaction
+from canimucal.errors import CanimucalError, DeviceError
+from canimucal.io.calibration import (
+    CalibrationRecord,
+    RecordingRef,
+    calibration_to_dict,
+    read_calibration,
+    sha256_of,
+)
+from canimucal.io.recording import RecordingWriter
+from canimucal.procedure import events as ev
+from canimucal.procedure.certificate import certificate_markdown
+from canimucal.procedure.machine import Phase, Procedure
+from canimucal.procedure.tracks import LabelledRows
+
+logger = logging.getLogger(__name__)
+
+MAX_REFUSALS = 3
+SILENCE_TIMEOUT_S = 5.0
+"""A streaming node silent this long (wall time) stops the session with a DeviceError."""
+DEMO_MOVE_S = 3.0
+"""Sample time a demo move takes before the pose is confirmed (transient 1 s + lag)."""
+
+
+@dataclass
+class NodeLink:
+    """One node of the session: its client, identity, recording and (demo) simulated node."""
+
+    client: ImuClient
+    identity: Identity
+    writer: RecordingWriter
+    sim: SimulatedImuNode | None = None
+    header: dict[str, Any] | None = None
+    record_path: Path | None = None
+    certificate_path: Path | None = None
+    record: CalibrationRecord | None = None
+
+
+def output_name(out_dir: Path, stem: str, node_id: int, several: bool, suffix: str) -> Path:
+    """``stem.suffix``, or ``stem.node<ID>.suffix`` when several nodes (DESIGN §7)."""
+    return out_dir / (f"{stem}.node{node_id}{suffix}" if several else f"{stem}{suffix}")
+
+
+class Session:
+    """Runs a :class:`Procedure` against live clients; see the module doc."""
+
+    def __init__(
+        self,
+        procedure: Procedure,
+        clients: Mapping[int, ImuClient],
+        identities: Mapping[int, Identity],
+        out_dir: Path,
+        *,
+        sims: Mapping[int, SimulatedImuNode] | None = None,
+        header: Mapping[int, dict[str, Any]] | None = None,
+        backup_dir: Path | None = None,
+        overwrite: bool = False,
+    ) -> None:
+        self.procedure = procedure
+        self.out_dir = out_dir
+        self.backup_dir = backup_dir
+        out_dir.mkdir(parents=True, exist_ok=True)
+        several = len(clients) > 1
+        self.links: dict[int, NodeLink] = {}
+        for node_id, client in clients.items():
+            path = output_name(out_dir, "recording", node_id, several, ".csv")
+            head = dict((header or {}).get(node_id, {}))
+            writer = RecordingWriter.open(path, head, overwrite=overwrite)
+            sim = None if sims is None else sims.get(node_id)
+            self.links[node_id] = NodeLink(client, identities[node_id], writer, sim, head)
+        self.several = several
+        self.overwrite = overwrite
+        self.silence_timeout_s = SILENCE_TIMEOUT_S
+        self._last_block_s: dict[int, float] = {}
+        self.history: list[ev.Event] = []
+
+    # -- samples -----------------------------------------------------------------------------
+
+    def poll(self, timeout_s: float = 0.05) -> list[ev.Event]:
+        """Feed every block waiting in the clients' queues (waiting up to ``timeout_s``)."""
+        out: list[ev.Event] = []
+        now = time.monotonic()
+        for node_id, link in self.links.items():
+            block = link.client.get_block(timeout_s)
+            if block is not None:
+                self._last_block_s[node_id] = now
+            elif now - self._last_block_s.get(node_id, now) > self.silence_timeout_s:
+                raise DeviceError(
+                    f"node {node_id} sent no samples for {self.silence_timeout_s:g} s; "
+                    "what was recorded is kept"
+                )
+            while block is not None:
+                out += self.procedure.feed(node_id, block)
+                block = link.client.get_block(0.0)
+            self._write_rows(node_id)
+        return self._keep(out)
+
+    def _write_rows(self, node_id: int) -> None:
+        writer = self.links[node_id].writer
+        for piece in self.procedure.take_rows(node_id):
+            _write_piece(writer, piece)
+
+    def _keep(self, events: list[ev.Event]) -> list[ev.Event]:
+        self.history += [e for e in events if not isinstance(e, ev.SamplesReceived)]
+        return events
+
+    # -- commands ------------------------------------------------------------------------------
+
+    def start(self) -> list[ev.Event]:
+        """Start streaming every node and the procedure."""
+        for node_id, link in self.links.items():
+            link.client.start_streaming()
+            self._last_block_s[node_id] = time.monotonic()
+        return self._keep(self.procedure.start())
+
+    def confirm_pose(self) -> list[ev.Event]:
+        """Confirm the pose; in demo mode move the simulated node(s) there first.
+
+        In demo mode the session then keeps feeding samples for ``DEMO_MOVE_S`` of sample
+        time before confirming, so samples still queued from the old pose (at a fast time
+        scale a 20 ms batch is most of a second) are not taken for the new one.
+        """
+        events: list[ev.Event] = []
+        sims = [link.sim for link in self.links.values() if link.sim is not None]
+        if sims:
+            events += self._drain()
+            target = self.procedure.target
+            for sim in sims:
+                sim.set_pose(target.alpha, target.beta, target.psi)
+            events += self._feed_for(DEMO_MOVE_S)
+        return events + self._keep(self.procedure.confirm_pose())
+
+    def _drain(self) -> list[ev.Event]:
+        """Feed every block already waiting, so the old pose's samples are behind us."""
+        out: list[ev.Event] = []
+        while any(not link.client.samples.empty() for link in self.links.values()):
+            out += self.poll(0.0)
+        return out
+
+    def _feed_for(self, seconds: float, wall_timeout_s: float = 30.0) -> list[ev.Event]:
+        """Poll until every node has fed ``seconds`` more sample time (or the wall timeout)."""
+        tracks = self.procedure.tracks
+        until = {n: tracks[n].time_s + seconds for n in self.links}
+        deadline = time.monotonic() + wall_timeout_s
+        out: list[ev.Event] = []
+        while any(tracks[n].time_s < t for n, t in until.items()):
+            if time.monotonic() > deadline:
+                raise DeviceError(f"no samples for {wall_timeout_s:g} s while moving the unit")
+            out += self.poll()
+        return out
+
+    def command(self, name: str) -> list[ev.Event]:
+        """Run a machine command by name (``accept``, ``redo``, ``skip``, ``skip_warmup``…)."""
+        return self._keep(getattr(self.procedure, name)())
+
+    def solve(self) -> list[ev.Event]:
+        """Solve; close the recordings and save records and certificates (before any write)."""
+        events = self.procedure.solve()
+        if self.procedure.phase is Phase.REVIEW:
+            events += self.save()
+        return self._keep(events)
+
+    def save(self) -> list[ev.Event]:
+        """Close each recording and save its calibration record and certificate beside it."""
+        out: list[ev.Event] = []
+        for node_id, link in self.links.items():
+            self._write_rows(node_id)
+            rec_path = link.writer.close()
+            verify_path = self._name("verification", node_id, ".csv")
+            link.writer = RecordingWriter.open(verify_path, link.header or {}, overwrite=True)
+            solution = self.procedure.solutions[node_id]
+            ref = RecordingRef(file=rec_path.name, sha256=sha256_of(rec_path))
+            link.record = _with(solution.record, recording=calibration_ref(ref))
+            link.record_path = self._name("calibration", node_id, ".json")
+            _write_text(link.record_path, _record_json(link.record))
+            link.certificate_path = self._name("certificate", node_id, ".md")
+            _write_text(link.certificate_path, self.certificate(node_id))
+            out.append(
+                ev.RecordSaved(
+                    node_id, str(link.record_path), str(link.certificate_path), str(rec_path)
+                )
+            )
+        return out
+
+    def certificate(self, node_id: int) -> str:
+        """Render the Markdown certificate of one node as it stands now."""
+        link = self.links[node_id]
+        proc = self.procedure
+        assert proc.solved is not None and link.record is not None
+        return certificate_markdown(
+            link.record,
+            link.identity,
+            proc.solved.acceptance[node_id],
+            proc.config.limits,
+            [e for (n, _), e in proc.level_checks.items() if n == node_id],
+            warnings=proc.solutions[node_id].warnings,
+        )
+
+    def write(
+        self, *, force: bool = False, store: bool = True, override: bool = False
+    ) -> list[ev.Event]:
+        """Write every node's calibration transactionally, read it back, verify at level.
+
+        ``override`` writes a result that failed the acceptance limits (operator's choice);
+        ``force`` only overrides the serial check (DESIGN §7).
+        """
+        events = self.procedure.begin_write(override=override)
+        if self.procedure.phase is not Phase.WRITING:
+            return self._keep(events)
+        for node_id, link in self.links.items():
+            assert link.record is not None
+            try:
+                report = write_calibration_transaction(
+                    link.client, link.record, force=force, store=store, backup_dir=self.backup_dir
+                )
+            except CanimucalError as exc:
+                events += self.procedure.write_finished(node_id, False, str(exc))
+                continue
+            self._add_readback(node_id)
+            backup = str(report.backup_path) if report.backup_path else None
+            events += self.procedure.write_finished(node_id, True, "written and verified", backup)
+        return self._keep(events)
+
+    def _add_readback(self, node_id: int) -> None:
+        link = self.links[node_id]
+        readout = link.client.read_calibration_block()
+        assert link.record is not None and link.record_path is not None
+        back = readback_dict(readout.block, readout.valid, readout.crc_ok)
+        link.record = _with(link.record, readback=back)
+        _write_text(link.record_path, _record_json(link.record))
+
+    def finish(self) -> None:
+        """Rewrite the certificates with the verification, close what is open (idempotent)."""
+        for node_id, link in self.links.items():
+            self._write_rows(node_id)
+            link.writer.close()
+            if link.certificate_path is not None and self.procedure.solved is not None:
+                _write_text(link.certificate_path, self.certificate(node_id))
+
+    def _name(self, stem: str, node_id: int, suffix: str) -> Path:
+        return output_name(self.out_dir, stem, node_id, self.several, suffix)
+
+
+def calibration_ref(ref: RecordingRef) -> dict[str, Any]:
+    """Return the ``recording`` block as a dict."""
+    return {"file": ref.file, "sha256": ref.sha256}
+
+
+def _with(record: CalibrationRecord, **blocks: Any) -> CalibrationRecord:
+    """Return the record with top-level blocks replaced (through the strict reader)."""
+    d = calibration_to_dict(record)
+    d.update(blocks)
+    return read_calibration(json.dumps(d, allow_nan=False))
+
+
+def _record_json(record: CalibrationRecord) -> str:
+    return json.dumps(calibration_to_dict(record), indent=2, allow_nan=False) + "\n"
+
+
+def _write_text(path: Path, text: str) -> None:
+    from canimucal.io.atomic import write_text_atomic
+
+    write_text_atomic(path, text, overwrite=True)
+
+
+def _write_piece(writer: RecordingWriter, piece: LabelledRows) -> None:
+    block = piece.block
+    n = block.n
+    if n == 0:
+        return
+    angles = np.full((n, 3), np.nan)
+    if piece.angles_deg is not None:
+        angles[:] = piece.angles_deg
+    writer.write_rows(
+        t=block.t,
+        accel=block.accel,
+        gyro=block.gyro,
+        counter=block.counter,
+        position=np.full(n, piece.position),
+        alpha_deg=angles[:, 0],
+        beta_deg=angles[:, 1],
+        psi_deg=angles[:, 2],
+        temp_c=np.full(n, block.temp_c),
+    )
+
+
+def run_automatic(
+    session: Session, *, write_anyway: bool = False, max_polls: int = 1_000_000
+) -> list[ev.Event]:
+    """Drive a session to the end with an automatic operator (the headless demo).
+
+    Skips the warm-up, confirms each pose (moving the simulated nodes), accepts every
+    position, solves, writes when the acceptance limits pass (or ``write_anyway``), verifies
+    at level. Gives up (cancels) after ``MAX_REFUSALS`` refused poses in a row. Returns the
+    session's history (every event but the live readouts).
+    """
+    try:
+        session.start()
+        for _ in range(max_polls):
+            _react(session, write_anyway)
+            if session.procedure.phase in (Phase.DONE, Phase.CANCELLED):
+                break
+            session.poll()
+            if _refusals_in_a_row(session.history) >= MAX_REFUSALS:
+                session.command("cancel")
+                break
+    finally:
+        session.finish()  # what was recorded is kept, even on an error or Ctrl-C
+    return session.history
+
+
+def _refusals_in_a_row(history: Sequence[ev.Event]) -> int:
+    count = 0
+    for event in reversed(history):
+        if isinstance(event, ev.PoseRefused):
+            count += 1
+        elif isinstance(event, ev.AveragingStarted | ev.PositionAccepted):
+            break
+    return count
+
+
+def _react(session: Session, write_anyway: bool) -> list[ev.Event]:
+    proc = session.procedure
+    phase = proc.phase
+    if phase is Phase.WARMUP:
+        return session.command("skip_warmup")
+    if phase is Phase.INSTRUCT:
+        return session.confirm_pose()
+    if phase is Phase.REVIEW_POSITION:
+        return session.command("accept")
+    if phase is Phase.READY_TO_SOLVE:
+        return session.solve()
+    if phase is Phase.REVIEW:
+        assert proc.solved is not None
+        if proc.solved.acceptable or write_anyway:
+            return session.write(override=write_anyway)
+        return session.command("finish_without_writing")
+    return []

@@ -1,0 +1,118 @@
+"""`canimucal demo --headless`: the guided procedure over CAN against simulated node(s).
+
+Each run drives the simulated node(s) on python-can's virtual bus at 30× real time with
+4 s per position, writes the result with the transactional write and reads it back. The
+values read back must agree with the truth within 4σ. The demo sets every pose exactly
+while σ includes the 0.1° angle tolerance, so the deviations are smaller than σ; with
+exact σ the chance of any of ~60 values beyond 4σ would be 60 × 6.3e-5 ≈ 0.4 %. CAN thread
+timing decides which samples are averaged, so runs are not bit-reproducible; the seeds
+(truth 2026 + the plan index) fix the truths.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from canimucal.io.recording import read_recording
+from canimucal.procedure.demo_rig import readback_deviations
+from canimucal.sim.truth import Truth
+
+FAST = ["--headless", "--seconds", "4", "--time-scale", "30"]
+POSITIONS = {"two": 2, "five": 5, "recommended": 8}
+
+
+def _check_node(out: Path, record: dict[str, Any], suffix: str, plan: str) -> None:
+    back = record["readback"]
+    assert back["valid"] == 1 and back["crc_ok"] is True
+    truth = Truth.from_dict(json.loads((out / f"truth{suffix}.json").read_text()))
+    assert record["device"]["serial"] == truth.serial
+    deviations = readback_deviations(record, truth)
+    estimated = {d.name for d in deviations}
+    assert {"accel.bias[0]", "accel.K[1][1]", "gyro.bias[2]"} <= estimated
+    if plan == "recommended":
+        assert "accel.K[0][1]" in estimated and "base_tilt.beta0 (deg)" in estimated
+    worst = max(deviations, key=lambda d: abs(d.dev_sigma))
+    assert abs(worst.dev_sigma) < 4.0, worst
+    rec = read_recording(out / f"recording{suffix}.csv")
+    labels = sorted(set(rec.position.tolist()) - {-1})
+    assert labels == list(range(POSITIONS[plan]))
+    for label in labels:
+        assert (rec.position == label).sum() >= 4.0 * rec.sample_rate_hz
+    assert (rec.position == -1).any()  # moving and settling rows are kept, unlabelled
+    assert (out / f"verification{suffix}.csv").is_file()
+    certificate = (out / f"certificate{suffix}.md").read_text()
+    assert "## Acceptance limits" in certificate and "after write (re-read)" in certificate
+
+
+@pytest.mark.parametrize("plan", ["two", "five", "recommended"])
+def test_headless_demo_per_plan_reads_back_the_truth(
+    cli: Callable[[Sequence[str]], Any], tmp_path: Path, plan: str
+) -> None:
+    out = tmp_path / "demo-out"
+    seed = 2026 + list(POSITIONS).index(plan)
+    result = cli(
+        [
+            "demo",
+            *FAST,
+            "--plan",
+            plan,
+            "--seed",
+            seed,
+            "--out",
+            out,
+            "--json",
+            tmp_path / "cal.json",
+        ]
+    )
+    assert result.code == 0, result.err
+    record = json.loads((tmp_path / "cal.json").read_text())
+    assert record == json.loads((out / "calibration.json").read_text())
+    assert record["plan"] == plan
+    _check_node(out, record, "", plan)
+    assert "read back from the device" in result.out
+    assert list((out / "backups").glob("*.json"))
+
+
+def test_headless_demo_with_two_nodes_gives_one_result_per_node(
+    cli: Callable[[Sequence[str]], Any], tmp_path: Path
+) -> None:
+    out = tmp_path / "demo-out"
+    result = cli(["demo", *FAST, "--plan", "five", "--nodes", "2", "--out", out, "--json", "-"])
+    assert result.code == 0, result.err
+    documents = json.loads(result.out)
+    assert set(documents) == {"16", "17"}
+    serials = {documents[n]["device"]["serial"] for n in documents}
+    assert len(serials) == 2
+    for node_id, record in documents.items():
+        _check_node(out, record, f".node{node_id}", "five")
+
+
+def test_demo_without_headless_runs_headless_for_now(
+    cli: Callable[[Sequence[str]], Any], tmp_path: Path
+) -> None:
+    result = cli(
+        ["demo", "--seconds", "3", "--time-scale", "30", "--plan", "two", "--out", tmp_path / "o"]
+    )
+    assert result.code == 0, result.err
+    assert "TUI demo is coming" in result.err
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--seconds", "0"], "--seconds must be positive"),
+        (["--nodes", "0"], "--nodes must be 1..8"),
+        (["--plan", "nonsense"], "unknown plan"),
+    ],
+)
+def test_demo_rejects_bad_input_with_exit_2(
+    cli: Callable[[Sequence[str]], Any], tmp_path: Path, argv: list[str], message: str
+) -> None:
+    result = cli(["demo", "--headless", "--out", tmp_path / "o", *argv])
+    assert result.code == 2
+    assert message in result.err
