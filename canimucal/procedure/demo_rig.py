@@ -54,6 +54,7 @@ class DemoRig:
 
     def __init__(self, truths: Sequence[Truth], *, time_scale: float = 10.0, seed: int = 1) -> None:
         channel = f"canimucal-demo-{uuid.uuid4().hex[:12]}"
+        self.seed = seed
         self._buses: list[can.BusABC] = []
         self.sims: dict[int, SimulatedImuNode] = {}
         self.clients: dict[int, ImuClient] = {}
@@ -125,6 +126,7 @@ class DemoRig:
             header=header,
             backup_dir=out_dir / "backups",
             overwrite=True,
+            operator_rng=np.random.default_rng(self.seed + 1000),
         )
 
     def site(self) -> SiteConditions:

@@ -37,6 +37,7 @@ from canimucal.io.calibration import (
     sha256_of,
 )
 from canimucal.io.recording import RecordingWriter
+from canimucal.model.positions import Pose
 from canimucal.procedure import events as ev
 from canimucal.procedure.certificate import certificate_markdown
 from canimucal.procedure.machine import Phase, Procedure
@@ -84,8 +85,10 @@ class Session:
         header: Mapping[int, dict[str, Any]] | None = None,
         backup_dir: Path | None = None,
         overwrite: bool = False,
+        operator_rng: np.random.Generator | None = None,
     ) -> None:
         self.procedure = procedure
+        self.operator_rng = operator_rng
         self.out_dir = out_dir
         self.backup_dir = backup_dir
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -153,11 +156,22 @@ class Session:
         sims = [link.sim for link in self.links.values() if link.sim is not None]
         if sims:
             events += self._drain()
-            target = self.procedure.target
-            for sim in sims:
-                sim.set_pose(target.alpha, target.beta, target.psi)
+            alpha, beta, psi = self._placed(self.procedure.target)
+            for sim in sims:  # one rigid body: every unit gets the same pose error
+                sim.set_pose(alpha, beta, psi)
             events += self._feed_for(DEMO_MOVE_S)
         return events + self._keep(self.procedure.confirm_pose())
+
+    def _placed(self, target: Pose) -> tuple[float, float, float]:
+        """Return where the demo's operator really puts the unit.
+
+        Each angle is off by a draw from the pose's 1σ ``tolerance`` (a step ladder is not a
+        dividing head), unless no ``operator_rng`` was given.
+        """
+        angles = target.angles
+        if self.operator_rng is not None:
+            angles = angles + self.operator_rng.normal(0.0, target.tolerance, 3)
+        return float(angles[0]), float(angles[1]), float(angles[2])
 
     def _drain(self) -> list[ev.Event]:
         """Feed every block already waiting, so the old pose's samples are behind us."""
