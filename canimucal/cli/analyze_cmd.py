@@ -1,0 +1,247 @@
+"""`canimucal analyze`: model discrepancy on measured data (DESIGN §5, §6)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from canimucal.cli.conditions import recording_conditions
+from canimucal.cli.output import add_json_option, check_outputs, emit
+from canimucal.errors import InputError
+from canimucal.io.atomic import refuse_existing
+from canimucal.io.importers import FORMATS, load_any
+from canimucal.io.plans import plan_from_document, plan_to_dict, write_plan
+from canimucal.io.truth_file import write_truth
+from canimucal.model.positions import Plan
+from canimucal.procedure.analysis import (
+    Analysis,
+    analyse_recording,
+    analysis_document,
+    extended_truth,
+    observed_poses,
+)
+from canimucal.procedure.analysis_reference import Reference, reference_for
+from canimucal.procedure.analysis_replay import ReplayRow, replay
+
+
+def add_subparser(subparsers: Any) -> None:
+    """Register ``analyze``."""
+    p = subparsers.add_parser(
+        "analyze",
+        help="show what the base model gets wrong on measured data, name the cause",
+        description="Fit the base model (bias + diagonal scale + white noise) to measured "
+        "data, show where it fails, test each candidate effect (nested-model tests, Holm "
+        "at 1 %%, leave-one-position-out cross-validation), extend the model and report "
+        "the gain.",
+    )
+    p.add_argument("input", help="recording CSV, imu_tk accelerometer file or imucal CSV")
+    p.add_argument("second", nargs="?", help="imu_tk gyro file, or imucal section JSON (optional)")
+    p.add_argument("--format", choices=FORMATS, help="input format (default: from content)")
+    p.add_argument("--sample-rate-hz", type=float, help="sample rate when the input has none")
+    p.add_argument("--g", type=float, help="local gravity, m/s² (default: header, latitude)")
+    p.add_argument("--latitude-deg", type=float, help="latitude (Earth rate in the gyro model)")
+    p.add_argument(
+        "--tolerance-deg", type=float, default=0.1, help="angle-setting 1σ of each position"
+    )
+    p.add_argument("--truth-out", metavar="F", help="write the extended model as truth JSON")
+    p.add_argument("--poses-out", metavar="F", help="write the observed poses (pose schedule)")
+    p.add_argument("--plots", metavar="DIR", help="write PNG plots (needs matplotlib)")
+    add_json_option(p)
+    p.set_defaults(run=run)
+
+
+def _check_files(args: argparse.Namespace) -> None:
+    check_outputs(args)
+    for target in (args.truth_out, args.poses_out):
+        if target:
+            refuse_existing(Path(target), overwrite=bool(args.overwrite))
+    if args.g is not None and not (np.isfinite(args.g) and args.g > 0):
+        raise InputError(f"--g must be a positive number, got {args.g}")
+    if args.latitude_deg is not None and not abs(args.latitude_deg) <= 90.0:
+        raise InputError(f"--latitude-deg must be within [-90, 90], got {args.latitude_deg}")
+
+
+def _checked_poses(analysis: Analysis, target: str | None) -> Plan | None:
+    """Check the pose schedule to write before any output is written (None: not asked)."""
+    if not target:
+        return None
+    plan = observed_poses(analysis)
+    if plan is None:
+        raise InputError("--poses-out needs positions with angles; this input has none")
+    try:
+        plan_from_document(plan_to_dict(plan), target)
+    except InputError as exc:
+        raise InputError(
+            f"--poses-out: the observed poses do not fit the pose-schedule format ({exc})"
+        ) from None
+    return plan
+
+
+def run(args: argparse.Namespace) -> int:
+    """Analyse and report."""
+    _check_files(args)
+    rec = load_any(args.input, args.second, fmt=args.format, sample_rate_hz=args.sample_rate_hz)
+    reference = reference_for(args.input)
+    g_flag = args.g if args.g is not None else (reference.g if reference else None)
+    cond = recording_conditions(rec, g_flag)
+    g_source = "data README" if args.g is None and reference else cond.g_source
+    latitude = cond.latitude_rad
+    if args.latitude_deg is not None:
+        latitude = float(np.deg2rad(args.latitude_deg))
+    analysis = analyse_recording(
+        rec,
+        g=cond.g,
+        g_source=g_source,
+        latitude=latitude,
+        heading=cond.heading_rad,
+        tolerance_deg=args.tolerance_deg,
+    )
+    plan = _checked_poses(analysis, args.poses_out)
+    replayed = replay(analysis)
+    document = analysis_document(analysis)
+    emit(args, document, report_text(analysis, reference, replayed))
+    if args.truth_out:
+        write_truth(args.truth_out, extended_truth(analysis), overwrite=args.overwrite)
+    if args.poses_out and plan is not None:
+        write_plan(args.poses_out, plan, overwrite=args.overwrite)
+    if args.plots:
+        plot_analysis(analysis, Path(args.plots))
+    return 0
+
+
+def report_text(a: Analysis, reference: Reference | None, replayed: list[ReplayRow] | None) -> str:
+    """Build the readable report: estimates, what the base model gets wrong, findings, gain."""
+    r = a.result
+    n = len(a.session.averages)
+    kind = "known angles: joint model" if a.session.known_positions else "no angles: |f| = g fit"
+    lines = [
+        f"{n} static positions ({kind}); g = {a.session.g:.5f} m/s² ({a.g_source})",
+        "",
+        *_estimates(a, reference),
+        "",
+        "What the base model (bias + diagonal scale + white noise) gets wrong:",
+        *_residual_table(a),
+        _lack_of_fit(a),
+        *_allan_lines(a),
+        "",
+        "Findings (Holm-adjusted p, family-wise 1 %):",
+    ]
+    lines += [f"  {f.effect} ({f.sensor}): {f.evidence}; p = {f.p_value:.2g}" for f in r.findings]
+    if not r.findings:
+        lines.append("  none: the base model explains the data")
+    lines += [f"  untestable {k}: {v}" for k, v in r.untestable.items()]
+    lines += ["", "Gain (rms of the per-position means, before → after; cv = leave-one-out):"]
+    for sensor, sc in r.scores.items():
+        unit = "m/s²" if sensor == "accel" else _gyro_unit(a)
+        lines.append(
+            f"  {sensor}: rms {sc.base_rms:.4g} → {sc.extended_rms:.4g} {unit} "
+            f"(×{sc.rms_ratio:.2f}); cv_rms {sc.base_cv_rms:.4g} → {sc.extended_cv_rms:.4g} "
+            f"(×{sc.cv_rms_ratio:.2f}); terms {', '.join(sc.extended_terms)}"
+        )
+    lines += _replay_lines(replayed)
+    return "\n".join(lines) + "\n"
+
+
+def _gyro_unit(a: Analysis) -> str:
+    return "rad/s" if "gyro_lsb" in a.recording.header else "counts"
+
+
+def _estimates(a: Analysis, ref: Reference | None) -> list[str]:
+    vals, sigs = a.result.base_values, a.result.base_sigmas
+    head = "Base-model estimates" + (f" beside {ref.name}:" if ref else ":")
+    out = [head]
+    rows: list[tuple[str, str, float | None]] = []
+    for i in range(3):
+        rows.append((f"accel.bias[{i}]", "counts", ref.accel_offsets[i] if ref else None))
+    for i in range(3):
+        rows.append((f"accel.K[{i}][{i}]", "counts/(m/s²)", ref.accel_scales[i] if ref else None))
+    for i in range(3):
+        rows.append((f"gyro.bias[{i}]", "counts", ref.gyro_offsets[i] if ref else None))
+    for name, unit, factory in rows:
+        if name not in vals:
+            continue
+        v, s = vals[name], sigs[name]
+        text = f"  {name:<16} {v:12.3f} ± {s:.3g} {unit}"
+        if factory is not None:
+            text += f"   factory {factory:9.1f}   difference {(v - factory) / s:+.1f}σ"
+        out.append(text)
+    if ref:
+        out.append(
+            "  gyro scale factory diag("
+            + ", ".join(f"{x:.0f}" for x in ref.gyro_scales)
+            + ") counts/(rad/s): not estimable from static data"
+        )
+    return out
+
+
+def _residual_table(a: Analysis) -> list[str]:
+    r = a.result
+    head = "  pos  " + "  ".join(f"{lbl:>14}" for lbl in r.residual_labels)
+    out = [head]
+    for k, row in enumerate(r.residuals):
+        out.append(f"  {k:3d}  " + "  ".join(f"{v:14.4g}" for v in row))
+    return out
+
+
+def _lack_of_fit(a: Analysis) -> str:
+    chi2, dof, p = a.result.lack_of_fit
+    return (
+        f"  lack of fit: χ² = {chi2:.1f} on {dof} dof (χ²/dof = {chi2 / max(dof, 1):.2f}, "
+        f"p = {p:.2g}) against the noise predicted from the scatter inside each position"
+    )
+
+
+def _allan_lines(a: Analysis) -> list[str]:
+    out = []
+    for sensor, c in a.allan.items():
+        out.append(
+            f"  Allan deviation ({sensor}, longest position, τ up to {c.taus_s[-1]:.3g} s): "
+            f"measured / white-noise prediction at long τ = "
+            + ", ".join(f"{x:.2f}" for x in c.ratio_long)
+            + " (x, y, z); white density "
+            + ", ".join(f"{x:.3g}" for x in c.density)
+            + " counts·√s"
+        )
+    return out
+
+
+def _replay_lines(rows: list[ReplayRow] | None) -> list[str]:
+    if rows is None:
+        return ["", "Replay: orientations unknown, the session cannot be replayed as poses."]
+    out = ["", "Replay through the simulator (base fit on each; mean of 3 seeds):"]
+    out += [
+        f"  {r.label:<24} accel rms {r.accel_rms:.4g} m/s², χ²/dof {r.chi2_per_dof:.2f}"
+        for r in rows
+    ]
+    return out
+
+
+def plot_analysis(a: Analysis, directory: Path) -> None:
+    """Write residuals.png and allan.png to ``directory`` (matplotlib, optional extra)."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise InputError("--plots needs matplotlib: pip install 'canimucal[plots]'") from None
+    directory.mkdir(parents=True, exist_ok=True)
+    fig, ax = plt.subplots()
+    ax.plot(a.result.residuals, marker="o")
+    ax.set_xlabel("position")
+    ax.set_ylabel("base-model residual")
+    ax.legend(list(a.result.residual_labels))
+    fig.savefig(directory / "residuals.png")
+    plt.close(fig)
+    fig, ax = plt.subplots()
+    for sensor, c in a.allan.items():
+        ax.loglog(c.taus_s, c.adev, label=f"{sensor} measured")
+        ax.loglog(c.taus_s, c.white, "--", label=f"{sensor} white prediction")
+    ax.set_xlabel("τ (s)")
+    ax.set_ylabel("Allan deviation (counts)")
+    ax.legend()
+    fig.savefig(directory / "allan.png")
+    plt.close(fig)

@@ -1,0 +1,159 @@
+"""Inputs and results of the discrepancy analysis (pure data, no statistics)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from canimucal.model.positions import PositionAverage
+from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
+
+Array = NDArray[np.float64]
+
+EFFECTS = (
+    "base_tilt",
+    "cross_axis",
+    "scale_nonlinearity",
+    "temperature_bias",
+    "bias_drift",
+    "gyro_g_sensitivity",
+    "axis_sign",
+)
+"""The fixed effect vocabulary of the analysis JSON (DESIGN §5)."""
+
+FAMILY_ALPHA = 0.01
+"""Family-wise error rate of the candidate tests (Holm)."""
+
+AXIS_SIGN_SIGMAS = 5.0
+"""A scale factor whose sign differs from the nominal LSB's by more than this many σ."""
+
+
+@dataclass(frozen=True)
+class Window:
+    """The samples of one static position: times (s), counts ``(n, 3)``, temperature (°C)."""
+
+    t_s: Array
+    accel: Array
+    gyro: Array | None = None
+    temp_c: Array | None = None
+
+
+@dataclass(frozen=True)
+class SessionData:
+    """One measured session, grouped into positions, with its conditions.
+
+    ``latitude``/``heading`` radians (None: no Earth-rate term); ``known_positions`` says
+    whether the averages carry real angles (else only the scalar ``|f| = g`` fit applies).
+    """
+
+    averages: tuple[PositionAverage, ...]
+    windows: tuple[Window, ...]
+    g: float
+    latitude: float | None = None
+    heading: float = 0.0
+    accel_lsb: float = DEFAULT_ACCEL_LSB
+    gyro_lsb: float = DEFAULT_GYRO_LSB
+    known_positions: bool = True
+
+    @property
+    def has_gyro(self) -> bool:
+        """Every position has gyro data."""
+        return all(a.mean_gyro is not None and a.cov_gyro is not None for a in self.averages)
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One named cause (analysis JSON ``findings``)."""
+
+    effect: str
+    sensor: str
+    size: float
+    units: str
+    p_value: float
+    evidence: str
+
+
+@dataclass(frozen=True)
+class TestRecord:
+    """One candidate test: raw and Holm-adjusted p-value, statistic, chosen or not."""
+
+    effect: str
+    sensor: str
+    kind: str
+    statistic: float
+    df: int
+    p_value: float
+    p_adjusted: float
+    chosen: bool
+
+
+@dataclass(frozen=True)
+class SensorScore:
+    """rms and cv_rms of the base and extended model of one sensor (SI units)."""
+
+    base_terms: tuple[str, ...]
+    extended_terms: tuple[str, ...]
+    base_rms: float
+    base_cv_rms: float
+    extended_rms: float
+    extended_cv_rms: float
+
+    @property
+    def rms_ratio(self) -> float:
+        """Base over extended rms (1.0 when nothing was added)."""
+        return _ratio(self.base_rms, self.extended_rms, self.extended_terms == self.base_terms)
+
+    @property
+    def cv_rms_ratio(self) -> float:
+        """Base over extended cv_rms (1.0 when nothing was added)."""
+        same = self.extended_terms == self.base_terms
+        return _ratio(self.base_cv_rms, self.extended_cv_rms, same)
+
+
+def _ratio(a: float, b: float, same: bool) -> float:
+    if same or not (np.isfinite(a) and np.isfinite(b)) or b <= 0:
+        return 1.0
+    return float(a / b)
+
+
+@dataclass(frozen=True)
+class ExtendedParams:
+    """The extended model's parameters (counts, counts per m/s², radians), for a truth file."""
+
+    accel_bias: Array
+    K: Array
+    alpha0: float = 0.0
+    beta0: float = 0.0
+    quadratic: Array = field(default_factory=lambda: np.zeros(3))
+    accel_temp_coeff: Array = field(default_factory=lambda: np.zeros(3))
+    accel_random_walk: Array = field(default_factory=lambda: np.zeros(3))
+    gyro_bias: Array | None = None
+    G: Array = field(default_factory=lambda: np.zeros((3, 3)))
+    gyro_temp_coeff: Array = field(default_factory=lambda: np.zeros(3))
+    gyro_random_walk: Array = field(default_factory=lambda: np.zeros(3))
+
+
+@dataclass(frozen=True)
+class DiscrepancyResult:
+    """What the base model gets wrong, the named causes and the gain of the extension.
+
+    ``residuals`` the base fit's per-position residuals (counts; the scalar fit's accel column
+    is ``|f| − g`` in m/s²); ``lack_of_fit`` χ², dof and p of the base fit against the noise
+    predicted from the within-position scatter (and the angle tolerances).
+    """
+
+    method: str
+    residuals: Array
+    residual_labels: tuple[str, ...]
+    lack_of_fit: tuple[float, int, float]
+    findings: tuple[Finding, ...]
+    untestable: Mapping[str, str]
+    tests: tuple[TestRecord, ...]
+    scores: Mapping[str, SensorScore]
+    params: ExtendedParams
+    base_values: Mapping[str, float]
+    base_sigmas: Mapping[str, float]
+    drift_found: bool

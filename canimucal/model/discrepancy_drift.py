@@ -1,0 +1,98 @@
+"""Drift inside the static positions, recognised before any other term is tested.
+
+A bias that wanders (random walk or instability, DESIGN §5 ``bias_drift``) makes each
+position's samples trend. Within position p and axis c the least-squares slope ``s_pc`` has,
+for white noise alone, the standard error ``σ_pc = s_e / √Σ(t − t̄)²`` (``s_e`` the
+residual scatter), so ``z_pc = s_pc/σ_pc`` is N(0, 1). A temperature that changes during
+the positions explains slopes ``c_c·dT/dt`` with one coefficient per axis; that part is
+removed first (``temperature_bias`` is tested across positions, not here). What remains,
+``Σ z²``, is χ² with ``3·n_positions − (3 if temperature)`` degrees of freedom.
+
+A Wiener bias of intensity q (counts/√s) gives a slope variance ``6 q²/(5 T)`` over a
+window of T seconds (the OLS slope of Brownian motion), from which q is estimated.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import stats
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class DriftTest:
+    """Within-position trend test of one sensor (three axes).
+
+    ``z`` ``(n_positions, 3)`` slope z-scores after the temperature part; ``statistic`` their
+    χ², ``df`` its degrees of freedom, ``p_value``; ``random_walk`` the q estimate per axis
+    (counts/√s, 0 where the slopes show none); ``seconds`` mean window length.
+    """
+
+    z: Array
+    statistic: float
+    df: int
+    p_value: float
+    random_walk: Array
+    seconds: float
+
+
+def _slope(t: Array, x: Array) -> tuple[Array, Array]:
+    """OLS slope of each column of ``x`` against ``t`` and its white-noise standard error.
+
+    From centred sums (no residual array): ``s = Sxy/Sxx``, ``s_e² = (Syy − s·Sxy)/(n − 2)``.
+    """
+    tc = t - t.mean()
+    xc = x - x.mean(axis=0)
+    sxx = float(tc @ tc)
+    sxy = tc @ xc
+    syy = np.einsum("ij,ij->j", xc, xc)
+    slope = sxy / sxx
+    dof = max(t.size - 2, 1)
+    scatter = np.sqrt(np.clip(syy - slope * sxy, 0.0, None) / dof)
+    return slope, scatter / np.sqrt(sxx)
+
+
+def drift_test(
+    windows: Sequence[tuple[Array, Array]], temperature_rates: Array | None = None
+) -> DriftTest:
+    """Test the samples ``(t_s (n,), x (n, 3))`` of each position for trends.
+
+    ``temperature_rates`` ``(n_positions,)`` °C/s, or None when the temperature is unknown
+    or constant.
+    """
+    slopes, sigmas, lengths = [], [], []
+    for t, x in windows:
+        keep = np.all(np.isfinite(x), axis=1)
+        s, e = _slope(t[keep], x[keep])
+        slopes.append(s)
+        sigmas.append(np.where(e > 0, e, np.inf))
+        lengths.append(float(t[keep][-1] - t[keep][0]))
+    z = np.array(slopes) / np.array(sigmas)
+    removed = 0
+    if temperature_rates is not None and np.any(temperature_rates != 0):
+        x_rate = np.asarray(temperature_rates, dtype=float)[:, None] / np.array(sigmas)
+        coef = np.sum(x_rate * z, axis=0) / np.sum(x_rate**2, axis=0)
+        z = z - x_rate * coef
+        removed = 3
+    df = max(z.size - removed, 1)
+    statistic = float(np.sum(z**2))
+    seconds = float(np.mean(lengths))
+    excess = np.mean(np.array(slopes) ** 2 - np.array(sigmas) ** 2, axis=0)
+    walk = np.sqrt(np.clip(excess, 0.0, None) * 5.0 * seconds / 6.0)
+    return DriftTest(z, statistic, df, float(stats.chi2.sf(statistic, df)), walk, seconds)
+
+
+def random_walk_covariance(mid_times_s: Array, seconds: Array, q: float) -> Array:
+    """Covariance of the position means that a Wiener bias of intensity q adds (counts²).
+
+    Means of windows centred at ``mid_times_s``: ``q² min(t_p, t_p')`` between positions,
+    plus ``q² T/3`` for the part inside each window of ``T`` seconds (diagonal).
+    """
+    t = np.asarray(mid_times_s, dtype=float) - float(np.min(mid_times_s))
+    cov = q**2 * np.minimum.outer(t, t)
+    return cov + np.diag(q**2 * np.asarray(seconds, dtype=float) / 3.0)

@@ -1,0 +1,247 @@
+"""`canimucal analyze`: what the base model gets wrong on measured data, and the gain.
+
+load (``io.importers``) → group into positions (``analysis_session``) → base fit, candidate
+tests, extension (``model.discrepancy``) → noise against the simulator's white noise (Allan
+deviation) → the analysis JSON (DESIGN §5), a truth JSON of the extended model and the
+observed poses as a pose schedule, and a replay of the session through the simulator
+(:mod:`canimucal.procedure.analysis_replay`).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from canimucal.io.recording import Recording
+from canimucal.model.discrepancy import analyse_discrepancy
+from canimucal.model.discrepancy_data import EFFECTS, DiscrepancyResult, SessionData
+from canimucal.model.noise import allan_deviation, best_averaging_time_s, fit_noise
+from canimucal.model.positions import Plan, PlannedPosition
+from canimucal.procedure.analysis_session import position_rows, session_from_recording
+from canimucal.sim.truth import SAMPLE_RATES_HZ
+
+log = logging.getLogger(__name__)
+
+Array = NDArray[np.float64]
+
+ANALYSIS_SCHEMA = "canimucal.analysis/1"
+
+
+@dataclass(frozen=True)
+class AllanCheck:
+    """Allan deviation of the longest static window against the white noise it implies.
+
+    ``adev`` and ``white`` are ``(len(taus_s), 3)`` counts; ``density`` the white-noise
+    density (counts·√s) read at short τ; ``ratio_long`` measured over white at the longest
+    τ (> 1: something beyond white noise, e.g. bias drift); ``best_averaging_s`` the fit's
+    best averaging time.
+    """
+
+    taus_s: Array
+    adev: Array
+    white: Array
+    density: Array
+    ratio_long: Array
+    best_averaging_s: float
+
+
+@dataclass(frozen=True)
+class Analysis:
+    """Everything `analyze` found on one recording."""
+
+    recording: Recording
+    session: SessionData
+    result: DiscrepancyResult
+    allan: Mapping[str, AllanCheck]
+    g_source: str
+
+
+def analyse_recording(
+    rec: Recording,
+    *,
+    g: float,
+    g_source: str = "given",
+    latitude: float | None = None,
+    heading: float = 0.0,
+    tolerance_deg: float = 0.1,
+) -> Analysis:
+    """Run the discrepancy loop on ``rec`` (``latitude``/``heading`` radians)."""
+    session = session_from_recording(
+        rec, g=g, latitude=latitude, heading=heading, tolerance_deg=tolerance_deg
+    )
+    log.info(
+        "%d positions (%s)", len(session.averages), "known" if session.known_positions else "scalar"
+    )
+    result = analyse_discrepancy(session)
+    allan = {"accel": _allan(rec, rec.accel)}
+    if session.has_gyro:
+        allan["gyro"] = _allan(rec, rec.gyro)
+    return Analysis(rec, session, result, allan, g_source)
+
+
+def _allan(rec: Recording, samples: Array) -> AllanCheck:
+    """Allan deviation of the longest position window of ``samples``."""
+    rows = max(position_rows(rec)[0], key=len)
+    x = samples[rows]
+    fs = rec.sample_rate_hz
+    res = allan_deviation(x, fs)
+    terms = fit_noise(res)
+    density = np.sqrt(res.adev[0] ** 2 * res.taus_s[0])  # white: σ(τ) = N/√τ
+    white = density[None, :] / np.sqrt(res.taus_s)[:, None]
+    good = np.flatnonzero(res.edf >= 10.0)
+    last = good[-1] if good.size else res.taus_s.size - 1
+    return AllanCheck(
+        res.taus_s, res.adev, white, density, res.adev[last] / white[last],
+        best_averaging_time_s(terms, clip=(0.1, 1e4)),
+    )  # fmt: skip
+
+
+def _sensor_block(a: Analysis, sensor: str) -> dict[str, Any]:
+    score = a.result.scores.get(sensor)
+    if score is None:
+        return {}
+    return {
+        "base_model": {
+            "terms": list(score.base_terms),
+            "rms": score.base_rms,
+            "cv_rms": score.base_cv_rms,
+        },
+        "extended_model": {
+            "terms": list(score.extended_terms),
+            "rms": score.extended_rms,
+            "cv_rms": score.extended_cv_rms,
+        },
+        "gain": {"rms_ratio": score.rms_ratio, "cv_rms_ratio": score.cv_rms_ratio},
+    }
+
+
+def input_referred_white(a: Analysis, sensor: str) -> list[float]:
+    """White-noise density per axis in SI/√Hz (counts·√s divided by the scale)."""
+    check = a.allan.get(sensor)
+    if check is None:
+        return []
+    p = a.result.params
+    if sensor == "accel":
+        scale = np.abs(np.diag(p.K))
+    else:
+        scale = np.full(3, 1.0 / abs(a.session.gyro_lsb))
+    return [float(v) for v in check.density / scale]
+
+
+def analysis_document(a: Analysis) -> dict[str, Any]:
+    """Build the analysis JSON of DESIGN §5."""
+    findings = [
+        {
+            "effect": f.effect,
+            "sensor": f.sensor,
+            "size": f.size,
+            "units": f.units,
+            "p_value": f.p_value,
+            "evidence": f.evidence,
+        }
+        for f in a.result.findings
+    ]
+    untestable = [{"effect": k, "reason": v} for k, v in a.result.untestable.items()]
+    best = max((c.best_averaging_s for c in a.allan.values()), default=float("nan"))
+    return {
+        "schema": ANALYSIS_SCHEMA,
+        "sensors": {s: _sensor_block(a, s) for s in ("accel", "gyro") if s in a.result.scores},
+        "findings": findings,
+        "untestable": untestable,
+        "noise": {
+            "accel_white": input_referred_white(a, "accel"),
+            "gyro_white": input_referred_white(a, "gyro"),
+            "best_averaging_s": best,
+        },
+    }
+
+
+def extended_truth(a: Analysis) -> dict[str, Any]:
+    """Build a truth JSON document of the extended model (DESIGN §5), for `sim --truth`."""
+    p, s, rec = a.result.params, a.session, a.recording
+    temps, t0 = _temperature_profile(a)
+    temp0 = temps[0][1] if temps else 25.0
+    mean_t = float(np.mean([t for _, t in temps])) if temps else temp0
+    accel_bias = p.accel_bias + p.accel_temp_coeff * (temp0 - mean_t)
+    rate = min(SAMPLE_RATES_HZ, key=lambda r: abs(r - rec.sample_rate_hz))
+    doc: dict[str, Any] = {
+        "schema": "canimucal.truth/1",
+        "sample_rate_hz": rate,
+        "g": s.g,
+        "heading_deg": float(np.rad2deg(s.heading)),
+        "base_tilt_deg": {
+            "alpha0": float(np.rad2deg(p.alpha0)),
+            "beta0": float(np.rad2deg(p.beta0)),
+        },
+        "accel": {
+            "nominal_lsb": s.accel_lsb,
+            "quantization": _step(rec.accel),
+            "bias": accel_bias.tolist(),
+            "K": p.K.tolist(),
+            "quadratic": p.quadratic.tolist(),
+            "temp_coeff": p.accel_temp_coeff.tolist(),
+            "random_walk": p.accel_random_walk.tolist(),
+            "noise_density": input_referred_white(a, "accel"),
+        },
+    }
+    if s.latitude is not None:
+        doc["latitude_deg"] = float(np.rad2deg(s.latitude))
+    if p.gyro_bias is not None:
+        gyro_bias = p.gyro_bias + p.gyro_temp_coeff * (temp0 - mean_t)
+        doc["gyro"] = {
+            "nominal_lsb": s.gyro_lsb,
+            "quantization": _step(rec.gyro),
+            "bias": gyro_bias.tolist(),
+            "G": p.G.tolist(),
+            "temp_coeff": p.gyro_temp_coeff.tolist(),
+            "random_walk": p.gyro_random_walk.tolist(),
+            "noise_density": input_referred_white(a, "gyro"),
+        }
+    if temps:
+        doc["temperature"] = {"profile": [[t - t0, c] for t, c in temps]}
+    return doc
+
+
+def _step(samples: Array) -> float:
+    """1 (INT16 rounding) when the data are whole counts, else 0 (no quantization)."""
+    finite = samples[np.isfinite(samples)]
+    return 1.0 if finite.size and np.all(finite == np.round(finite)) else 0.0
+
+
+def _temperature_profile(a: Analysis) -> tuple[list[tuple[float, float]], float]:
+    """(time, °C) of each position's middle, and the recording's start time."""
+    t0 = float(a.recording.t[0])
+    out = []
+    for w in a.session.windows:
+        if w.temp_c is None or not np.any(np.isfinite(w.temp_c)):
+            return [], t0
+        out.append((float(np.mean(w.t_s)), float(np.nanmean(w.temp_c))))
+    return out, t0
+
+
+def observed_poses(a: Analysis) -> Plan | None:
+    """Return the observed poses and durations as a pose schedule (None: orientations unknown)."""
+    if not a.session.known_positions:
+        return None
+    positions = []
+    for avg, w in zip(a.session.averages, a.session.windows, strict=True):
+        p = avg.pose
+        seconds = max(float(w.t_s[-1] - w.t_s[0]), 1.0)
+        alpha, beta, psi = (_wrap(x) for x in (p.alpha, p.beta, p.psi))
+        positions.append(PlannedPosition(alpha, beta, psi, p.tolerance, seconds))
+    return Plan("custom", tuple(positions))
+
+
+def _wrap(angle: float) -> float:
+    """Wrap an angle into (−π, π] (the pose schedule's range, ±180°)."""
+    return float(-((np.pi - angle) % (2.0 * np.pi)) + np.pi)
+
+
+def effects_vocabulary() -> tuple[str, ...]:
+    """Return the effect names the analysis can report."""
+    return EFFECTS

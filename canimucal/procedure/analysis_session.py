@@ -1,0 +1,131 @@
+"""From a recording to the grouped session the discrepancy analysis reads.
+
+Labelled positions are used as they are (with their angles when every one has them); a
+recording without labels is cut into static intervals (:mod:`canimucal.model.static`), whose
+orientations are unknown, so only the scalar ``|f| = g`` fit applies.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+from numpy.typing import NDArray
+
+from canimucal.errors import InputError
+from canimucal.io.grouping import has_angles
+from canimucal.io.recording import Recording
+from canimucal.model.discrepancy_data import SessionData, Window
+from canimucal.model.positions import Plan, Pose, PositionAverage, average_position
+from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
+from canimucal.model.static import detect_static_intervals
+from canimucal.sim.imu import ImuSimulator
+from canimucal.sim.truth import Truth
+
+log = logging.getLogger(__name__)
+
+Array = NDArray[np.float64]
+
+MIN_POSITION_SAMPLES = 20
+"""Positions with fewer samples are skipped (too short to average or to test for drift)."""
+
+
+def position_rows(rec: Recording) -> tuple[list[NDArray[np.intp]], bool]:
+    """Row indices of each position (labels, else static intervals) and whether labelled."""
+    labels = np.unique(rec.position[rec.position >= 0])
+    if labels.size:
+        return [np.flatnonzero(rec.position == k) for k in labels], True
+    fs = rec.sample_rate_hz
+    gyro = rec.gyro if np.isfinite(rec.gyro).any() else None
+    found = detect_static_intervals(rec.accel, fs, gyro=gyro)
+    log.info("no position labels: %d static intervals detected", len(found))
+    return [np.arange(s.start, s.stop) for s in found], False
+
+
+def _lsb(rec: Recording, key: str, default: float) -> float:
+    value = rec.header.get(key)
+    if isinstance(value, int | float) and not isinstance(value, bool) and value != 0:
+        return float(value)
+    return default
+
+
+def session_from_recording(
+    rec: Recording,
+    *,
+    g: float,
+    latitude: float | None,
+    heading: float = 0.0,
+    tolerance_deg: float = 0.1,
+) -> SessionData:
+    """Group ``rec`` into positions; ``latitude``/``heading`` radians (None: no Earth rate)."""
+    groups, labelled = position_rows(rec)
+    known = labelled and has_angles(rec)
+    gyro_ok = bool(np.isfinite(rec.gyro).any())
+    temp_ok = bool(np.isfinite(rec.temp_c).any())
+    averages: list[PositionAverage] = []
+    windows: list[Window] = []
+    tol = float(np.deg2rad(tolerance_deg))
+    for rows in groups:
+        keep = rows[np.all(np.isfinite(rec.accel[rows]), axis=1)]
+        if keep.size < MIN_POSITION_SAMPLES:
+            continue
+        first = keep[0]
+        angles = [rec.alpha_deg[first], rec.beta_deg[first], rec.psi_deg[first]]
+        a, b, p = (float(x) for x in np.deg2rad(angles))
+        pose = Pose(a, b, p, tolerance=tol) if known else Pose(np.nan, np.nan)
+        temp = rec.temp_c[keep] if temp_ok else None
+        gyro = rec.gyro[keep] if gyro_ok else None
+        averages.append(
+            average_position(
+                pose, rec.accel[keep], gyro, rec.sample_rate_hz,
+                float(np.nanmean(temp)) if temp is not None else None,
+            )
+        )  # fmt: skip
+        windows.append(Window(rec.t[keep], rec.accel[keep], gyro, temp))
+    if len(averages) < 3:
+        raise InputError(f"{rec.source or 'recording'}: found {len(averages)} positions, need 3")
+    return SessionData(
+        averages=tuple(averages),
+        windows=tuple(windows),
+        g=g,
+        latitude=latitude,
+        heading=heading,
+        accel_lsb=_lsb(rec, "accel_lsb", DEFAULT_ACCEL_LSB),
+        gyro_lsb=_lsb(rec, "gyro_lsb", DEFAULT_GYRO_LSB if known else 1.0),
+        known_positions=known,
+    )
+
+
+def simulate_session(
+    truth: Truth, plan: Plan, *, seed: int, transient_s: float = 2.0
+) -> SessionData:
+    """Simulate a plan position by position, grouped as :func:`session_from_recording` would.
+
+    The fast path of the Monte Carlo tests: the unit is set to each pose plus an angle error
+    drawn from the pose's tolerance (labelled with the nominal angles), time runs on for
+    ``transient_s`` between positions (the warm-up goes on), and no recording is built.
+    """
+    sim = ImuSimulator(truth, seed=seed)
+    rng = np.random.default_rng(seed)
+    fs = sim.sample_rate_hz
+    averages, windows = [], []
+    for p in plan.positions:
+        alpha, beta, psi = p.angles + rng.normal(0.0, p.tolerance, 3)
+        sim.set_pose(alpha, beta, psi, transient_s=0.0)
+        if transient_s > 0:
+            sim.next_block(int(round(transient_s * fs)))
+        block = sim.next_block(int(round(p.seconds * fs)))
+        pose = Pose(p.alpha, p.beta, p.psi, p.tolerance)
+        temp = float(np.mean(block.temp_c))
+        averages.append(average_position(pose, block.accel, block.gyro, fs, temp))
+        windows.append(Window(block.t_s, block.accel, block.gyro, block.temp_c))
+    return SessionData(
+        averages=tuple(averages),
+        windows=tuple(windows),
+        g=truth.g,
+        latitude=truth.latitude,
+        heading=truth.heading,
+        accel_lsb=truth.accel.nominal_lsb,
+        gyro_lsb=truth.gyro.nominal_lsb,
+        known_positions=True,
+    )

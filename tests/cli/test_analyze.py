@@ -1,0 +1,109 @@
+"""`canimucal analyze` end to end: simulated recordings, outputs, real data (skipped if absent)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from canimucal.cli.main import main
+from canimucal.io.plans import read_plan
+from canimucal.io.recording import write_recording
+from canimucal.io.truth_file import load_truth
+from canimucal.model.plan import RECOMMENDED
+from canimucal.procedure.offline import simulate_plan_recording
+from canimucal.sim.effects import warm_up_profile
+from canimucal.sim.truth import Truth
+
+DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
+needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared data absent at {DATA}")
+
+CROSS_AXIS = 2.0
+"""K[0][2] planted, counts per m/s²: about 10σ of its estimate under the recommended plan."""
+
+
+def _recording(tmp_path: Path, seed: int, cross_axis: float) -> Path:
+    doc: dict[str, Any] = Truth.random(
+        np.random.default_rng(seed), cross_axis_max=0.0, tilt_max_deg=0.0
+    ).to_dict()
+    doc["accel"]["K"][0][2] = cross_axis
+    doc["temperature"] = {"profile": warm_up_profile()}
+    rec = simulate_plan_recording(Truth.from_dict(doc), RECOMMENDED, seed=seed)
+    return write_recording(tmp_path / f"rec{seed}.csv", rec, overwrite=False)
+
+
+def test_cross_axis_is_named_and_written_out(tmp_path: Path, capsys: Any) -> None:
+    path = _recording(tmp_path, 3, CROSS_AXIS)
+    out, truth, poses = tmp_path / "a.json", tmp_path / "t.json", tmp_path / "p.json"
+    code = main(
+        ["analyze", str(path), "--json", str(out), "--truth-out", str(truth),
+         "--poses-out", str(poses)]
+    )  # fmt: skip
+    assert code == 0
+    report = capsys.readouterr().out
+    assert "cross_axis (accel)" in report and "Replay through the simulator" in report
+    doc = json.loads(out.read_text())
+    assert doc["schema"] == "canimucal.analysis/1"
+    assert [f["effect"] for f in doc["findings"]] == ["cross_axis"]
+    assert doc["findings"][0]["p_value"] < 0.01
+    accel = doc["sensors"]["accel"]
+    assert accel["extended_model"]["terms"] == ["bias", "scale", "cross_axis"]
+    assert accel["gain"]["rms_ratio"] > 1.5
+    assert {u["effect"] for u in doc["untestable"]} <= {"earth_rate"}
+    k = load_truth(truth).accel.K
+    assert k[0, 2] == pytest.approx(CROSS_AXIS, abs=0.8)  # σ ≈ 0.19: 4σ
+    assert len(read_plan(poses).positions) == len(RECOMMENDED.positions)
+
+
+def test_clean_recording_names_nothing(tmp_path: Path, capsys: Any) -> None:
+    path = _recording(tmp_path, 4, 0.0)
+    assert main(["analyze", str(path), "--json", "-"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["findings"] == []
+    assert doc["sensors"]["accel"]["gain"] == {"rms_ratio": 1.0, "cv_rms_ratio": 1.0}
+    assert len(doc["noise"]["accel_white"]) == 3
+    # default noise density 1.5e-3 m/s²/√Hz (truth default), read from Allan at short τ
+    assert doc["noise"]["accel_white"][0] == pytest.approx(1.5e-3, rel=0.2)
+
+
+def test_existing_output_is_refused_and_plots_need_matplotlib(tmp_path: Path) -> None:
+    path = _recording(tmp_path, 5, 0.0)
+    taken = tmp_path / "taken.json"
+    taken.write_text("{}")
+    assert main(["analyze", str(path), "--json", str(taken)]) == 2
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        assert main(["analyze", str(path), "--plots", str(tmp_path / "plots")]) == 2
+
+
+def test_wrong_format_override_is_an_input_error(tmp_path: Path) -> None:
+    path = _recording(tmp_path, 6, 0.0)
+    assert main(["analyze", str(path), "--format", "imutk"]) == 2
+
+
+@needs_data
+def test_xsens_set_prints_factory_comparison_and_findings(capsys: Any) -> None:
+    code = main(["analyze", str(DATA / "imutk_xsens_acc.mat"), str(DATA / "imutk_xsens_gyro.mat")])
+    assert code == 0
+    report = capsys.readouterr().out
+    assert "factory" in report and "difference" in report
+    assert "38 static positions" in report
+    assert "cross_axis (accel)" in report
+    assert "untestable temperature_bias: no temperature column" in report
+
+
+@needs_data
+def test_imucal_set_names_cross_axis(capsys: Any) -> None:
+    code = main(
+        ["analyze", str(DATA / "imucal_example_ferraris_session.csv"),
+         str(DATA / "imucal_example_ferraris_session_list.json"), "--sample-rate-hz", "102.4",
+         "--g", "9.81", "--json", "-"]
+    )  # fmt: skip
+    assert code == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert "cross_axis" in [f["effect"] for f in doc["findings"]]
+    assert doc["sensors"]["accel"]["gain"]["rms_ratio"] > 2.0

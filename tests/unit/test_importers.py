@@ -1,0 +1,124 @@
+"""Importers: imu_tk ASCII pairs, imucal CSV + section JSON, format detection."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from canimucal.errors import InputError
+from canimucal.io.importers import detect_format, load_any, read_imucal, read_imutk
+from canimucal.io.recording import recording_from_columns, write_recording
+
+DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
+
+
+def _imutk(path: Path, t: np.ndarray, xyz: np.ndarray) -> Path:
+    np.savetxt(path, np.column_stack([t, xyz]), fmt="%.7e")
+    return path
+
+
+def test_imutk_pair_becomes_a_recording(tmp_path: Path) -> None:
+    t = 0.02 + np.arange(500) / 100.0
+    acc = np.full((500, 3), 32768.0) + np.arange(3)
+    gyr = np.full((500, 3), 32000.0)
+    a = _imutk(tmp_path / "acc.mat", t, acc)
+    g = _imutk(tmp_path / "gyr.mat", t, gyr)
+    assert detect_format(a) == "imutk"
+    rec = read_imutk(a, g)
+    assert rec.sample_rate_hz == 100.0
+    assert rec.header["offset_binary"] is True
+    assert rec.header["accel_units"] == "counts"
+    assert np.array_equal(rec.accel, acc) and np.array_equal(rec.gyro, gyr)
+    assert np.all(rec.position == -1)
+
+
+def test_imutk_mismatched_files_are_refused(tmp_path: Path) -> None:
+    t = np.arange(10) / 100.0
+    a = _imutk(tmp_path / "acc.mat", t, np.zeros((10, 3)))
+    short = _imutk(tmp_path / "short.mat", t[:9], np.zeros((9, 3)))
+    shifted = _imutk(tmp_path / "shift.mat", t + 0.5, np.zeros((10, 3)))
+    with pytest.raises(InputError, match="rows"):
+        read_imutk(a, short)
+    with pytest.raises(InputError, match="times"):
+        read_imutk(a, shifted)
+
+
+def _imucal(tmp_path: Path) -> tuple[Path, Path]:
+    n = 300
+    csv = tmp_path / "session.csv"
+    rows = [",".join(("n_samples", "gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z"))]
+    for k in range(n):
+        rows.append(f"{k},0.1,0.2,0.3,{9.8 if k < 150 else -9.8},0.0,0.1")
+    csv.write_text("\n".join(rows) + "\n")
+    sections = tmp_path / "session_list.json"
+    sections.write_text(
+        json.dumps(
+            {"x_p": {"start": 10, "end": 100}, "x_a": {"start": 160, "end": 250},
+             "x_rot": {"start": 100, "end": 160}}
+        )
+    )  # fmt: skip
+    return csv, sections
+
+
+def test_imucal_sections_label_static_positions(tmp_path: Path) -> None:
+    csv, sections = _imucal(tmp_path)
+    assert detect_format(csv) == "imucal"
+    rec = read_imucal(csv, sections, 102.4)
+    assert rec.header["gyro_lsb"] == pytest.approx(np.pi / 180.0)
+    assert rec.header["accel_units"] == "m/s^2"
+    assert sorted(set(rec.position.tolist())) == [-1, 0, 1]
+    assert np.sum(rec.position == 0) == 90
+    assert rec.accel[20, 0] == pytest.approx(9.8)
+    assert rec.gyro[0, 2] == pytest.approx(0.3)
+
+
+def test_imucal_needs_a_sample_rate(tmp_path: Path) -> None:
+    csv, sections = _imucal(tmp_path)
+    with pytest.raises(InputError, match="sample-rate"):
+        read_imucal(csv, sections, None)
+
+
+def test_bad_section_json_is_refused(tmp_path: Path) -> None:
+    csv, sections = _imucal(tmp_path)
+    sections.write_text('{"x_p": {"start": 10}}')
+    with pytest.raises(InputError, match="end"):
+        read_imucal(csv, sections, 100.0)
+
+
+def test_recording_is_detected_and_unknown_text_refused(tmp_path: Path) -> None:
+    rec = recording_from_columns(
+        {"sample_rate_hz": 100.0}, t=np.arange(5) / 100.0, accel=np.zeros((5, 3))
+    )
+    path = write_recording(tmp_path / "r.csv", rec, overwrite=False)
+    assert detect_format(path) == "recording"
+    assert load_any(path).n_rows == 5
+    other = tmp_path / "other.txt"
+    other.write_text("hello world\n")
+    with pytest.raises(InputError, match="unknown format"):
+        detect_format(other)
+
+
+needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared data absent at {DATA}")
+
+
+@needs_data
+def test_real_imutk_set_loads() -> None:
+    rec = load_any(DATA / "imutk_xsens_acc.mat", DATA / "imutk_xsens_gyro.mat")
+    assert rec.sample_rate_hz == 100.0
+    assert rec.n_rows > 50_000
+    assert 30_000 < float(np.median(rec.accel[:, 0])) < 36_000
+
+
+@needs_data
+def test_real_imucal_set_loads() -> None:
+    rec = load_any(
+        DATA / "imucal_example_ferraris_session.csv",
+        DATA / "imucal_example_ferraris_session_list.json",
+        sample_rate_hz=102.4,
+    )
+    assert sorted(set(rec.position.tolist())) == [-1, 0, 1, 2, 3, 4, 5]
+    x_p = rec.accel[rec.position == 0].mean(axis=0)
+    assert x_p[0] == pytest.approx(9.8, abs=0.6)
