@@ -106,7 +106,7 @@ MALFORMED = [
     ("p.json", _json(OK, '{"alpha_deg": 0}'), "position 2: missing 'beta_deg'"),
     ("p.json", _json('{"alpha_deg": 91, "beta_deg": 0}'), "position 1: alpha_deg must be within"),
     ("p.json", _json('{"alpha_deg": 0, "beta_deg": -90.5}'), "beta_deg must be within ±90"),
-    ("p.json", _json('{"alpha_deg": 0, "beta_deg": 0, "psi_deg": 181}'), "psi_deg must be within"),
+    ("p.json", _json('{"alpha_deg": 0, "beta_deg": 0, "psi_deg": 361}'), "psi_deg must be within"),
     ("p.json", _json('{"alpha_deg": 0, "beta_deg": 0, "seconds": -1}'), "seconds must be > 0"),
     ("p.json", _json('{"alpha_deg": 0, "beta_deg": 0, "seconds": 0}'), "seconds must be > 0"),
     ("p.json", _json('{"alpha_deg": 0, "beta_deg": 0, "tolerance_deg": -0.1}'), "tolerance_deg"),
