@@ -1,0 +1,222 @@
+"""`canimucal record OUT.csv`: record one position or a whole plan into the recording CSV.
+
+One position: ``--position I --alpha-deg A --beta-deg B [--psi-deg P] --seconds S``
+(``--append`` adds it to an existing recording). A whole plan: ``--plan P`` prompts the
+operator pose by pose on stdin, or, with ``--sim`` or ``--follow-schedule``, follows the
+pose schedule the unit runs by itself from the NMT start (``canimucal sim --poses P``).
+Ctrl-C keeps what was recorded (exit 130). Several ``--node-id``: ``OUT.node<ID>.csv``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import math
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from canimucal.cli.bus_options import DeviceSession, add_bus_options, node_ids, per_node_path
+from canimucal.errors import InputError
+from canimucal.io.atomic import refuse_existing
+from canimucal.io.plans import resolve_plan
+from canimucal.io.recording import HeaderValue, RecordingWriter
+from canimucal.model.plan import builtin_plan
+from canimucal.model.positions import DEFAULT_SECONDS, Plan, PlannedPosition
+from canimucal.sim.truth import Truth
+
+if TYPE_CHECKING:
+    from canimucal.device.client import ImuClient
+    from canimucal.procedure.recorder import NodeTally, Recorder
+
+POSE_TRANSIENT_S = 1.0
+"""Default move time between scheduled poses, as ``sim_node.POSE_TRANSIENT_S``."""
+GUARD_S = 0.5
+"""Scheduled samples this close to a move stay unlabelled (``recorder.DEFAULT_GUARD_S``)."""
+
+
+def add_subparser(subparsers: Any) -> None:
+    """Register ``record``."""
+    p = subparsers.add_parser(
+        "record",
+        help="record one position or a whole plan from the IMU node(s)",
+        description="Record raw samples into the recording CSV (DESIGN §5), labelled by "
+        "position: one position, or a whole plan pose by pose.",
+    )
+    p.add_argument("output", help="recording CSV to write")
+    what = p.add_mutually_exclusive_group(required=True)
+    what.add_argument("--position", type=int, metavar="I", help="index of this position")
+    what.add_argument("--plan", metavar="P", help="two, five, recommended or a plan file")
+    p.add_argument("--alpha-deg", type=float, help="tilt alpha of the position (deg)")
+    p.add_argument("--beta-deg", type=float, help="tilt beta of the position (deg)")
+    p.add_argument("--psi-deg", type=float, default=0.0, help="turn psi (deg, default 0)")
+    p.add_argument("--seconds", type=float, help="seconds per position (default: the plan's)")
+    p.add_argument("--append", action="store_true", help="add the position to OUT.csv")
+    p.add_argument("--overwrite", action="store_true", help="replace OUT.csv if it exists")
+    p.add_argument(
+        "--follow-schedule",
+        action="store_true",
+        help="the unit follows the plan by itself from NMT start (sim --poses): no prompts",
+    )
+    p.add_argument(
+        "--settle-s", type=float, default=1.5, help="seconds skipped after each pose is set"
+    )
+    p.add_argument(
+        "--transient-s",
+        type=float,
+        default=POSE_TRANSIENT_S,
+        help=f"move time between scheduled poses (default {POSE_TRANSIENT_S:g} s)",
+    )
+    site = p.add_argument_group("site (recording header)")
+    site.add_argument("--g", type=float, help="local gravity, m/s²")
+    site.add_argument("--latitude-deg", type=float, help="latitude (deg)")
+    site.add_argument("--height-m", type=float, help="height (m)")
+    site.add_argument("--heading-deg", type=float, help="azimuth of body z (deg)")
+    add_bus_options(p)
+    p.set_defaults(run=run)
+
+
+def _finite(name: str, value: float | None) -> None:
+    if value is not None and not math.isfinite(value):
+        raise InputError(f"{name} must be a finite number, got {value}")
+
+
+def check_args(args: argparse.Namespace) -> Plan:
+    """Check the flags and outputs before connecting; return the plan to record."""
+    for name in ("alpha_deg", "beta_deg", "psi_deg", "seconds", "settle_s", "transient_s"):
+        _finite("--" + name.replace("_", "-"), getattr(args, name))
+    if args.seconds is not None and args.seconds <= 0:
+        raise InputError(f"--seconds must be > 0, got {args.seconds:g}")
+    if args.settle_s < 0 or args.transient_s < 0:
+        raise InputError("--settle-s and --transient-s must be ≥ 0")
+    if args.append and args.overwrite:
+        raise InputError("--append and --overwrite exclude each other")
+    if args.position is not None:
+        plan = _single_position_plan(args)
+    else:
+        if args.append:
+            raise InputError("--append records one position (--position), not a plan")
+        plan = resolve_plan(args.plan, builtin_plan)
+        if args.seconds is not None:
+            plan = plan.with_total_seconds(args.seconds * len(plan.positions))
+    ids = node_ids(args)
+    for nid in ids:
+        path = per_node_path(args.output, nid, len(ids) > 1)
+        if args.append:
+            if not path.is_file():
+                raise InputError(f"cannot append: {path} does not exist")
+        else:
+            refuse_existing(path, overwrite=args.overwrite)
+    return plan
+
+
+def _single_position_plan(args: argparse.Namespace) -> Plan:
+    if args.position < 0:
+        raise InputError(f"--position must be ≥ 0, got {args.position}")
+    if args.alpha_deg is None or args.beta_deg is None:
+        raise InputError("--position needs --alpha-deg and --beta-deg")
+    seconds = args.seconds if args.seconds is not None else DEFAULT_SECONDS
+    alpha, beta, psi = np.deg2rad([args.alpha_deg, args.beta_deg, args.psi_deg])
+    return Plan("custom", (PlannedPosition(alpha, beta, psi, seconds=seconds),))
+
+
+def header_for(
+    client: ImuClient, args: argparse.Namespace, truth: Truth | None
+) -> dict[str, HeaderValue]:
+    """Build the header: rate, node, serial, nominal LSBs, site (flags, else the sim truth)."""
+    accel_lsb, gyro_lsb = client.nominal_lsb()
+    header: dict[str, HeaderValue] = {
+        "sample_rate_hz": float(client.output_data_rate()),
+        "node_id": client.node_id,
+        "device_serial": client.identity().serial,
+        "accel_lsb": accel_lsb,
+        "gyro_lsb": gyro_lsb,
+    }
+    site = {
+        "g": args.g,
+        "latitude_deg": args.latitude_deg,
+        "height_m": args.height_m,
+        "heading_deg": args.heading_deg,
+    }
+    if truth is not None:  # the simulated unit's site, unless the flags say otherwise
+        known = {
+            "g": truth.g,
+            "latitude_deg": float(np.rad2deg(truth.latitude)),
+            "heading_deg": float(np.rad2deg(truth.heading)),
+        }
+        site = {k: (v if v is not None else known.get(k)) for k, v in site.items()}
+    header.update({k: float(v) for k, v in site.items() if v is not None})
+    return header
+
+
+def run(args: argparse.Namespace) -> int:
+    """Record and report."""
+    from canimucal.device.bus import default_sdo_timeout_s
+    from canimucal.procedure.recorder import Recorder
+
+    plan = check_args(args)
+    with DeviceSession(args) as session, contextlib.ExitStack() as files:
+        several = len(session.clients) > 1
+        channels = []
+        for nid, client in session.clients.items():
+            header = header_for(client, args, session.truth)
+            path = per_node_path(args.output, nid, several)
+            writer = RecordingWriter.open(
+                path, header, overwrite=args.overwrite, append=args.append
+            )
+            files.enter_context(writer)
+            channels.append((client, writer, float(header["sample_rate_hz"])))
+        # a node silent for 10 SDO timeouts has stopped (5 s; 20 s in the slow CAN VM)
+        idle_s = 10.0 * (args.sdo_timeout or default_sdo_timeout_s())
+        recorder = Recorder(channels, idle_timeout_s=idle_s)
+        try:
+            _record(args, session, recorder, plan)
+        finally:
+            recorder.stop()
+            print(report(recorder.tallies, [w.path for _, w, _ in channels]), end="")
+    return 0
+
+
+def _record(
+    args: argparse.Namespace, session: DeviceSession, recorder: Recorder, plan: Plan
+) -> None:
+    scheduled = args.position is None and (args.sim or args.follow_schedule)
+    for node in session.sim_nodes.values():  # the operator's hands, in-process
+        if scheduled:
+            node.set_schedule(plan)
+        elif args.position is not None:
+            first = plan.positions[0]
+            node.set_pose(first.alpha, first.beta, first.psi)
+    recorder.start()
+    if args.position is not None:
+        recorder.record_pose(args.position, plan.positions[0], settle_s=args.settle_s)
+    elif scheduled:
+        print(f"following the unit's schedule: {len(plan.positions)} positions", flush=True)
+        recorder.record_scheduled(plan, transient_s=args.transient_s, guard_s=GUARD_S)
+    else:
+        recorder.record_prompted(plan, _prompt, settle_s=args.settle_s)
+
+
+def _prompt(index: int, position: PlannedPosition) -> None:
+    alpha, beta, psi = np.rad2deg(position.angles)
+    print(
+        f"position {index}: put the unit at alpha {alpha:g} beta {beta:g} psi {psi:g} deg, "
+        f"press Enter ({position.seconds:g} s)",
+        flush=True,
+    )
+    if not sys.stdin.readline():
+        raise InputError("no operator input: stdin closed (use --follow-schedule or --sim)")
+
+
+def report(tallies: list[NodeTally], paths: list[Path]) -> str:
+    """Rows, labelled rows and losses per node."""
+    lines = []
+    for tally, path in zip(tallies, paths, strict=True):
+        lines.append(
+            f"node {tally.node_id}: wrote {tally.rows} rows to {path} ({tally.labelled} in "
+            f"positions); lost {tally.lost_samples} samples, {tally.lost_accel} accel and "
+            f"{tally.lost_gyro} gyro halves; {tally.duplicates} duplicate, {tally.late} late"
+        )
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,87 @@
+"""`canimucal write-params CAL.json`: the transactional calibration write of DESIGN §4.
+
+Validation order: the file (schema, keys, finite numbers, invertible K and S, a backup's
+``objects``) before connecting; the device's ranges after reading its nominal LSBs but before
+writing anything (both exit 2). A serial other than the file's ``device.serial`` is refused
+(exit 3, nothing written) unless ``--force``. A backup file (``objects``) is a valid input
+and restores the device bit-exactly. ``--dry-run`` prints the planned SDO writes only.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from canimucal.cli.bus_options import DeviceSession, add_bus_options
+from canimucal.errors import InputError
+from canimucal.io.calibration import CalibrationRecord, read_calibration
+from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
+
+if TYPE_CHECKING:
+    from canimucal.device.transaction import WriteReport
+
+
+def add_subparser(subparsers: Any) -> None:
+    """Register ``write-params``."""
+    p = subparsers.add_parser(
+        "write-params",
+        help="write a calibration (or restore a backup) into the IMU node, verified",
+        description="Write the calibration JSON into the node transactionally: backup, "
+        "invalidate, write, read back bit-exactly, CRC, valid, store; roll back on failure.",
+    )
+    p.add_argument("calibration", help="calibration JSON (solve's output or a backup)")
+    p.add_argument("--dry-run", action="store_true", help="print the planned writes only")
+    p.add_argument("--no-store", action="store_true", help="do not store (0x1010:04)")
+    p.add_argument("--force", action="store_true", help="write even if the device serial differs")
+    p.add_argument("--backup-dir", metavar="DIR", help="where the backup of the device goes")
+    add_bus_options(p)
+    p.set_defaults(run=run)
+
+
+def check_file(path: str) -> CalibrationRecord:
+    """Read and check the calibration before connecting (InputError, exit 2)."""
+    from canimucal.device.calibration_map import backup_objects, block_from_record
+
+    if not Path(path).is_file():
+        raise InputError(f"{path}: no such file")
+    record = read_calibration(Path(path))
+    if backup_objects(record) is None:
+        block_from_record(record, DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB)  # K, S invertible
+    return record
+
+
+def run(args: argparse.Namespace) -> int:
+    """Check the file, connect, write (or plan) on every node."""
+    from canimucal.device.transaction import write_calibration_transaction
+
+    record = check_file(args.calibration)
+    with DeviceSession(args) as session:
+        for client in session.clients.values():
+            result = write_calibration_transaction(
+                client,
+                record,
+                force=args.force,
+                store=not args.no_store,
+                backup_dir=args.backup_dir,
+                dry_run=args.dry_run,
+            )
+            print(report(result, client.node_id), end="")
+    return 0
+
+
+def report(result: WriteReport, node: int) -> str:
+    """Describe what was written (or would be) and where the backup went."""
+    ident = result.identity
+    what = "restore of a backup" if result.restore else "calibration"
+    lines = [f"node {node} (serial {ident.serial}): {what}, CRC 0x{result.crc:08X}"]
+    if result.serial_forced:
+        lines.append("warning: written to another serial than the file's (--force)")
+    if result.dry_run:
+        lines.append(f"dry run: {len(result.writes)} SDO writes planned, nothing written:")
+        lines += [f"  {w.key} = {w.value!r} ({w.data.hex()})" for w in result.writes]
+        return "\n".join(lines) + "\n"
+    lines.append(f"backup of the previous calibration: {result.backup_path}")
+    stored = "stored (0x1010:04)" if result.stored else "not stored (--no-store)"
+    lines.append(f"wrote {len(result.writes)} objects, read back bit-exactly, valid, {stored}")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,291 @@
+"""Recording sample blocks from IMU nodes into recording CSVs (DESIGN §5), labelled by position.
+
+One :class:`Recorder` drives one or more nodes (one :class:`~canimucal.device.client.ImuClient`
+and one :class:`~canimucal.io.recording.RecordingWriter` each) and writes **every** sample it
+receives: rows of a static position carry its index and angles (degrees), all others (waiting
+for the operator, settling, moving) leave them empty. ``t`` is the CAN receive time, the
+``counter`` column the node's sample counter; a lost PDO half stays empty.
+
+Three ways to label:
+
+- :meth:`Recorder.record_pose`: the unit is at the pose now (after ``prepare``, e.g. the
+  operator pressed Enter): skip ``settle_s`` worth of samples, then label the next
+  ``seconds`` worth. Sample counts, not wall time, so a fast simulated node works too.
+- :meth:`Recorder.record_prompted`: a whole plan, :meth:`record_pose` per position with a
+  ``prompt(index, position)`` callback that returns when the unit is there.
+- :meth:`Recorder.record_scheduled`: the unit follows the plan by itself from the NMT start
+  (``canimucal sim --poses``, the in-process simulated node, a motorised rig): each sample's
+  schedule time is its counter distance from the first sample over the output data rate, and
+  it is labelled when the schedule holds the same position ``guard_s`` before and after it.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from canimucal.device.client import ImuClient
+from canimucal.device.stream import SampleBlock, concat_blocks
+from canimucal.errors import DeviceError, InputError
+from canimucal.io.recording import RecordingWriter
+from canimucal.model.positions import Plan, PlannedPosition
+from canimucal.sim.schedule import PoseTrajectory
+
+log = logging.getLogger(__name__)
+
+COUNTER_MODULUS = 65536
+POLL_S = 0.05
+"""How long one wait for a block from one node may take."""
+DEFAULT_IDLE_TIMEOUT_S = 5.0
+"""A node that sends no sample for this long has stopped: DeviceError."""
+WRITE_ROWS = 200
+WRITE_INTERVAL_S = 0.5
+"""Blocks (20 ms each) are labelled and written in batches of this many rows or seconds:
+the per-write overhead is what a slow (emulated) machine cannot afford 50 times a second."""
+DEFAULT_GUARD_S = 0.5
+"""Schedule mode: samples within this (schedule) time of a move are not labelled."""
+
+PosePrompt = Callable[[int, PlannedPosition], None]
+"""Called before position ``index``; returns when the unit is at the pose."""
+
+
+@dataclass
+class NodeTally:
+    """What one node's stream delivered: rows written, labelled, and losses (never hidden)."""
+
+    node_id: int
+    rows: int = 0
+    labelled: int = 0
+    lost_samples: int = 0
+    lost_accel: int = 0
+    lost_gyro: int = 0
+    duplicates: int = 0
+    late: int = 0
+
+    def add(self, block: SampleBlock) -> None:
+        """Add a block's loss counts."""
+        self.lost_samples += block.lost_samples
+        self.lost_accel += block.lost_accel
+        self.lost_gyro += block.lost_gyro
+        self.duplicates += block.duplicates
+        self.late += block.late
+
+
+class _Track:
+    """One node: its client, writer, unwrapped counter and labelling state."""
+
+    def __init__(self, client: ImuClient, writer: RecordingWriter, rate_hz: float) -> None:
+        self.client = client
+        self.writer = writer
+        self.rate_hz = rate_hz
+        self.tally = NodeTally(client.node_id)
+        self.seq_last: int | None = None
+        self.seq0: int | None = None
+        self.last_t = -np.inf
+        self.last_data = time.monotonic()
+        self.skip = 0
+        self.remaining = 0
+        self.index = -1
+        self.angles_deg = np.full(3, np.nan)
+        self.was_operational = False
+        self.pending: list[SampleBlock] = []
+        self.pending_rows = 0
+        self.last_write = time.monotonic()
+
+    def unwrap(self, counter: NDArray[np.int64]) -> NDArray[np.int64]:
+        """Unwrapped sequence numbers of a block's 16-bit counters."""
+        out = np.empty(counter.shape[0], dtype=np.int64)
+        last = self.seq_last
+        for i, c in enumerate(counter.tolist()):
+            last = c if last is None else last + (c - last) % COUNTER_MODULUS
+            out[i] = last
+        if out.size:
+            self.seq_last = int(out[-1])
+            if self.seq0 is None:
+                self.seq0 = int(out[0])
+        return out
+
+    def write(
+        self, block: SampleBlock, labels: NDArray[np.int64], angles: NDArray[np.float64]
+    ) -> None:
+        """Write a block with per-row position labels (-1 none) and angles (deg, NaN none)."""
+        if block.n == 0:
+            return
+        t = np.maximum.accumulate(np.maximum(block.t, self.last_t))  # CAN receive times
+        self.writer.write_rows(
+            t=t,
+            counter=block.counter,
+            position=labels,
+            alpha_deg=angles[:, 0],
+            beta_deg=angles[:, 1],
+            psi_deg=angles[:, 2],
+            accel=block.accel,
+            gyro=block.gyro,
+            temp_c=np.full(block.n, block.temp_c),
+        )
+        self.last_t = float(t[-1])
+        self.tally.rows += block.n
+        self.tally.labelled += int(np.count_nonzero(labels >= 0))
+
+
+Labels = tuple[NDArray[np.int64], NDArray[np.float64]]
+Labeller = Callable[[_Track, SampleBlock], Labels]
+"""Per-row position labels (-1 none) and angles (n, 3) in degrees (NaN none) of a block."""
+
+
+class Recorder:
+    """Streams from every node and writes each block as it comes (see the module doc)."""
+
+    def __init__(
+        self,
+        channels: Sequence[tuple[ImuClient, RecordingWriter, float]],
+        *,
+        idle_timeout_s: float = DEFAULT_IDLE_TIMEOUT_S,
+    ) -> None:
+        if not channels:
+            raise InputError("nothing to record: no node")
+        self._tracks = [_Track(client, writer, rate) for client, writer, rate in channels]
+        self._idle_timeout_s = idle_timeout_s
+        self._started = False
+
+    @property
+    def tallies(self) -> list[NodeTally]:
+        """Per-node counts so far."""
+        return [track.tally for track in self._tracks]
+
+    def start(self) -> None:
+        """Start streaming on every node (NMT start to each target node only)."""
+        for track in self._tracks:
+            track.was_operational = track.client.node_state == "OPERATIONAL"
+            track.client.start_streaming(rate_hz=track.rate_hz)
+            track.last_data = time.monotonic()
+        self._started = True
+
+    def stop(self) -> None:
+        """Stop streaming (a node found OPERATIONAL stays so) and write what is left."""
+        if not self._started:
+            return
+        self._started = False
+        for track in self._tracks:
+            track.client.stop_streaming(keep_operational=track.was_operational)
+            self._drain(track, _unlabelled)
+
+    # ------------------------------------------------------------------------ labelling
+    def record_pose(self, index: int, position: PlannedPosition, *, settle_s: float = 1.5) -> None:
+        """Label the next ``position.seconds`` of samples ``index`` after ``settle_s``."""
+        if index < 0:
+            raise InputError(f"position index must be ≥ 0, got {index}")
+        for track in self._tracks:
+            self._drain(track, _unlabelled)  # queued while the operator was busy
+            track.skip = int(round(settle_s * track.rate_hz))
+            track.remaining = max(int(round(position.seconds * track.rate_hz)), 2)
+            track.index = index
+            track.angles_deg = np.rad2deg(position.angles)
+        self._pump(_window, lambda: all(t.remaining == 0 for t in self._tracks))
+        for track in self._tracks:
+            track.index = -1
+
+    def record_prompted(
+        self, plan: Plan, prompt: PosePrompt, *, settle_s: float = 1.5, first_index: int = 0
+    ) -> None:
+        """Record every position of ``plan``, calling ``prompt`` before each."""
+        for i, position in enumerate(plan.positions):
+            prompt(first_index + i, position)
+            self.record_pose(first_index + i, position, settle_s=settle_s)
+
+    def record_scheduled(
+        self,
+        plan: Plan,
+        *,
+        transient_s: float,
+        guard_s: float = DEFAULT_GUARD_S,
+        first_index: int = 0,
+    ) -> None:
+        """Record a plan the unit follows by itself from the NMT start (module doc)."""
+        trajectory = PoseTrajectory()
+        trajectory.follow(0.0, plan, transient_s)
+        end_s = float(trajectory.end_s or 0.0)
+        angles = np.vstack([np.rad2deg(p.angles) for p in plan.positions])
+
+        def label(track: _Track, seq: NDArray[np.int64]) -> NDArray[np.int64]:
+            s = (seq - (track.seq0 or 0)) / track.rate_hz
+            index = trajectory.sample(s).index
+            steady = (trajectory.sample(s - guard_s).index == index) & (
+                trajectory.sample(s + guard_s).index == index
+            )
+            return np.where(steady & (index >= 0), index, -1)
+
+        def labeller(track: _Track, block: SampleBlock) -> Labels:
+            labels = label(track, track.unwrap(block.counter))
+            rows = np.where((labels >= 0)[:, None], angles[np.maximum(labels, 0)], np.nan)
+            return np.where(labels >= 0, labels + first_index, -1), rows
+
+        def done() -> bool:
+            return all(
+                t.seq_last is not None
+                and (t.seq_last - (t.seq0 or 0)) / t.rate_hz > end_s + guard_s
+                for t in self._tracks
+            )
+
+        self._pump(labeller, done)
+
+    # ------------------------------------------------------------------------- the loop
+    def _pump(self, labeller: Labeller, done: Callable[[], bool]) -> None:
+        """Take blocks from every node and write them, in batches, until ``done()``."""
+        while not done():
+            for track in self._tracks:
+                block = track.client.get_block(POLL_S / len(self._tracks))
+                now = time.monotonic()
+                if block is not None:
+                    track.pending.append(block)
+                    if block.n:
+                        track.last_data = now
+                        track.pending_rows += block.n
+                elif now - track.last_data > self._idle_timeout_s:
+                    raise DeviceError(
+                        f"node {track.client.node_id} sent no sample for {self._idle_timeout_s:g} s"
+                    )
+                if track.pending_rows >= WRITE_ROWS or now - track.last_write > WRITE_INTERVAL_S:
+                    self._flush(track, labeller)
+        for track in self._tracks:
+            self._flush(track, labeller)
+
+    def _drain(self, track: _Track, labeller: Labeller) -> None:
+        while (block := track.client.get_block(0.0)) is not None:
+            track.pending.append(block)
+        self._flush(track, labeller)
+
+    @staticmethod
+    def _flush(track: _Track, labeller: Labeller) -> None:
+        """Label and write the blocks received since the last flush as one."""
+        track.last_write = time.monotonic()
+        if not track.pending:
+            return
+        block = concat_blocks(track.pending)
+        track.pending, track.pending_rows = [], 0
+        track.tally.add(block)
+        if block.n:
+            track.write(block, *labeller(track, block))
+
+
+def _unlabelled(track: _Track, block: SampleBlock) -> Labels:
+    track.unwrap(block.counter)
+    return np.full(block.n, -1, dtype=np.int64), np.full((block.n, 3), np.nan)
+
+
+def _window(track: _Track, block: SampleBlock) -> Labels:
+    """Skip ``track.skip`` rows, label the next ``track.remaining`` with ``track.index``."""
+    track.unwrap(block.counter)
+    labels = np.full(block.n, -1, dtype=np.int64)
+    first = min(track.skip, block.n)
+    count = min(track.remaining, block.n - first)
+    labels[first : first + count] = track.index
+    track.skip -= first
+    track.remaining -= count
+    angles = np.where((labels >= 0)[:, None], track.angles_deg, np.nan)
+    return labels, angles

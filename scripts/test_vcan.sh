@@ -1,0 +1,78 @@
+#!/usr/bin/env bash
+# scripts/test_vcan.sh - what `make test-vcan` runs: the HIL tests (pytest -m vcan, tests/hil)
+# over SocketCAN vcan0, natively when vcan0 exists and opens, otherwise inside the QEMU VM of
+# ../shared/tools/canvm (setup_vm.sh every time: it skips finished steps; the project dir is
+# mounted and run with PYTHONPATH=.; package versions pinned to this venv's).
+#
+# Outside CI it may skip (exit 0) with the reason; with CI=true it must run them and fails if
+# it cannot, or if any test skipped or none passed. Last line: "vcan: N passed, M failed".
+#
+# Environment: PYTHON (default .venv/bin/python), CANVM_DIR (default ../shared/tools/canvm),
+# CANIMUCAL_VCAN (default vcan0), VM_TIMEOUT (default 1500 s), PYTEST_ADDOPTS.
+set -uo pipefail
+cd "$(dirname "$0")/.."
+PY=${PYTHON:-.venv/bin/python}
+CANVM=${CANVM_DIR:-../shared/tools/canvm}
+VCAN=${CANIMUCAL_VCAN:-vcan0}
+IS_CI=false
+case "${CI:-}" in true|1|yes) IS_CI=true;; esac
+PYTEST=(-m pytest -q -p no:cacheprovider -m vcan tests/hil -rfEsP --durations=8)
+LOG=$(mktemp /tmp/canimucal-vcan.XXXXXX)
+trap 'rm -f "$LOG"' EXIT
+t0=$(date +%s)
+
+give_up() {  # reason
+  if $IS_CI; then
+    echo "vcan: cannot run the HIL tests: $1" >&2
+    echo "vcan: 0 passed, 0 failed (could not run; CI=true)"
+    exit 1
+  fi
+  echo "vcan: skipped: $1"
+  exit 0
+}
+
+native_ok() {
+  ip link show "$VCAN" >/dev/null 2>&1 &&
+    "$PY" -c "import can; can.Bus(interface='socketcan', channel='$VCAN').shutdown()" \
+      >/dev/null 2>&1
+}
+
+pins() {  # the host venv's versions of what the VM needs (textual is not needed there)
+  "$PY" - <<'PYEOF'
+import importlib.metadata as m
+print(" ".join(f"{p}=={m.version(p)}" for p in ("numpy", "scipy", "python-can", "canopen")))
+PYEOF
+}
+
+[ -x "$PY" ] || give_up "no Python at $PY (run make venv)"
+if native_ok; then
+  echo "vcan: running natively on $VCAN"
+  CANIMUCAL_VCAN=$VCAN "$PY" "${PYTEST[@]}" 2>&1 | tee "$LOG"
+  rc=${PIPESTATUS[0]}
+else
+  echo "vcan: no usable $VCAN here; running inside the canvm VM ($CANVM)"
+  [ -x "$CANVM/setup_vm.sh" ] || give_up "no SocketCAN $VCAN and no VM scripts at $CANVM"
+  [ "$(id -u)" = 0 ] || give_up "no SocketCAN $VCAN, and the VM setup needs root"
+  PKGS=$(pins) || give_up "cannot read package versions from $PY"
+  if ! VM_PIP_PACKAGES="$PKGS" "$CANVM/setup_vm.sh"; then
+    give_up "setup_vm.sh failed"
+  fi
+  VM_TIMEOUT=${VM_TIMEOUT:-1500} "$CANVM/run_in_vm.sh" . \
+    "PYTHONPATH=. CANIMUCAL_VCAN=$VCAN python ${PYTEST[*]}" 2>&1 | tee "$LOG"
+  rc=${PIPESTATUS[0]}
+fi
+
+count() { grep -oE "[0-9]+ $1" "$LOG" | tail -n 1 | grep -oE '^[0-9]+' || echo 0; }
+passed=$(count passed)
+failed=$(( $(count failed) + $(count "errors?") ))
+skipped=$(count skipped)
+echo "vcan: wall time $(( $(date +%s) - t0 )) s"
+if [ "$rc" = 0 ] && { [ "$passed" = 0 ] || [ "$skipped" != 0 ]; } && $IS_CI; then
+  echo "vcan: $skipped skipped, $passed passed: with CI=true every HIL test must run" >&2
+  rc=1
+fi
+[ "$rc" = 0 ] || [ "$failed" != 0 ] || failed=1   # a crash without a pytest summary
+extra=""
+[ "$skipped" = 0 ] || extra=", $skipped skipped"
+echo "vcan: $passed passed, $failed failed$extra"
+exit "$rc"

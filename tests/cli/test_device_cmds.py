@@ -1,0 +1,328 @@
+"""The device verbs against the in-process simulated IMU (``--sim``, python-can virtual bus).
+
+Each test runs ``canimucal`` in-process. The simulated node's non-volatile memory is a
+``--state`` file, so what ``write-params`` stores is what the next command's node boots with.
+Recordings run with ``--time-scale`` so a plan of a few simulated minutes takes seconds.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time as time_module
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from canimucal.cli.read_params_cmd import SCHEMA as READ_SCHEMA
+from canimucal.device import od
+from canimucal.device.calibration_map import block_from_record, readback_dict
+from canimucal.io.calibration import read_calibration
+from canimucal.io.recording import read_recording
+from canimucal.io.truth_file import write_truth
+from canimucal.sim.truth import Truth
+
+Cli = Callable[[list[Any]], Any]  # the ``cli`` fixture of tests/cli/conftest.py
+SERIAL = 4242
+TRUTH_SEED = 20261121
+
+
+def make_truth() -> Truth:
+    """Seeded random unit: no cross-axis terms, base tilt within ±1°, serial 4242."""
+    d = Truth.random(np.random.default_rng(TRUTH_SEED), cross_axis_max=0.0).to_dict()
+    d["serial"] = SERIAL
+    return Truth.from_dict(d)
+
+
+@pytest.fixture
+def truth_file(tmp_path: Path) -> Path:
+    """A diagonal-K truth (seeded) with base tilt, serial 4242, written to a file."""
+    return write_truth(tmp_path / "truth.json", make_truth(), overwrite=False)
+
+
+def sim_flags(truth: Path, state: Path, scale: float = 20.0) -> list[str]:
+    return ["--sim", "--truth", str(truth), "--state", str(state), "--time-scale", str(scale)]
+
+
+def read_params(cli: Cli, flags: list[str], out: Path) -> dict[str, Any]:
+    run = cli(["read-params", *flags, "--json", out, "--overwrite"])
+    assert run.code == 0, run.err
+    document: dict[str, Any] = json.loads(out.read_text())
+    return document
+
+
+def calibration_file(tmp_path: Path, serial: int, k_scale: float = 1.0) -> Path:
+    """A small calibration JSON: biases, K (nominal × per-axis factors × ``k_scale``), tilt."""
+    k = np.diag(np.array([1.01, 0.99, 1.002]) * k_scale / od.to_float32(9.80665 / 2048.0))
+    document = {
+        "schema": "canimucal.calibration/1",
+        "plan": "five",
+        "device": {"serial": serial},
+        "accel": {"bias": [3.0, -2.5, 1.25], "K": k.tolist()},
+        "gyro": {"bias": [0.5, -0.25, 2.0]},
+        "base_tilt_deg": {"alpha0": 0.2, "beta0": -0.1},
+    }
+    path = tmp_path / f"cal_{serial}_{k_scale:g}.json"
+    path.write_text(json.dumps(document))
+    return path
+
+
+def test_read_params_json(cli: Cli, tmp_path: Path, truth_file: Path) -> None:
+    doc = read_params(cli, sim_flags(truth_file, tmp_path / "s.json"), tmp_path / "r.json")
+    assert doc["schema"] == READ_SCHEMA
+    assert doc["device"]["serial"] == SERIAL and doc["device"]["node_id"] == 16
+    assert doc["nominal"]["output_data_rate_hz"] == 200
+    factory = od.factory_block(doc["nominal"]["accel_lsb"], doc["nominal"]["gyro_lsb"])
+    assert doc["readback"] == readback_dict(factory, 0, True)  # factory: valid 0, CRC ok
+    assert set(doc["calibration"]["objects"]) == {
+        od.format_key(i, s) for i, s, _ in od.CALIBRATION_OBJECTS
+    }
+    read_calibration(json.dumps(doc["calibration"]))  # a valid calibration JSON (a backup)
+
+
+def test_write_params_cycle_and_restore(cli: Cli, tmp_path: Path, truth_file: Path) -> None:
+    flags = sim_flags(truth_file, tmp_path / "state.json")
+    before = read_params(cli, flags, tmp_path / "before.json")
+    cal = calibration_file(tmp_path, SERIAL)
+    run = cli(["write-params", cal, *flags, "--backup-dir", tmp_path / "bk"])
+    assert run.code == 0, run.err
+    backups = list((tmp_path / "bk").glob(f"{SERIAL}-*.json"))
+    assert len(backups) == 1 and str(backups[0]) in run.out
+    # a new process (node booted from its state file) holds exactly the block of the file
+    after = read_params(cli, flags, tmp_path / "after.json")
+    nominal = after["nominal"]
+    block = block_from_record(read_calibration(cal), nominal["accel_lsb"], nominal["gyro_lsb"])
+    expected = readback_dict(od.CalibrationBlock.from_objects(block.to_objects()), 1, True)
+    assert after["readback"] == expected
+    # the backup restores the factory block bit-exactly
+    run = cli(["write-params", backups[0], *flags, "--backup-dir", tmp_path / "bk"])
+    assert run.code == 0, run.err
+    restored = read_params(cli, flags, tmp_path / "restored.json")
+    assert restored["calibration"]["objects"] == before["calibration"]["objects"]
+    assert restored["readback"] == before["readback"]
+
+
+def test_dry_run_writes_nothing(cli: Cli, tmp_path: Path, truth_file: Path) -> None:
+    state = tmp_path / "state.json"
+    flags = sim_flags(truth_file, state)
+    cal = calibration_file(tmp_path, SERIAL)
+    run = cli(["write-params", cal, *flags, "--dry-run", "--backup-dir", tmp_path / "bk"])
+    assert run.code == 0, run.err
+    assert "0x2121:05" in run.out and "nothing written" in run.out
+    assert not (tmp_path / "bk").exists() and not state.exists()
+    assert read_params(cli, flags, tmp_path / "r.json")["readback"]["valid"] == 0
+
+
+def test_bad_file_exit_2_before_connecting(cli: Cli, tmp_path: Path) -> None:
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"schema": "canimucal.calibration/1", "device": {"serial": 1}, "accel": {}}')
+    # this bus cannot be opened here (exit 4 if the command got that far)
+    bus = ["--interface", "virtual-nonexistent", "--channel", "x"]
+    run = cli(["write-params", bad, *bus])
+    assert run.code == 2 and run.err.startswith("error: ") and "accel" in run.err
+    extra = tmp_path / "extra.json"
+    extra.write_text(json.dumps({**json.loads(calibration_file(tmp_path, 1).read_text()), "x": 1}))
+    assert cli(["write-params", extra, *bus]).code == 2
+    assert cli(["write-params", tmp_path / "missing.json", *bus]).code == 2
+    assert cli(["read-params", *bus]).code in (2, 4)  # the bus itself: usage or no bus
+
+
+def test_out_of_range_exit_2_nothing_written(cli: Cli, tmp_path: Path, truth_file: Path) -> None:
+    state = tmp_path / "state.json"
+    flags = sim_flags(truth_file, state)
+    cal = calibration_file(tmp_path, SERIAL, k_scale=3.0)  # M at 1/3 of nominal: outside ±50 %
+    run = cli(["write-params", cal, *flags, "--backup-dir", tmp_path / "bk"])
+    assert run.code == 2 and "range" in run.err
+    assert not (tmp_path / "bk").exists() and not state.exists()
+
+
+def test_serial_mismatch_exit_3_unless_forced(cli: Cli, tmp_path: Path, truth_file: Path) -> None:
+    flags = sim_flags(truth_file, tmp_path / "state.json")
+    cal = calibration_file(tmp_path, SERIAL + 1)
+    run = cli(["write-params", cal, *flags, "--backup-dir", tmp_path / "bk"])
+    assert run.code == 3 and "serial" in run.err
+    assert read_params(cli, flags, tmp_path / "r.json")["readback"]["valid"] == 0
+    run = cli(["write-params", cal, *flags, "--backup-dir", tmp_path / "bk", "--force"])
+    assert run.code == 0, run.err
+    assert read_params(cli, flags, tmp_path / "r.json")["readback"]["valid"] == 1
+
+
+def test_record_single_position_and_append(cli: Cli, tmp_path: Path, truth_file: Path) -> None:
+    flags = sim_flags(truth_file, tmp_path / "state.json", scale=10.0)
+    out = tmp_path / "one.csv"
+    pos = ["--alpha-deg", "22.5", "--beta-deg", "2.5", "--seconds", "2"]
+    run = cli(["record", out, "--position", "0", *pos, *flags])
+    assert run.code == 0, run.err
+    run = cli(["record", out, "--position", "1", *pos[:3], "0", *pos[4:], "--append", *flags])
+    assert run.code == 0, run.err
+    rec = read_recording(out)
+    assert rec.header["device_serial"] == SERIAL and rec.header["sample_rate_hz"] == 200.0
+    for index, beta in ((0, 2.5), (1, 0.0)):
+        rows = rec.position == index
+        assert rows.sum() == 400  # 2 s at 200 Hz, labelled after the settle time
+        assert np.all(rec.alpha_deg[rows] == 22.5) and np.all(rec.beta_deg[rows] == beta)
+        step = np.diff(rec.counter[rows]) % 65536
+        assert np.all(step == 1)  # consecutive counters: nothing lost on the virtual bus
+    assert np.all(np.diff(rec.t) >= 0)
+    # a position recorded again without --append or --overwrite: refused, exit 2
+    assert cli(["record", out, "--position", "2", *pos, *flags]).code == 2
+
+
+def test_record_plan_then_solve(cli: Cli, tmp_path: Path, truth_file: Path) -> None:
+    flags = sim_flags(truth_file, tmp_path / "state.json", scale=25.0)
+    out = tmp_path / "plan.csv"
+    run = cli(["record", out, "--plan", "recommended", "--seconds", "8", *flags])
+    assert run.code == 0, run.err
+    lost = re.search(
+        r"lost (\d+) samples, (\d+) accel and (\d+) gyro halves; (\d+) dup\w+, (\d+) late", run.out
+    )
+    assert lost is not None, run.out
+    samples, accel, gyro, duplicates, late = map(int, lost.groups())
+    # the virtual bus drops nothing: no sample lost outright; a half given up by the pairer
+    # (a thread starved past its 0.25 s grace on a loaded machine) must have arrived late
+    assert samples == duplicates == 0 and accel + gyro == late, run.out
+    rec = read_recording(out)
+    assert sorted(set(rec.position.tolist()) - {-1}) == list(range(8))
+    cal = tmp_path / "cal.json"
+    run = cli(["solve", out, "--tilt", "--json", cal])
+    assert run.code == 0, run.err
+    record = read_calibration(cal)
+    truth = Truth.from_dict(json.loads(truth_file.read_text()))
+    assert record.device.serial == SERIAL
+    est = np.array(record.accel.bias + tuple(np.diag(np.array(record.accel.K))), dtype=float)
+    sig = np.array(
+        record.accel.bias_sigma + tuple(np.diag(np.array(record.accel.K_sigma))), dtype=float
+    )
+    true = np.concatenate([truth.accel.bias, np.diag(truth.accel.K)])
+    # 6 parameters within 4σ: P(any beyond | Gaussian) = 1 - (1 - 6.3e-5)^6 ≈ 4e-4 per run
+    assert np.all(np.abs(est - true) < 4 * sig), (est - true) / sig
+
+
+def test_sim_runs_until_sigterm(tmp_path: Path, truth_file: Path) -> None:
+    plan = tmp_path / "poses.json"
+    plan.write_text('{"positions": [{"alpha_deg": 0, "beta_deg": 0, "seconds": 2}]}')
+    cmd = [sys.executable, "-m", "canimucal", "sim", "--interface", "virtual", "--channel"]
+    cmd += [f"canimucal-simcmd-{os.getpid()}", "--truth", str(truth_file), "--poses", str(plan)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()  # blocks until the ready line (or exit)
+        assert line.startswith("ready: ") and f"serial {SERIAL}" in line, line
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=20) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_several_nodes_one_output_each(cli: Cli, tmp_path: Path, truth_file: Path) -> None:
+    flags = sim_flags(truth_file, tmp_path / "state.json", scale=10.0)
+    run = cli(["read-params", *flags, "--node-id", "16", "--node-id", "0x11", "--json", "-"])
+    assert run.code == 2 and "--json -" in run.err  # several nodes need a file name
+    out = tmp_path / "r.json"
+    run = cli(["read-params", *flags, "--node-id", "16", "--node-id", "0x11", "--json", out])
+    assert run.code == 0, run.err
+    for node in (16, 17):
+        doc = json.loads((tmp_path / f"r.node{node}.json").read_text())
+        assert doc["device"]["node_id"] == node
+    assert not out.exists()
+    rec = tmp_path / "two.csv"
+    pos = ["--position", "0", "--alpha-deg", "0", "--beta-deg", "0", "--seconds", "1"]
+    run = cli(["record", rec, *pos, *flags, "--node-id", "16", "--node-id", "17"])
+    assert run.code == 0, run.err
+    for node in (16, 17):
+        recording = read_recording(tmp_path / f"two.node{node}.csv")
+        assert recording.header["node_id"] == node and np.sum(recording.position == 0) == 200
+
+
+def test_record_defaults_match_the_simulated_node() -> None:
+    from canimucal.cli import record_cmd
+    from canimucal.device.sim_node import POSE_TRANSIENT_S
+    from canimucal.procedure.recorder import DEFAULT_GUARD_S
+
+    assert record_cmd.POSE_TRANSIENT_S == POSE_TRANSIENT_S
+    assert record_cmd.GUARD_S == DEFAULT_GUARD_S
+
+
+def test_device_verbs_load_the_can_stack_only_when_run() -> None:
+    mods = ", ".join(f"canimucal.cli.{m}" for m in ("sim_cmd", "read_params_cmd", "record_cmd"))
+    probe = (
+        f"import sys, {mods}, canimucal.cli.write_params_cmd, canimucal.cli.bus_options\n"
+        "print(sorted({m.split('.')[0] for m in sys.modules} & {'can', 'canopen', 'textual'}))"
+    )
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_recorder_prompted_plan_follows_the_operator(tmp_path: Path) -> None:
+    """The prompt path of ``record --plan`` (no --sim): the callback moves the simulated unit."""
+    import can
+
+    from canimucal.device.client import ImuClient
+    from canimucal.device.sim_node import SimulatedImuNode
+    from canimucal.io.recording import RecordingWriter
+    from canimucal.model.plan import builtin_plan
+    from canimucal.procedure.recorder import Recorder
+
+    channel = f"canimucal-prompt-{os.getpid()}"
+    node_bus, client_bus = (can.Bus(interface="virtual", channel=channel) for _ in range(2))
+    node = SimulatedImuNode(node_bus, 0x10, make_truth(), time_scale=10.0, seed=3).start()
+    plan = builtin_plan("two").with_total_seconds(2.0)
+    prompts: list[int] = []
+
+    def prompt(index: int, position: Any) -> None:
+        prompts.append(index)
+        node.set_pose(position.alpha, position.beta, position.psi)
+
+    out = tmp_path / "prompted.csv"
+    try:
+        with ImuClient(client_bus, 0x10) as client:
+            header = {"sample_rate_hz": 200.0, "device_serial": SERIAL}
+            with RecordingWriter.open(out, header) as writer:
+                recorder = Recorder([(client, writer, 200.0)])
+                recorder.start()
+                try:
+                    recorder.record_prompted(plan, prompt, settle_s=1.5)
+                finally:
+                    recorder.stop()
+    finally:
+        node.stop()
+        node_bus.shutdown()
+        client_bus.shutdown()
+    assert prompts == [0, 1]
+    rec = read_recording(out)
+    for index, position in enumerate(plan.positions):
+        rows = rec.position == index
+        assert rows.sum() == 200
+        assert np.allclose(rec.alpha_deg[rows], np.rad2deg(position.alpha))
+        # settled: the labelled samples sit at the pose (x accel ≈ K f of that pose, not moving)
+        assert np.ptp(np.nanmean(rec.accel[rows].reshape(4, 50, 3), axis=1)[:, 0]) < 10.0
+
+
+def test_record_interrupted_keeps_what_was_recorded(tmp_path: Path) -> None:
+    out = tmp_path / "cut.csv"
+    cmd = [sys.executable, "-m", "canimucal", "record", str(out), "--sim", "--plan", "five"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    partial = tmp_path / "cut.csv.partial"
+    try:
+        for _ in range(300):  # until rows are being written (≤ 30 s)
+            if partial.exists() and partial.stat().st_size > 5_000:
+                break
+            time_module.sleep(0.1)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert out.exists() and not partial.exists()
+    assert read_recording(out).n_rows > 100
