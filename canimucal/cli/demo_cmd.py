@@ -11,7 +11,10 @@ replaced) go per node the recording CSV, the verification CSV, the calibration J
 ``readback`` block (DESIGN §5), the certificate, the truth and the device backup. Then it
 prints each value read back from the device beside the truth, with σ and the deviation in σ.
 
-Without ``--headless`` the TUI will run the demo (coming); for now it runs headless too.
+Without ``--headless`` the TUI (:mod:`canimucal.tui`, imported lazily) runs the same
+procedure on the same simulated node(s) with a person as the operator: confirming a pose
+moves the simulated unit there. Its files go to ``--out`` as well. Without a terminal
+(stdin or stdout redirected, as in ``make demo`` under CI) it runs headless, with a note.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from canimucal.io.atomic import write_text_atomic
 from canimucal.io.plans import resolve_plan
 from canimucal.io.truth_file import load_truth
 from canimucal.model.plan import builtin_plan
+from canimucal.model.positions import Plan
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.procedure.demo_rig import DemoRig, comparison_table, readback_deviations
@@ -103,13 +107,15 @@ def run(args: argparse.Namespace) -> int:
     """Run the demo and print the comparison of the read-back values with the truth."""
     check_outputs(args)
     _check_numbers(args)
-    if not args.headless:
-        print("note: the TUI demo is coming; running the headless demo", file=sys.stderr)
     plan = resolve_plan(args.plan, builtin_plan)
     plan_name = plan.name if plan.name in ("two", "five", "recommended") else "custom"
     truths = _truths(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if not args.headless and _terminal():
+        return _run_tui(args, plan, plan_name, truths, out)
+    if not args.headless:
+        print("note: no terminal; running the headless demo", file=sys.stderr)
     policy = AveragingPolicy(fixed_s=args.seconds)
     verify_s = min(args.seconds, 10.0) if args.seconds else 10.0
     with DemoRig(truths, time_scale=args.time_scale, seed=args.seed + 1) as rig:
@@ -128,6 +134,37 @@ def run(args: argparse.Namespace) -> int:
     document: Any = next(iter(documents.values())) if len(documents) == 1 else documents
     emit(args, document, report)
     return 0 if all("readback" in d for d in documents.values()) else 3
+
+
+def _terminal() -> bool:
+    """Whether stdin and stdout are a terminal (the TUI needs one)."""
+    return sys.stdin is not None and sys.stdin.isatty() and sys.stdout.isatty()
+
+
+def _run_tui(
+    args: argparse.Namespace, plan: Plan, plan_name: str, truths: list[Truth], out: Path
+) -> int:
+    """Open the TUI on a demo source; files go to ``out``."""
+    from canimucal.tui.app import make_app
+    from canimucal.tui.source import DemoSource
+
+    seconds = args.seconds
+    source = DemoSource(
+        truths,
+        out,
+        time_scale=args.time_scale,
+        seed=args.seed + 1,
+        seconds=seconds,
+        verify_seconds=min(seconds, 10.0) if seconds else 10.0,
+    )
+    custom = plan if plan_name == "custom" else None
+    app = make_app(source, plan_name=plan_name, gyro=args.gyro, custom_plan=custom)
+    try:
+        app.run()
+    finally:
+        source.close()
+    print(f"demo files in {out}")
+    return int(app.return_code or 0)
 
 
 def _results(

@@ -16,19 +16,30 @@ from collections.abc import Sequence
 from canimucal import __version__
 from canimucal.errors import CanimucalError
 
-# verb -> module under canimucal.cli providing `add_subparser(subparsers)` and `run(args)`
-COMMANDS: dict[str, str] = {
-    "solve": "solve_cmd",
-    "plan": "plan_cmd",
-    "allan": "allan_cmd",
-    "demo": "demo_cmd",
+# verb -> (module under canimucal.cli providing `add_subparser` and `run`, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "solve": ("solve_cmd", "solve a recording for the calibration parameters"),
+    "plan": ("plan_cmd", "Cramér–Rao bound of every parameter for a plan"),
+    "allan": ("allan_cmd", "Allan deviation, noise terms and recommended averaging time"),
+    "demo": ("demo_cmd", "the whole job against the built-in simulated IMU"),
+    "sim": ("sim_cmd", "run the simulated IMU node on a CAN bus until Ctrl-C"),
+    "read-params": ("read_params_cmd", "read identity and calibration from the node"),
+    "write-params": ("write_params_cmd", "write a calibration to the node, transactionally"),
+    "record": ("record_cmd", "record one position or a whole plan to a recording CSV"),
+    "analyze": ("analyze_cmd", "what the sensor model gets wrong on measured data"),
+    "tui": ("tui_cmd", "the guided calibration in the terminal UI (the default)"),
 }
 
 EXIT_INTERRUPTED = 130
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Build the full argument parser (every verb registered)."""
+def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
+    """Build the argument parser; only ``verb``'s module is imported (``None``: none).
+
+    The other verbs get a stub subparser carrying their help line, so ``canimucal --help``
+    lists them all while loading neither the CAN stack nor Textual, and each command starts
+    without importing every other command's dependencies.
+    """
     parser = argparse.ArgumentParser(
         prog="canimucal",
         description="Field calibration of a CANopen IMU from small rotations.",
@@ -36,23 +47,39 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"canimucal {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks and debug logs")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for module_name in COMMANDS.values():
-        module = importlib.import_module(f"canimucal.cli.{module_name}")
-        module.add_subparser(subparsers)
+    for name, (module_name, help_line) in COMMANDS.items():
+        if name == verb:
+            importlib.import_module(f"canimucal.cli.{module_name}").add_subparser(subparsers)
+        else:
+            subparsers.add_parser(name, help=help_line)
     return parser
+
+
+def _verb_of(argv: Sequence[str]) -> str | None:
+    """Return the verb ``argv`` runs: the first word naming one, ``tui`` when there is none.
+
+    ``None`` for top-level help or version (nothing to import) and for an unknown word
+    (argparse then reports it).
+    """
+    for arg in argv:
+        if arg in COMMANDS:
+            return arg
+        if arg in ("-h", "--help", "--version") or not arg.startswith("-"):
+            return None
+    return "tui"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one command; return its exit status."""
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(_verb_of(argv))
     args = parser.parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.debug else logging.WARNING,
         format="%(levelname)s %(name)s: %(message)s",
     )
-    if args.command is None:
-        parser.print_help()
-        return 2
+    if args.command is None:  # `canimucal` alone opens the TUI (DESIGN §7)
+        args = parser.parse_args([*(["--debug"] if args.debug else []), "tui"])
     try:
         return int(args.run(args))
     except CanimucalError as error:

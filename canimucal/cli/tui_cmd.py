@@ -1,0 +1,101 @@
+"""`canimucal tui` (and `canimucal` with no subcommand): the guided calibration in the TUI.
+
+The bus flags are those of every device command (:mod:`canimucal.cli.bus_options`);
+``--sim`` attaches the built-in simulated IMU (confirming a pose then moves it). The site
+(``--g`` or ``--latitude-deg``/``--height-m`` for normal gravity, ``--heading-deg``) goes
+into the records; files go to ``--out``. Textual is imported only when the TUI runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from canimucal.cli.bus_options import DeviceSession, add_bus_options, node_ids
+from canimucal.errors import InputError
+from canimucal.io.plans import resolve_plan
+from canimucal.model.gravity import normal_gravity
+from canimucal.model.plan import builtin_plan
+from canimucal.model.sensor import STANDARD_GRAVITY
+
+log = logging.getLogger(__name__)
+
+BUILTIN = ("two", "five", "recommended")
+
+
+def add_subparser(subparsers: Any) -> None:
+    """Register ``tui``."""
+    p = subparsers.add_parser(
+        "tui",
+        help="the guided calibration in the terminal UI (also: canimucal with no command)",
+        description="Connect to the IMU node(s), choose a plan, follow the guided procedure, "
+        "review the result and write it transactionally.",
+    )
+    add_bus_options(p)
+    p.add_argument("--plan", default="recommended", help="two, five, recommended or a plan file")
+    p.add_argument("--gyro", choices=("mems", "nav"), default="mems", help="gyro grade")
+    p.add_argument("--out", default="canimucal-out", help="directory for records and recordings")
+    p.add_argument("--backup-dir", help="where device backups go (default: XDG state dir)")
+    p.add_argument("--g", type=float, help="local gravity, m/s² (else from latitude and height)")
+    p.add_argument("--latitude-deg", type=float, help="latitude, degrees (nav gyro needs it)")
+    p.add_argument("--height-m", type=float, default=0.0, help="height above the ellipsoid, m")
+    p.add_argument("--heading-deg", type=float, default=0.0, help="azimuth of body z, degrees")
+    p.add_argument("--no-warmup", action="store_true", help="do not wait for warm-up")
+    p.set_defaults(run=run)
+
+
+def _site(args: argparse.Namespace) -> Any:
+    from canimucal.procedure.solution import SiteConditions
+
+    latitude = None if args.latitude_deg is None else float(np.deg2rad(args.latitude_deg))
+    if args.g is not None:
+        g = float(args.g)
+    elif latitude is not None:
+        g = normal_gravity(latitude, args.height_m)
+    else:
+        g = STANDARD_GRAVITY
+        print(f"warning: no --g or --latitude-deg: using g = {g} m/s²", file=sys.stderr)
+    if args.gyro == "nav" and latitude is None:
+        raise InputError("--gyro nav needs --latitude-deg (the Earth rate depends on it)")
+    return SiteConditions(
+        g=g,
+        latitude=latitude,
+        heading=float(np.deg2rad(args.heading_deg)),
+        height_m=args.height_m,
+    )
+
+
+def _where(args: argparse.Namespace) -> str:
+    if args.sim:
+        return "simulated IMU (in-process virtual bus)"
+    parts = [args.interface or "python-can default interface", args.channel or ""]
+    return " ".join(p for p in parts if p) + f" · nodes {', '.join(map(str, node_ids(args)))}"
+
+
+def run(args: argparse.Namespace) -> int:
+    """Open the TUI on the bus the flags name."""
+    from canimucal.tui.app import make_app
+    from canimucal.tui.source import BusSource
+
+    plan = resolve_plan(args.plan, builtin_plan)
+    plan_name = plan.name if plan.name in BUILTIN else "custom"
+    source = BusSource(
+        opener=lambda: DeviceSession(args, find=False),
+        out_dir=Path(args.out),
+        site=_site(args),
+        backup_dir=Path(args.backup_dir) if args.backup_dir else None,
+        warmup=not args.no_warmup,
+        description=_where(args),
+    )
+    custom = plan if plan_name == "custom" else None
+    app = make_app(source, plan_name=plan_name, gyro=args.gyro, custom_plan=custom)
+    try:
+        app.run()
+    finally:
+        source.close()
+    return int(app.return_code or 0)

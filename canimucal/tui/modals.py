@@ -1,0 +1,74 @@
+"""Modal screens: the write confirmation (``ModalScreen[bool]``) and the error modal."""
+
+from __future__ import annotations
+
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal, Vertical
+from textual.screen import ModalScreen
+from textual.widgets import Button, Static
+
+
+class ConfirmWrite(ModalScreen[bool]):
+    """Ask before writing: True to write, False to go back to the results."""
+
+    BINDINGS = [
+        Binding("y", "answer(True)", "Write"),
+        Binding("n,escape", "answer(False)", "Cancel"),
+    ]
+
+    def __init__(self, text: str) -> None:
+        super().__init__()
+        self.text = text
+
+    def compose(self) -> ComposeResult:
+        """Question and two buttons."""
+        with Vertical(id="dialog"):
+            yield Static("Write the calibration?", classes="dialog-title")
+            yield Static(self.text, id="confirm-text")
+            with Horizontal(classes="buttons"):
+                yield Button("Write (y)", variant="warning", id="yes")
+                yield Button("Cancel (n)", variant="primary", id="no")
+
+    def on_mount(self) -> None:
+        """Focus the safe choice."""
+        self.query_one("#no", Button).focus()
+
+    def on_button_pressed(self, event: Button.Pressed) -> None:
+        """Answer from a button."""
+        self.dismiss(event.button.id == "yes")
+
+    def action_answer(self, yes: bool) -> None:
+        """Answer from a key."""
+        self.dismiss(yes)
+
+
+class ErrorModal(ModalScreen[None]):
+    """An error: its short title and one-line message (never a traceback)."""
+
+    BINDINGS = [Binding("enter,escape", "close", "Close")]
+
+    def __init__(self, title: str, message: str) -> None:
+        super().__init__()
+        self.error_title = title
+        self.message = message
+
+    def compose(self) -> ComposeResult:
+        """Title, message and an OK button."""
+        with Vertical(id="dialog", classes="error"):
+            yield Static(self.error_title, classes="dialog-title", id="error-title")
+            yield Static(self.message, id="error-message")
+            with Horizontal(classes="buttons"):
+                yield Button("OK (enter)", variant="error", id="ok")
+
+    def on_mount(self) -> None:
+        """Focus the button."""
+        self.query_one("#ok", Button).focus()
+
+    def on_button_pressed(self, event: Button.Pressed) -> None:
+        """Close."""
+        self.dismiss(None)
+
+    def action_close(self) -> None:
+        """Close."""
+        self.dismiss(None)

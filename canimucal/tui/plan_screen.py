@@ -1,0 +1,117 @@
+"""The plan screen: choose the plan and gyro grade; the Cramér–Rao table shows what it can do."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING, cast
+
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import VerticalScroll
+from textual.reactive import reactive
+from textual.screen import Screen
+from textual.widgets import DataTable, Footer, Static
+
+from canimucal.model.plan import BoundTable, cramer_rao
+from canimucal.procedure.demo_rig import spec_for_plan
+from canimucal.tui.source import NodeStatus
+from canimucal.tui.text import bound_rows, findings_text
+from canimucal.tui.widgets import passive_table
+
+if TYPE_CHECKING:
+    from canimucal.tui.app import CalibrationApp
+
+PLAN_KEYS = {"2": "two", "5": "five", "r": "recommended", "u": "custom"}
+
+
+def bound_table(plan_name: str, app: CalibrationApp, accel_lsb: float) -> BoundTable:
+    """Cramér–Rao bounds of a plan for the accelerometer model the procedure will fit."""
+    spec = replace(spec_for_plan(plan_name, "mems"), gyro="none")
+    return cramer_rao(app.plans[plan_name], spec, k_nominal_counts_per_ms2=1.0 / abs(accel_lsb))
+
+
+class PlanScreen(Screen[None]):
+    """Plan choice (2, 5, r, u), gyro grade (g), start (enter)."""
+
+    BINDINGS = [
+        Binding("enter", "start", "Start"),
+        Binding("2", "plan('two')", "Two"),
+        Binding("5", "plan('five')", "Five"),
+        Binding("r", "plan('recommended')", "Recommended"),
+        Binding("u", "plan('custom')", "Custom"),
+        Binding("g", "gyro", "Gyro grade"),
+        Binding("escape", "back", "Back"),
+    ]
+    plan_name = reactive("recommended", bindings=True)
+    gyro = reactive("mems")
+
+    def __init__(self, statuses: list[NodeStatus]) -> None:
+        super().__init__()
+        self.statuses = statuses
+
+    @property
+    def calibration_app(self) -> CalibrationApp:
+        """The app, typed."""
+        return cast("CalibrationApp", self.app)
+
+    def compose(self) -> ComposeResult:
+        """Title, plan summary, bound table, findings."""
+        yield Static("canimucal · plan", classes="screen-title")
+        yield Static("", id="plan-summary")
+        with VerticalScroll(id="plan-body"):
+            yield passive_table(id="bounds", zebra_stripes=True)
+            yield Static("", id="findings")
+        yield Footer()
+
+    def on_mount(self) -> None:
+        """Cache widgets and show the initial plan."""
+        self.summary = self.query_one("#plan-summary", Static)
+        self.table = self.query_one("#bounds", DataTable)
+        self.findings = self.query_one("#findings", Static)
+        self.table.add_columns("parameter", "σ", "unit", "effect at 1 g (counts)")
+        app = self.calibration_app
+        self.gyro = app.gyro
+        self.plan_name = app.plan_name if app.plan_name in app.plans else "recommended"
+        self.show_plan()
+
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        """Offer only the plans there are (custom needs --plan FILE)."""
+        if action == "plan":
+            name = str(parameters[0])
+            return name in self.calibration_app.plans and name != self.plan_name
+        return True
+
+    def action_plan(self, name: str) -> None:
+        """Switch plan."""
+        self.plan_name = name
+        self.show_plan()
+
+    def action_gyro(self) -> None:
+        """Toggle the gyro grade (MEMS bias, or navigation bias and scale from Earth rate)."""
+        self.gyro = "nav" if self.gyro == "mems" else "mems"
+        self.show_plan()
+
+    def show_plan(self) -> None:
+        """Recompute and show the bound table of the chosen plan."""
+        plan = self.calibration_app.plans[self.plan_name]
+        lsb = self.statuses[0].accel_lsb if self.statuses else 9.80665 / 2048.0
+        table = bound_table(self.plan_name, self.calibration_app, lsb)
+        nodes = ", ".join(str(s.node_id) for s in self.statuses) or "—"
+        grade = "MEMS (bias)" if self.gyro == "mems" else "navigation (bias + scale)"
+        self.summary.update(
+            f"plan {self.plan_name}: {len(plan.positions)} positions, "
+            f"{plan.total_seconds:g} s of averaging · gyro {grade} · nodes {nodes}\n"
+            "Cramér–Rao σ at K = I/LSB, 1 count/√Hz white noise, zero tilt:"
+        )
+        self.table.clear()
+        for row in bound_rows(table):
+            self.table.add_row(*row)
+        self.findings.update(findings_text(table))
+
+    def action_start(self) -> None:
+        """Start the procedure with this plan."""
+        self.calibration_app.start_procedure(self.plan_name, self.gyro, self.statuses)
+
+    def action_back(self) -> None:
+        """Back to the connection screen."""
+        self.app.pop_screen()

@@ -1,0 +1,322 @@
+"""The position screen: the procedure's live view, and the home of its I/O worker.
+
+The worker thread (one, exclusive) opens the session and runs
+:meth:`~canimucal.tui.runner.SessionRunner.run`, which posts :class:`EventsArrived` batches
+here; the handler updates the cached widgets. Results and verification screens are pushed
+from here when the procedure reaches them. Keys appear in the footer only in the phases
+where the procedure accepts them (``check_action`` on the reactive ``phase``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING, cast
+
+import numpy as np
+from textual import work
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal
+from textual.reactive import reactive
+from textual.screen import Screen
+from textual.widgets import Footer, ProgressBar, Sparkline, Static
+
+from canimucal.errors import CanimucalError
+from canimucal.procedure import events as ev
+from canimucal.tui.messages import EventsArrived
+from canimucal.tui.modals import ErrorModal
+from canimucal.tui.runner import SessionRunner
+from canimucal.tui.source import NodeStatus
+from canimucal.tui.text import live_line, pose_drawing, short_live_line
+
+if TYPE_CHECKING:
+    from canimucal.tui.app import CalibrationApp
+
+ACTION_PHASES: dict[str, tuple[str, ...]] = {
+    "confirm": ("instruct",),
+    "accept": ("review_position",),
+    "redo": ("review_position", "averaging", "settling"),
+    "skip": ("instruct", "settling"),
+    "skip_warmup": ("warmup",),
+    "solve": ("ready_to_solve",),
+}
+PHASE_WORDS = {
+    "": "starting",
+    "warmup": "warming up",
+    "instruct": "set the pose, then enter",
+    "settling": "waiting for stillness",
+    "averaging": "averaging",
+    "review_position": "averaged: accept (a) or redo (r)",
+    "ready_to_solve": "all positions done: solve (v)",
+    "review": "reviewing the result",
+    "writing": "writing",
+    "done": "done",
+    "cancelled": "cancelled",
+    "failed": "stopped on an error",
+}
+
+
+class PositionScreen(Screen[None]):
+    """Target pose, drawing, live readout, stillness, averaging progress, sparkline."""
+
+    BINDINGS = [
+        Binding("enter", "confirm", "Confirm pose"),
+        Binding("a", "accept", "Accept"),
+        Binding("r", "redo", "Redo"),
+        Binding("s", "skip", "Skip position"),
+        Binding("w", "skip_warmup", "Skip warm-up"),
+        Binding("v", "solve", "Solve"),
+    ]
+    phase = reactive("", bindings=True)
+    index = reactive(0, bindings=True)
+
+    def __init__(
+        self,
+        statuses: list[NodeStatus],
+        open_runner: Callable[[], SessionRunner] | None = None,
+        *,
+        total: int = 0,
+    ) -> None:
+        super().__init__()
+        self.statuses = statuses
+        self.open_runner = open_runner
+        self.runner: SessionRunner | None = None
+        self.live: dict[int, ev.SamplesReceived] = {}
+        self.level_checks: list[ev.LevelChecked] = []
+        self.saved: list[ev.RecordSaved] = []
+        self.writes: list[ev.WriteFinished] = []
+        self.solved: ev.Solved | None = None
+        self.verification = False
+        self.total = total
+
+    def compose(self) -> ComposeResult:
+        """Lay the screen out (fits 80×24)."""
+        yield Static("canimucal · position", classes="screen-title", id="title")
+        yield Static("", id="words")
+        with Horizontal(id="middle"):
+            yield Static(pose_drawing(0.0, 0.0), id="drawing")
+            yield Static("waiting for samples…", id="live")
+        with Horizontal(id="progress-row"):
+            yield Static("○ not still", id="stillness")
+            yield ProgressBar(total=100, show_eta=False, id="progress")
+            yield Static("", id="seconds-left")
+        yield Sparkline([], id="spark")
+        yield Static("", id="notice")
+        yield Footer()
+
+    def on_mount(self) -> None:
+        """Cache widgets and start the I/O worker."""
+        self.title_w = self.query_one("#title", Static)
+        self.words = self.query_one("#words", Static)
+        self.drawing = self.query_one("#drawing", Static)
+        self.live_w = self.query_one("#live", Static)
+        self.stillness = self.query_one("#stillness", Static)
+        self.progress = self.query_one("#progress", ProgressBar)
+        self.seconds_left = self.query_one("#seconds-left", Static)
+        self.spark = self.query_one("#spark", Sparkline)
+        self.notice = self.query_one("#notice", Static)
+        if self.open_runner is not None:
+            self.io_worker()
+
+    def on_unmount(self) -> None:
+        """Stop the I/O loop (what was recorded is kept)."""
+        if self.runner is not None:
+            self.runner.stop()
+
+    @work(thread=True, exclusive=True, exit_on_error=False, group="io")
+    def io_worker(self) -> None:
+        """Open the session and run it; every batch of events is posted to this screen."""
+        assert self.open_runner is not None
+        try:
+            self.runner = self.open_runner()
+        except CanimucalError as exc:
+            self.post_message(EventsArrived([ev.ProcedureFailed(str(exc), exc.title)]))
+            return
+        cast("CalibrationApp", self.app).runner = self.runner
+        self.runner.run(self._deliver)
+
+    def _deliver(self, batch: list[ev.Event]) -> None:
+        """Hand a batch to the UI (called on the I/O thread; post_message is thread-safe)."""
+        self.post_message(EventsArrived(batch))
+
+    # -- keys -------------------------------------------------------------------------------
+
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        """Show a procedure key only in the phases that take it."""
+        phases = ACTION_PHASES.get(action)
+        if phases is None:
+            return True
+        if action == "skip" and (self.index == 0 or self.verification):
+            return False
+        return self.phase in phases
+
+    def _send(self, name: str) -> None:
+        if self.runner is not None:
+            self.runner.send(name)
+
+    def action_confirm(self) -> None:
+        """Confirm that the pose is set."""
+        self.notice.update("moving / waiting for stillness…")
+        self._send("confirm_pose")
+
+    def action_accept(self) -> None:
+        """Accept the averaged position."""
+        self._send("accept")
+
+    def action_redo(self) -> None:
+        """Discard this attempt and instruct the pose again."""
+        self._send("redo")
+
+    def action_skip(self) -> None:
+        """Leave this position out."""
+        self._send("skip")
+
+    def action_skip_warmup(self) -> None:
+        """Stop waiting for warm-up."""
+        self._send("skip_warmup")
+
+    def action_solve(self) -> None:
+        """Solve every node."""
+        self.notice.update("solving…")
+        self._send("solve")
+
+    # -- events -----------------------------------------------------------------------------
+
+    def on_events_arrived(self, message: EventsArrived) -> None:
+        """Show a batch of events; push results or verification when they arrive."""
+        for event in message.events:
+            self.show(event)
+        self._push_screens(message.events)
+
+    def show(self, event: ev.Event) -> None:  # noqa: C901 - one branch per event kind
+        """Update the widgets for one event."""
+        if isinstance(event, ev.PhaseChanged):
+            self.phase = event.phase
+            self._title()
+            if event.phase == "warmup":
+                self.words.update("waiting for the temperature to settle (w skips)")
+        elif isinstance(event, ev.SamplesReceived):
+            self._samples(event)
+        elif isinstance(event, ev.PoseInstructed):
+            self._instructed(event)
+        elif isinstance(event, ev.StillnessChanged):
+            mark = "● still" if event.still else "○ moving"
+            self.stillness.update(f"{mark} ({event.needed_s:g} s needed)")
+        elif isinstance(event, ev.AveragingStarted):
+            self.progress.update(total=event.seconds, progress=0.0)
+            self.seconds_left.update(f"{event.seconds:.0f} s left")
+            self.notice.update(f"pose checked: tilt − target {_pair(event.tilt_error_deg)}")
+        elif isinstance(event, ev.AveragingProgressed):
+            self.progress.update(total=event.total_s, progress=event.elapsed_s)
+            self.seconds_left.update(f"{event.seconds_left:.0f} s left")
+        else:
+            self._note(event)
+
+    def _note(self, event: ev.Event) -> None:
+        """Events told in the notice line (and kept for the later screens)."""
+        text = notice_text(event)
+        if text:
+            self.notice.update(text)
+        if isinstance(event, ev.PositionAveraged):
+            self.progress.update(progress=self.progress.total or 0.0)
+            self.seconds_left.update("done")
+        elif isinstance(event, ev.LevelChecked):
+            self.level_checks.append(event)
+        elif isinstance(event, ev.RecordSaved):
+            self.saved.append(event)
+        elif isinstance(event, ev.WriteFinished):
+            self.writes.append(event)
+            if not event.ok:
+                self.app.push_screen(ErrorModal("Write failed", event.message))
+        elif isinstance(event, ev.Solved):
+            self.solved = event
+        elif isinstance(event, ev.ProcedureFailed):
+            self.phase = "failed"  # the session loop has ended: no procedure key applies
+            self._title()
+            self.notice.update(f"stopped: {event.message} — the recording so far is kept; q quits")
+            self.app.push_screen(ErrorModal(event.title, event.message))
+
+    def _title(self) -> None:
+        what = "verification" if self.verification else f"position {self.index + 1}/{self.total}"
+        words = PHASE_WORDS.get(self.phase, self.phase)
+        self.title_w.update(f"canimucal · {what} · {words}")
+
+    def _instructed(self, event: ev.PoseInstructed) -> None:
+        self.index, self.total, self.verification = event.index, event.total, event.verification
+        self.phase = "instruct"  # the first instruction comes without a PhaseChanged
+        alpha, beta, psi = (float(np.rad2deg(x)) for x in event.position.angles)
+        self.words.update(f"{event.words}\naverage {event.seconds:g} s once still")
+        self.drawing.update(pose_drawing(alpha, beta, psi))
+        self.progress.update(total=event.seconds, progress=0.0)
+        self.seconds_left.update(f"{event.seconds:.0f} s")
+        self.stillness.update("○ set the pose")
+        self._title()
+
+    def _samples(self, event: ev.SamplesReceived) -> None:
+        self.live[event.node_id] = event
+        if not self.is_current:
+            return
+        readouts = list(self.live.values())
+        lines = [live_line(readouts[0])] + [short_live_line(e) for e in readouts[1:]]
+        self.live_w.update("\n".join(lines))
+        first = next(iter(self.live))
+        if event.node_id == first and event.sparkline:
+            self.spark.data = list(event.sparkline)
+
+    def _push_screens(self, events: list[ev.Event]) -> None:
+        if any(isinstance(e, ev.Solved) for e in events) and self.solved is not None:
+            from canimucal.tui.results import ResultsScreen
+
+            self.app.push_screen(ResultsScreen(self.solved, self.statuses), self.decided)
+        if any(isinstance(e, ev.ProcedureFinished) for e in events):
+            from canimucal.tui.verification import VerificationScreen
+
+            finished = [e for e in events if isinstance(e, ev.ProcedureFinished)][-1]
+            self.app.push_screen(
+                VerificationScreen(self.level_checks, self.saved, self.writes, finished)
+            )
+
+    def decided(self, decision: str | None) -> None:
+        """Act on the results screen's answer: ``write``, ``override`` or ``finish``."""
+        if self.runner is None or decision is None:
+            return
+        if decision == "finish":
+            self.runner.send("finish_without_writing")
+            return
+        self.notice.update("writing (backup first, then verify)…")
+        self.runner.send("write", override=decision == "override")
+
+
+def _pair(values: tuple[float, float]) -> str:
+    return f"alpha {values[0]:+.2f}°, beta {values[1]:+.2f}°"
+
+
+def notice_text(event: ev.Event) -> str:
+    """Return the notice line for an event ('' when it has none)."""
+    if isinstance(event, ev.WarmupProgressed):
+        slope = "—" if event.slope_c_per_min is None else f"{event.slope_c_per_min:+.3f}"
+        state = "warm" if event.warm else ("skipped" if event.skipped else "warming up")
+        return (
+            f"{state}: {event.temp_c:.2f} °C, slope {slope} °C/min "
+            f"(threshold {event.threshold_c_per_min:g}) over {event.elapsed_s:.0f}"
+            f"/{event.window_s:g} s"
+        )
+    if isinstance(event, ev.PoseRefused):
+        return f"[b]pose refused[/b] (node {event.node_id}): {event.message}"
+    if isinstance(event, ev.PositionRejected):
+        return f"[b]position {event.index + 1} rejected[/b]: {event.reason}; settling again"
+    if isinstance(event, ev.PositionAveraged):
+        parts = [
+            f"node {n}: n={a.n} lost={a.lost} σ {a.std_accel.max():.1f} cnt"
+            for n, a in event.averages.items()
+        ]
+        return "averaged " + "; ".join(parts) + " — a: accept, r: redo"
+    if isinstance(event, ev.PositionAccepted):
+        return f"position {event.index + 1} accepted"
+    if isinstance(event, ev.AveragingTimeChosen):
+        return f"averaging time of the next positions: {event.seconds:.0f} s ({event.source})"
+    if isinstance(event, ev.WriteFinished):
+        return f"write node {event.node_id}: {event.message}"
+    if isinstance(event, ev.RecordSaved):
+        return f"saved {event.record_path}"
+    return ""

@@ -1,0 +1,158 @@
+"""Plain-text pieces of the TUI (no Textual): the pose drawing and the formatted numbers.
+
+Kept apart from the widgets so they can be tested and reused by the benchmark; every
+function returns ``str`` or rows of ``str``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from canimucal.device.client import CalibrationReadout
+from canimucal.model.plan import BoundTable
+from canimucal.procedure import events as ev
+
+Array = NDArray[np.float64]
+
+DRAW_ROWS = 5
+DRAW_COLS = 17
+MIN_DRAWN_DEG = 12.0
+
+
+def _segment(screen_angle_deg: float, end_label: str) -> list[str]:
+    """Rasterize a bar through the centre at ``screen_angle_deg`` (up-right positive)."""
+    grid = [[" "] * DRAW_COLS for _ in range(DRAW_ROWS)]
+    if 0.5 <= abs(screen_angle_deg) < MIN_DRAWN_DEG:  # a small tilt is drawn visibly
+        screen_angle_deg = float(np.copysign(MIN_DRAWN_DEG, screen_angle_deg))
+    theta = np.deg2rad(screen_angle_deg)
+    half = DRAW_COLS // 2
+    if abs(screen_angle_deg) < 8.0:
+        char = "─"
+    else:
+        char = "/" if screen_angle_deg > 0 else "\\"
+    last = (DRAW_ROWS // 2, half)
+    for t in np.linspace(-half, half, 4 * DRAW_COLS):
+        col = int(round(half + t * np.cos(theta)))
+        row = int(round(DRAW_ROWS // 2 - t * np.sin(theta) / 2.0))
+        if 0 <= row < DRAW_ROWS and 0 <= col < DRAW_COLS:
+            grid[row][col] = char
+            if t > 0:
+                last = (row, col)
+    row, col = last
+    label_col = min(col + 1, DRAW_COLS - len(end_label))
+    for k, c in enumerate(end_label):
+        grid[row][label_col + k] = c
+    return ["".join(r) for r in grid]
+
+
+def pose_drawing(alpha_deg: float, beta_deg: float, psi_deg: float = 0.0) -> str:
+    """Two side views of the target tilt, DESIGN §2 directions.
+
+    Left: seen from the +z end, +x to the right; positive alpha lowers the +x end.
+    Right: seen from the −x side, +z to the right; positive beta raises the +z end.
+    """
+    left = _segment(-alpha_deg, "+x")
+    right = _segment(beta_deg, "+z")
+    head = f"{'alpha ' + format(alpha_deg, '+.1f') + '°':<{DRAW_COLS}}   "
+    head += f"beta {beta_deg:+.1f}°"
+    lines = [head]
+    lines += [f"{a}   {b}" for a, b in zip(left, right, strict=True)]
+    ground = "▔" * DRAW_COLS
+    lines.append(f"{ground}   {ground}")
+    turn = psi_deg % 360.0
+    lines.append(f"turned {turn:g}° on its face" if turn > 1e-9 else "not turned (psi 0°)")
+    return "\n".join(lines)
+
+
+def vector(values: Array | None, fmt: str = "+8.4f") -> str:
+    """Three numbers in a row (``—`` when missing)."""
+    if values is None:
+        return "—"
+    return " ".join("     nan" if not np.isfinite(v) else format(float(v), fmt) for v in values)
+
+
+def live_line(event: ev.SamplesReceived) -> str:
+    """Format the live readout of one node (four short lines)."""
+    tilt = event.tilt_error_deg
+    tilt_text = "—" if tilt is None else f"α {tilt[0]:+6.2f}° β {tilt[1]:+6.2f}°"
+    motion = event.moving_std_counts
+    motion_text = f"{motion:.1f}" if np.isfinite(motion) else "—"
+    return (
+        f"node {event.node_id} · {event.time_s:.1f} s · {event.temp_c:.1f} °C · "
+        f"lost {event.lost_total}\n"
+        f"f m/s²  {vector(event.accel_ms2)}\n"
+        f"ω rad/s {vector(event.gyro_rads, '+8.5f')}\n"
+        f"tilt−target {tilt_text}\n"
+        f"motion σ {motion_text} counts"
+    )
+
+
+def short_live_line(event: ev.SamplesReceived) -> str:
+    """Format one more node's readout in a single line (several nodes on one body)."""
+    tilt = event.tilt_error_deg
+    tilt_text = "—" if tilt is None else f"α{tilt[0]:+.1f}° β{tilt[1]:+.1f}°"
+    return f"node {event.node_id} {tilt_text} lost {event.lost_total}"
+
+
+def bound_rows(table: BoundTable) -> list[tuple[str, str, str, str]]:
+    """Rows of the Cramér–Rao table: parameter, σ, unit, effect at 1 g (counts)."""
+    rows = []
+    for r in table.rows:
+        name = r.name.replace("base_tilt.", "tilt.")
+        if r.sigma is None or r.effect_counts is None:
+            rows.append((name, "—", r.unit, "undetermined"))
+            continue
+        sigma = float(np.rad2deg(r.sigma)) if r.unit == "rad" else r.sigma
+        unit = "deg" if r.unit == "rad" else r.unit
+        rows.append((name, f"{sigma:.4g}", unit, f"{r.effect_counts:.3g}"))
+    return rows
+
+
+def findings_text(table: BoundTable) -> str:
+    """Say what the plan cannot determine or separate, one line each."""
+    lines = [f.message for f in table.separability.findings]
+    worst = table.worst_case_counts
+    worst_text = f"{worst:.3g} counts" if np.isfinite(worst) else "unbounded"
+    lines.insert(0, f"worst-case bound {worst_text} ({table.worst_parameter})")
+    if not table.separability.findings:
+        lines.append("every parameter is identifiable and separable under this plan")
+    return "\n".join(lines)
+
+
+def device_values(readout: CalibrationReadout | None) -> dict[str, float]:
+    """Return the device's current values by name (accel bias, K = M⁻¹, gyro bias, tilt)."""
+    if readout is None:
+        return {}
+    block = readout.block
+    out: dict[str, float] = {}
+    k = np.linalg.inv(np.asarray(block.accel_correction, dtype=float))
+    for i in range(3):
+        out[f"accel.bias[{i}]"] = float(block.accel_bias[i])
+        out[f"gyro.bias[{i}]"] = float(block.gyro_bias[i])
+        for j in range(3):
+            out[f"accel.K[{i}][{j}]"] = float(k[i, j])
+    out["base_tilt.alpha0"] = float(block.base_tilt_rad[0])
+    out["base_tilt.beta0"] = float(block.base_tilt_rad[1])
+    return out
+
+
+def calibration_summary(readout: CalibrationReadout | None) -> str:
+    """One line: is a calibration active on the device."""
+    if readout is None:
+        return "not read"
+    if readout.valid and readout.crc_ok:
+        return "valid, CRC ok"
+    if readout.valid:
+        return "CRC MISMATCH (nominal in use)"
+    return "none (nominal)"
+
+
+def level_line(event: ev.LevelChecked) -> str:
+    """|f| − g and tilt at level, nominal against calibrated."""
+    return (
+        f"node {event.node_id} {event.stage:<6} |f|−g nominal {event.norm_error_nominal_ms2:+.4f}"
+        f" → calibrated {event.norm_error_calibrated_ms2:+.4f} m/s²\n"
+        f"    tilt nominal {event.tilt_nominal_deg[0]:+.3f}°, {event.tilt_nominal_deg[1]:+.3f}°"
+        f" → calibrated {event.tilt_calibrated_deg[0]:+.3f}°, {event.tilt_calibrated_deg[1]:+.3f}°"
+    )
