@@ -15,7 +15,7 @@ import logging
 import os
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -148,14 +148,33 @@ class DeviceSilentError(DeviceError):
     """An SDO transfer timed out after every retry."""
 
 
-class SdoChannel:
-    """Raw SDO upload/download with the retry policy and error mapping."""
+class NodeRebootedError(DeviceError):
+    """The node booted during an SDO transfer: its unsaved values are gone (never retried)."""
 
-    def __init__(self, node: canopen.RemoteNode, timeout_s: float, retries: int) -> None:
+
+class SdoChannel:
+    """Raw SDO upload/download with the retry policy and error mapping.
+
+    Timeouts and bus errors are retried ``retries`` times after ``backoff_s``, doubling;
+    aborts never. ``boots()`` (the client's count of boot-up frames) stops a retry when the
+    node rebooted meanwhile: a write must not land on a freshly booted node unnoticed.
+    """
+
+    def __init__(
+        self,
+        node: canopen.RemoteNode,
+        timeout_s: float,
+        retries: int,
+        *,
+        backoff_s: float = BACKOFF_START_S,
+        boots: Callable[[], int] | None = None,
+    ) -> None:
         node.sdo.RESPONSE_TIMEOUT = timeout_s
         node.sdo.MAX_RETRIES = 1  # our own retry loop, with backoff
         self._sdo = node.sdo
         self._retries = retries
+        self._backoff_s = backoff_s
+        self._boots = boots
         self._lock = threading.Lock()
 
     def upload(self, index: int, sub: int) -> bytes:
@@ -168,7 +187,8 @@ class SdoChannel:
 
     def _call(self, what: str, index: int, sub: int, op: Any) -> Any:
         name = od.format_key(index, sub)
-        delay = BACKOFF_START_S
+        delay = self._backoff_s
+        boots = self._boots() if self._boots is not None else 0
         for attempt in range(self._retries + 1):
             try:
                 with self._lock:
@@ -177,6 +197,10 @@ class SdoChannel:
                 text = od.abort_text(int(exc.code))
                 raise SdoAbort(f"device refused {what} of {name}: {text}", int(exc.code)) from exc
             except (SdoCommunicationError, can.CanError) as exc:
+                if self._boots is not None and self._boots() != boots:
+                    raise NodeRebootedError(
+                        f"node rebooted during {what} of {name}; not retried: {exc}"
+                    ) from exc
                 if attempt == self._retries:
                     raise DeviceSilentError(
                         f"no SDO answer to {what} of {name} after {attempt + 1} tries: {exc}"

@@ -19,14 +19,27 @@ from typing import NamedTuple
 
 import can
 import canopen
-from canopen.nmt import NMT_STATES
 
 from canimucal.device import od
-from canimucal.device.bus import DeviceSilentError, SdoAbort, SdoChannel, default_sdo_timeout_s
+from canimucal.device.bus import (
+    BACKOFF_START_S,
+    DeviceSilentError,
+    SdoAbort,
+    SdoChannel,
+    default_sdo_timeout_s,
+)
+from canimucal.device.events import (
+    EMCY_BASE,
+    HEARTBEAT_BASE,
+    DeviceEvent,
+    NodeMonitor,
+    SerialChanged,
+)
 from canimucal.device.stream import (
     SampleBlock,
     SampleLayout,
     SamplePairer,
+    StreamConsumer,
     concat_blocks,
     layout_from_mapping,
 )
@@ -35,9 +48,6 @@ from canimucal.errors import DeviceError, NoDeviceError
 logger = logging.getLogger(__name__)
 
 NMT_START, NMT_PRE_OPERATIONAL = 0x01, 0x80
-BATCH_INTERVAL_S = 0.02
-"""The consumer thread hands out a :class:`SampleBlock` at most every 20 ms (or 256 rows)."""
-BATCH_MAX_ROWS = 256
 NOTIFIER_CYCLE_S = 0.1
 """Receive-thread wake-up of a network the client makes itself (bounds :meth:`close`)."""
 
@@ -72,33 +82,6 @@ class CalibrationReadout(NamedTuple):
         return {key: od.encode(od.OBJECT_CODES[key], v) for key, v in self.objects.items()}
 
 
-class _Heartbeat:
-    """What the node last said about itself (boot-up and heartbeat frames)."""
-
-    def __init__(self) -> None:
-        self.seen = threading.Event()
-        self.booted = threading.Event()
-        self.last_time_s: float | None = None
-        self.state_code: int | None = None
-
-    def on_frame(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        """Receive callback: record only (no SDO here)."""
-        if not data:
-            return
-        self.state_code = data[0] & 0x7F
-        self.last_time_s = timestamp
-        if self.state_code == 0:
-            self.booted.set()
-        self.seen.set()
-
-    @property
-    def state(self) -> str | None:
-        """NMT state name the node reported, or None before any heartbeat."""
-        if self.state_code is None:
-            return None
-        return NMT_STATES.get(self.state_code, f"UNKNOWN {self.state_code}")
-
-
 class ImuClient:
     """One IMU node on a canopen :class:`~canopen.Network` (or a python-can bus).
 
@@ -115,6 +98,7 @@ class ImuClient:
         sdo_retries: int = 2,
         sync_producer: bool = False,
         sync_period_s: float = 0.005,
+        sdo_backoff_s: float = BACKOFF_START_S,
     ) -> None:
         if not 1 <= node_id <= 127:
             raise ValueError(f"node id must be 1..127, got {node_id}")
@@ -130,13 +114,21 @@ class ImuClient:
         self.node = canopen.RemoteNode(node_id, canopen.ObjectDictionary())
         network.add_node(self.node)
         timeout = default_sdo_timeout_s() if sdo_timeout_s is None else sdo_timeout_s
-        self.sdo = SdoChannel(self.node, timeout, sdo_retries)
-        self.heartbeat = _Heartbeat()
-        network.subscribe(0x700 + node_id, self.heartbeat.on_frame)
+        self.events: queue.Queue[DeviceEvent] = queue.Queue()
+        """Boot-ups, heartbeat loss, EMCY, serial changes and bus errors, as they happen."""
+        self.heartbeat = NodeMonitor(node_id, self.events)
+        self.sdo = SdoChannel(
+            self.node, timeout, sdo_retries, backoff_s=sdo_backoff_s, boots=self._boots
+        )
+        network.subscribe(HEARTBEAT_BASE + node_id, self.heartbeat.on_heartbeat)
+        network.subscribe(EMCY_BASE + node_id, self.heartbeat.on_emergency)
+        if network.notifier is not None:
+            network.notifier.add_listener(self.heartbeat)  # error frames
+        self._serial: int | None = None
         self.sync_producer = sync_producer
         self.sync_period_s = sync_period_s
         self.samples: queue.Queue[SampleBlock] = queue.Queue()
-        self._stream: _Stream | None = None
+        self._stream: StreamConsumer | None = None
 
     # ----------------------------------------------------------------- typed SDO access
     def read_value(self, index: int, sub: int, code: str) -> float | int:
@@ -182,6 +174,10 @@ class ImuClient:
         vendor, product, revision, serial = (
             int(self.read_value(od.IDENTITY, sub, "u32")) for sub in (1, 2, 3, 4)
         )
+        if self._serial is not None and serial != self._serial:
+            logger.warning("node %d serial changed: %d -> %d", self.node_id, self._serial, serial)
+            self.events.put(SerialChanged(self.node_id, self._serial, serial))
+        self._serial = serial
         try:
             name = self.sdo.upload(od.DEVICE_NAME, 0).decode("ascii", "replace").rstrip("\0")
         except SdoAbort:
@@ -244,6 +240,43 @@ class ImuClient:
         self.write_value(od.STORE, od.STORE_CALIBRATION_SUB, "u32", od.SAVE_SIGNATURE)
 
     # ----------------------------------------------------------------------- streaming
+    def _boots(self) -> int:
+        return self.heartbeat.boots
+
+    @property
+    def boots(self) -> int:
+        """Boot-up frames seen from the node since the client was made."""
+        return self.heartbeat.boots
+
+    def watch_heartbeat(self, timeout_s: float | None = None) -> float:
+        """Emit :class:`~canimucal.device.events.HeartbeatLost` after ``timeout_s`` of silence.
+
+        Without ``timeout_s``: three producer-heartbeat periods (0x1017, read once).
+        Returns the timeout used; :class:`DeviceError` if the node sends no heartbeat.
+        """
+        if timeout_s is None:
+            period_ms = int(self.read_value(od.HEARTBEAT, 0, "u16"))
+            if period_ms == 0:
+                raise DeviceError(f"node {self.node_id} sends no heartbeat (0x1017 = 0)")
+            timeout_s = 3.0 * period_ms / 1000.0
+        self.heartbeat.watch(timeout_s)
+        return timeout_s
+
+    def resume_streaming(self) -> None:
+        """NMT start the target node again (after a reboot put it in PRE-OPERATIONAL)."""
+        if self._stream is None:
+            raise DeviceError("not streaming: call start_streaming() first")
+        self._nmt(NMT_START)
+
+    def _nmt(self, command: int) -> None:
+        """NMT command to the target node only; a failing bus is a DeviceError."""
+        try:
+            self.node.nmt.send_command(command)
+        except can.CanError as exc:
+            raise DeviceError(
+                f"cannot send NMT 0x{command:02X} to node {self.node_id}: {exc}"
+            ) from exc
+
     @property
     def node_state(self) -> str | None:
         """NMT state the node last reported by heartbeat (None before any)."""
@@ -271,14 +304,20 @@ class ImuClient:
         layout = self.pdo_mapping() if layout is None else layout
         rate = self.output_data_rate() if rate_hz is None else rate_hz
         period_s = 1.0 / max(rate, 1)
-        self._stream = _Stream(SamplePairer(layout, period_s), self.samples)
+        pairer = SamplePairer(layout, period_s, clock=time.monotonic)
+        self._stream = StreamConsumer(pairer, self.samples)
         for cob_id in self._stream.cob_ids():
             self.network.subscribe(cob_id, self._stream.on_frame)
+        self.network.subscribe(HEARTBEAT_BASE + self.node_id, self._stream.on_boot)
         self._stream.start()
         if self.sync_producer:
             self.network.sync.start(self.sync_period_s)
         if nmt_start:
-            self.node.nmt.send_command(NMT_START)
+            try:
+                self._nmt(NMT_START)
+            except DeviceError:
+                self.stop_streaming(keep_operational=True)
+                raise
         return layout
 
     def stop_streaming(self, *, keep_operational: bool = False) -> None:
@@ -287,11 +326,15 @@ class ImuClient:
         if stream is None:
             return
         if not keep_operational:
-            self.node.nmt.send_command(NMT_PRE_OPERATIONAL)
+            try:
+                self._nmt(NMT_PRE_OPERATIONAL)
+            except DeviceError as exc:
+                logger.error("%s; the node may still be streaming", exc)
         if self.sync_producer:
             self.network.sync.stop()
         for cob_id in stream.cob_ids():
             self.network.unsubscribe(cob_id, stream.on_frame)
+        self.network.unsubscribe(HEARTBEAT_BASE + self.node_id, stream.on_boot)
         stream.stop()
 
     @property
@@ -325,7 +368,14 @@ class ImuClient:
     def close(self) -> None:
         """Stop streaming, remove the node; stop our own notifier (the bus stays open)."""
         self.stop_streaming()
-        self.network.unsubscribe(0x700 + self.node_id, self.heartbeat.on_frame)
+        self.heartbeat.unwatch()
+        self.network.unsubscribe(HEARTBEAT_BASE + self.node_id, self.heartbeat.on_heartbeat)
+        self.network.unsubscribe(EMCY_BASE + self.node_id, self.heartbeat.on_emergency)
+        if self.network.notifier is not None:
+            try:
+                self.network.notifier.remove_listener(self.heartbeat)
+            except ValueError:
+                pass
         if self.node_id in self.network:
             del self.network[self.node_id]
         if self._owns_network and self.network.notifier is not None:
@@ -336,58 +386,3 @@ class ImuClient:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-class _Stream:
-    """Raw-frame queue (filled by the callback) and the consumer thread that pairs."""
-
-    def __init__(self, pairer: SamplePairer, out: queue.Queue[SampleBlock]) -> None:
-        self.pairer = pairer
-        self.out = out
-        self.raw: queue.SimpleQueue[tuple[int, bytes, float]] = queue.SimpleQueue()
-        self.stopping = threading.Event()
-        self.thread = threading.Thread(target=self._run, name="canimucal-stream", daemon=True)
-        self.cpu_s = 0.0
-
-    def cob_ids(self) -> list[int]:
-        """COB-IDs of the TPDOs the layout uses."""
-        layout = self.pairer.layout
-        ids = [layout.accel.cob_id, layout.gyro.cob_id]
-        return ids + ([layout.info.cob_id] if layout.info is not None else [])
-
-    def on_frame(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        """Receive callback (notifier thread): enqueue only."""
-        self.raw.put((can_id, bytes(data), timestamp))
-
-    def start(self) -> None:
-        """Start the consumer thread."""
-        self.thread.start()
-
-    def stop(self) -> None:
-        """Drain what was received, flush pending halves, hand out the last block."""
-        self.stopping.set()
-        self.thread.join()
-
-    def _run(self) -> None:
-        pairer, last_put = self.pairer, time.monotonic()
-        idle_s = max(2.0 * pairer.period_s, 0.005)
-        while True:
-            try:
-                pairer.feed(*self.raw.get(timeout=idle_s))
-                for _ in range(1024):
-                    pairer.feed(*self.raw.get_nowait())
-            except queue.Empty:
-                if self.stopping.is_set():
-                    break
-                pairer.expire(time.time())
-            now = time.monotonic()
-            if pairer.ready >= BATCH_MAX_ROWS or (
-                pairer.has_news() and now - last_put >= BATCH_INTERVAL_S
-            ):
-                self.out.put(pairer.take())
-                last_put = now
-            self.cpu_s = time.thread_time()
-        pairer.flush()
-        if pairer.has_news():
-            self.out.put(pairer.take())
-        self.cpu_s = time.thread_time()

@@ -27,6 +27,8 @@ from numpy.typing import NDArray
 
 from canimucal.device import od
 from canimucal.device.sim_checks import check_subindex_exists, check_write
+from canimucal.device.sim_faults import FaultInjector
+from canimucal.device.sim_hooks import FaultHooks
 from canimucal.device.sim_pdo import TpdoLayout, read_layout
 from canimucal.device.sim_producer import SampleProducer
 from canimucal.device.sim_store import (
@@ -53,7 +55,7 @@ _LIVE_INDICES = (od.ACCEL_RAW, od.GYRO_RAW, od.SAMPLE_INFO, od.ERROR_REGISTER)
 Key = tuple[int, int]
 
 
-class SimulatedImuNode:
+class SimulatedImuNode(FaultHooks):
     """The simulated IMU on a CAN bus (python-can bus or canopen ``Network``).
 
     ``truth`` defaults to a nominal unit; ``state_file`` is the node's non-volatile memory
@@ -78,11 +80,14 @@ class SimulatedImuNode:
         self.truth = truth if truth is not None else Truth.from_dict({})
         self.time_scale = float(time_scale)
         self._lock = threading.RLock()
+        self.faults = FaultInjector(self.truth.faults)  # validated before joining any bus
+        """Fault injection (issue 6): ``node.faults.set(...)``, ``clear()``, ``stats``."""
         self._network, self._own_network = _network_of(bus_or_network)
         eds = od.eds_path()
         if not eds.is_file():
             raise InputError(f"object dictionary not found: {eds}")
         self._node = _ImuLocalNode(self.node_id, canopen.import_od(str(eds), self.node_id))
+        self._wrap_sdo_server()
         self._node.after_store = self._after_write
         self._node.add_read_callback(self._on_read)
         self._node.add_write_callback(self._on_write)
@@ -96,6 +101,7 @@ class SimulatedImuNode:
             operational=self._operational,
             send=self._send,
             cal_active=self.calibration_active,
+            on_time=self._on_sim_time,
         )
         self._layout_cache: tuple[TpdoLayout, ...] | None = None
         self._cal_cache: bool | None = None
@@ -190,6 +196,7 @@ class SimulatedImuNode:
         if not self._started:
             raise InputError("reboot() needs a started node")
         self._node.nmt.stop_heartbeat()
+        self.faults.rebooted = True
         self._boot(reload=od.STORE_ALL_SUB)
 
     def od_value(self, index: int, sub: int = 0) -> Any:
@@ -197,6 +204,10 @@ class SimulatedImuNode:
         entry = self._node.object_dictionary[index]
         var = entry if isinstance(entry, ODVariable) else entry[sub]
         return var.decode_raw(self._node.get_data(index, sub))
+
+    def stored_objects(self) -> dict[Key, bytes]:
+        """Return the non-volatile memory: raw values a reboot reloads (0x1010 stored)."""
+        return self._store.values()
 
     def calibration_block(self) -> od.CalibrationBlock:
         """Return the calibration block the node holds now (0x2100–0x2121:04)."""
@@ -234,6 +245,7 @@ class SimulatedImuNode:
             with self._lock:
                 self._load_defaults(comm_only=reload == od.STORE_COMM_SUB)
                 self._producer.reset_counter()
+                self._producer.error_register = 0
                 self._invalidate()
             nmt = self._node.nmt
             nmt.send_command(NMT_RESET_NODE)  # INITIALISING: boot-up frame 0x700+id [0]
@@ -257,6 +269,9 @@ class SimulatedImuNode:
         for key, raw in self._store.values().items():
             if not comm_only or key[0] in COMM_PARAMETERS:
                 store.setdefault(key[0], {})[key[1]] = raw
+        serial = self.faults.serial_override()
+        if serial is not None:
+            store.setdefault(od.IDENTITY, {})[4] = od.encode("u32", serial & 0xFFFFFFFF)
 
     # -- canopen callbacks (receive thread: no SDO calls, no blocking) ----------------------
 
@@ -267,6 +282,7 @@ class SimulatedImuNode:
         command = data[0]
         if command == NMT_RESET_NODE:
             self._node.nmt.stop_heartbeat()
+            self.faults.rebooted = True
             self._boot(reload=od.STORE_ALL_SUB)
         elif command == NMT_RESET_COMM:
             self._node.nmt.stop_heartbeat()
@@ -367,8 +383,10 @@ class SimulatedImuNode:
         return not self._booting and self._node.nmt.state == "OPERATIONAL"
 
     def _send(self, cob_id: int, data: bytes) -> None:
-        if self._started:
-            self._network.send_message(cob_id, data)
+        if not self._started:
+            return
+        for frame_id, frame in self.faults.filter_tpdo(cob_id, data):
+            self._network.send_message(frame_id, frame)
 
 
 class _ImuLocalNode(canopen.LocalNode):

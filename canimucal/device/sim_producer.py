@@ -59,6 +59,7 @@ class SampleProducer:
         operational: Callable[[], bool],
         send: Callable[[int, bytes], None],
         cal_active: Callable[[], bool],
+        on_time: Callable[[float], None] | None = None,
     ) -> None:
         self.simulator = simulator
         self.lock = lock
@@ -67,6 +68,9 @@ class SampleProducer:
         self._operational = operational
         self._send = send
         self._cal_active = cal_active
+        self._on_time = on_time
+        self.error_register = 0
+        """0x1001 as the live value reports it (an EMCY sets it)."""
         self.live: dict[Key, int] = {}
         self.last_block: SimBlock | None = None
         self.counter = 0
@@ -123,6 +127,8 @@ class SampleProducer:
                 if frames and self._operational():
                     for cob_id, data in frames:
                         self._send(cob_id, data)
+                if self._on_time is not None and self.last_block is not None:
+                    self._on_time(float(self.last_block.t_s[-1]))
                 if wait_s > 0.0:
                     self._stop.wait(wait_s)
         except Exception as exc:  # a dead producer must be visible, not silent
@@ -177,7 +183,7 @@ class SampleProducer:
         live[(od.SAMPLE_INFO, 1)] = temp
         live[(od.SAMPLE_INFO, 2)] = self.counter
         live[(od.SAMPLE_INFO, 3)] = status
-        live[(od.ERROR_REGISTER, 0)] = 0
+        live[(od.ERROR_REGISTER, 0)] = self.error_register
 
     # -- SYNC ------------------------------------------------------------------------------
 

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from canimucal.device import od
-from canimucal.device.bus import SdoAbort
+from canimucal.device.bus import NodeRebootedError, SdoAbort
 from canimucal.device.calibration_map import (
     backup_objects,
     block_from_record,
@@ -171,7 +171,7 @@ def write_calibration_transaction(
         return report
     before = client.read_calibration_block()  # step 3
     backup_path = save_backup(before, identity, client.node_id, backup_dir)
-    _run_with_rollback(client, writes, before, backup_path)
+    _run_with_rollback(client, writes, before, backup_path, identity.serial)
     return replace(report, backup_path=backup_path, stored=store)
 
 
@@ -209,23 +209,40 @@ def _run_with_rollback(
     writes: tuple[PlannedWrite, ...],
     before: CalibrationReadout,
     backup_path: Path,
+    serial: int,
 ) -> None:
     """Run steps 4–10; on failure restore ``before`` or raise RollbackIncompleteError."""
     step = "clear valid"
+    boots = client.boots
     try:
         for step, batch in _steps(writes):
-            _do_step(client, step, batch)
+            _do_step(client, step, batch, boots)
     except KeyboardInterrupt:
         logger.error("interrupted at %s; rolling back", step)
         _rollback(client, before, backup_path)
         raise
     except DeviceError as exc:
         verb = "refused" if isinstance(exc, SdoAbort) else "failed"
+        if isinstance(exc, NodeRebootedError):
+            _refuse_other_unit(client, serial, exc)
         logger.error("calibration write %s at %s: %s; rolling back", verb, step, exc)
         _rollback(client, before, backup_path)
         raise DeviceError(
             f"calibration write {verb} at {step}: {exc}; previous calibration restored from "
             f"{backup_path}"
+        ) from exc
+
+
+def _refuse_other_unit(client: ImuClient, serial: int, exc: DeviceError) -> None:
+    """After a reboot: a different serial is another unit; write nothing more to it."""
+    try:
+        now = client.identity().serial
+    except DeviceError:
+        return  # silent: the rollback will find out
+    if now != serial:
+        raise DeviceError(
+            f"{exc}; the node came back as serial {now}, not {serial}: nothing restored "
+            "to another unit"
         ) from exc
 
 
@@ -235,8 +252,19 @@ def _rollback(client: ImuClient, before: CalibrationReadout, backup_path: Path) 
         restore_readout(client, before)
     except DeviceError as rollback_exc:
         logger.error("rollback failed: %s", rollback_exc)
+        if _holds(client, before):
+            logger.info("the device still holds the previous calibration, bit for bit")
+            return
         _invalidate_best_effort(client)
         raise RollbackIncompleteError(backup_path) from rollback_exc
+
+
+def _holds(client: ImuClient, before: CalibrationReadout) -> bool:
+    """Tell whether the device answers and holds ``before`` exactly (valid and CRC too)."""
+    try:
+        return client.read_calibration_block().raw == before.raw
+    except DeviceError:
+        return False
 
 
 def _steps(writes: tuple[PlannedWrite, ...]) -> list[tuple[str, list[PlannedWrite]]]:
@@ -257,12 +285,21 @@ def _steps(writes: tuple[PlannedWrite, ...]) -> list[tuple[str, list[PlannedWrit
     return steps
 
 
-def _do_step(client: ImuClient, step: str, batch: list[PlannedWrite]) -> None:
+def _do_step(client: ImuClient, step: str, batch: list[PlannedWrite], boots: int) -> None:
+    """Run one step; a boot-up seen since ``boots`` fails it (unsaved values are gone)."""
     if step.startswith("verify"):
         verify_bytes(client, batch)
+        _check_no_reboot(client, boots, step)
         return
     for write in batch:
+        _check_no_reboot(client, boots, step)
         client.sdo.download(write.index, write.sub, write.data)
+    _check_no_reboot(client, boots, step)
+
+
+def _check_no_reboot(client: ImuClient, boots: int, step: str) -> None:
+    if client.boots != boots:
+        raise NodeRebootedError(f"node rebooted during {step}; its unsaved values are gone")
 
 
 def verify_bytes(client: ImuClient, writes: list[PlannedWrite]) -> None:
@@ -278,6 +315,7 @@ def verify_bytes(client: ImuClient, writes: list[PlannedWrite]) -> None:
 def restore_readout(client: ImuClient, before: CalibrationReadout) -> None:
     """Write a read-out block back byte for byte (valid 0 first, valid last) and verify."""
     raw = before.raw
+    boots = client.boots
     writes = [_planned(*VALID_KEY, "u8", 0)]
     for index, sub, code in od.CRC_ORDER:
         data = raw[(index, sub)]
@@ -288,8 +326,10 @@ def restore_readout(client: ImuClient, before: CalibrationReadout) -> None:
     for write in writes + [crc_write]:
         client.sdo.download(write.index, write.sub, write.data)
     verify_bytes(client, writes[1:] + [crc_write])
+    _check_no_reboot(client, boots, "rollback")
     client.sdo.download(valid_write.index, valid_write.sub, valid_write.data)
     verify_bytes(client, [valid_write, crc_write])
+    _check_no_reboot(client, boots, "rollback")
     logger.info("previous calibration written back and verified")
 
 

@@ -1,0 +1,133 @@
+"""PDO mappings as the client reads them from the node (0x1A00–0x1A02) and fast decoders.
+
+The client never assumes the EDS default: a device that maps INT32 raw values, or orders
+the objects differently, streams too (DESIGN §4).
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+ACCEL_RAW = 0x2000
+GYRO_RAW = 0x2001
+SAMPLE_INFO = 0x2002
+SIGNED_OBJECTS = {(ACCEL_RAW, 1), (ACCEL_RAW, 2), (ACCEL_RAW, 3), (GYRO_RAW, 1), (GYRO_RAW, 2)}
+SIGNED_OBJECTS |= {(GYRO_RAW, 3), (SAMPLE_INFO, 1)}
+TEMP_SCALE_C = 0.01
+"""0x2002:01 is in 0.01 °C."""
+
+
+@dataclass(frozen=True)
+class MappedField:
+    """One mapped object of a PDO: where it sits in the frame and how to read it."""
+
+    index: int
+    sub: int
+    bits: int
+    offset_bits: int
+    signed: bool
+
+    @classmethod
+    def from_entry(cls, entry: int, offset_bits: int) -> MappedField:
+        """Decode a CiA 301 mapping entry ``index << 16 | sub << 8 | bit length``."""
+        index, sub, bits = entry >> 16, (entry >> 8) & 0xFF, entry & 0xFF
+        return cls(index, sub, bits, offset_bits, (index, sub) in SIGNED_OBJECTS)
+
+
+@dataclass(frozen=True)
+class PdoLayout:
+    """The mapping of one TPDO: its COB-ID and fields, with a fast decoder."""
+
+    cob_id: int
+    fields: tuple[MappedField, ...]
+    _struct: struct.Struct | None = field(default=None, compare=False, repr=False)
+
+    @classmethod
+    def from_entries(cls, cob_id: int, entries: Sequence[int]) -> PdoLayout:
+        """Build from the raw 0x1A0x sub-index values (sub 1..n)."""
+        fields, offset = [], 0
+        for entry in entries:
+            mapped = MappedField.from_entry(entry, offset)
+            fields.append(mapped)
+            offset += mapped.bits
+        return cls(cob_id, tuple(fields), _compile(fields))
+
+    @property
+    def size_bytes(self) -> int:
+        """Bytes the mapped objects occupy."""
+        return (sum(f.bits for f in self.fields) + 7) // 8
+
+    def position(self, index: int, sub: int) -> int | None:
+        """Position of object ``index:sub`` among the decoded values, or None."""
+        for i, mapped in enumerate(self.fields):
+            if (mapped.index, mapped.sub) == (index, sub):
+                return i
+        return None
+
+    def decode(self, data: bytes) -> tuple[int, ...]:
+        """Values of the mapped objects, in mapping order (``struct.error`` on a wrong length)."""
+        if len(data) != self.size_bytes:
+            raise struct.error(f"{len(data)} bytes, mapping needs {self.size_bytes}")
+        if self._struct is not None:
+            return self._struct.unpack_from(data)
+        raw = int.from_bytes(data, "little")
+        values = []
+        for f in self.fields:
+            value = (raw >> f.offset_bits) & ((1 << f.bits) - 1)
+            if f.signed and value >> (f.bits - 1):
+                value -= 1 << f.bits
+            values.append(value)
+        return tuple(values)
+
+
+_STRUCT_CODES = {(8, False): "B", (8, True): "b", (16, False): "H", (16, True): "h"}
+_STRUCT_CODES |= {(32, False): "I", (32, True): "i"}
+
+
+def _compile(fields: Sequence[MappedField]) -> struct.Struct | None:
+    """Return a ``struct`` format when every field is a whole 8/16/32-bit integer, else None."""
+    codes = [_STRUCT_CODES.get((f.bits, f.signed)) for f in fields]
+    if any(code is None for code in codes):
+        return None
+    return struct.Struct("<" + "".join(code for code in codes if code))
+
+
+@dataclass(frozen=True)
+class SampleLayout:
+    """Where accel, gyro, counter and temperature sit in TPDO1/2/3 (read from the node)."""
+
+    accel: PdoLayout
+    gyro: PdoLayout
+    info: PdoLayout | None
+
+    def __post_init__(self) -> None:
+        """Check that the halves carry what pairing needs."""
+        needed = [(self.accel, ACCEL_RAW), (self.gyro, GYRO_RAW)]
+        for layout, index in needed:
+            for sub in (1, 2, 3):
+                if layout.position(index, sub) is None:
+                    raise ValueError(
+                        f"TPDO 0x{layout.cob_id:X} does not map 0x{index:04X}:{sub:02d}"
+                    )
+            if layout.position(SAMPLE_INFO, 2) is None:
+                raise ValueError(f"TPDO 0x{layout.cob_id:X} does not map the counter 0x2002:02")
+
+    def picks(self, layout: PdoLayout, index: int) -> tuple[int, int, int, int]:
+        """Positions of x, y, z of ``index`` and of the counter in ``layout``'s values."""
+        pos = [layout.position(index, sub) for sub in (1, 2, 3)]
+        pos.append(layout.position(SAMPLE_INFO, 2))
+        return (pos[0] or 0, pos[1] or 0, pos[2] or 0, pos[3] or 0)
+
+
+def layout_from_mapping(
+    cob_ids: Mapping[int, int], entries: Mapping[int, Sequence[int]]
+) -> SampleLayout:
+    """Sample layout from TPDO number → COB-ID and TPDO number → mapping entries (1, 2, 3)."""
+    info = PdoLayout.from_entries(cob_ids[3], entries[3]) if 3 in entries else None
+    return SampleLayout(
+        PdoLayout.from_entries(cob_ids[1], entries[1]),
+        PdoLayout.from_entries(cob_ids[2], entries[2]),
+        info,
+    )

@@ -1,0 +1,117 @@
+"""Fault hooks of :class:`~canimucal.device.sim_node.SimulatedImuNode` (issue 6).
+
+The node routes SDO requests and responses, TPDO frames and its simulated clock through
+its :class:`~canimucal.device.sim_faults.FaultInjector` (``node.faults``); this mixin holds
+the glue: serve / ignore / mute / abort / reboot an SDO request, run timed faults (reboot,
+EMCY, error frames, heartbeat loss) from the producer thread.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import can
+import canopen
+
+from canimucal.device import od
+from canimucal.device.sim_faults import EMCY_BASE, Emergency, FaultInjector, emcy_frame
+from canimucal.device.sim_producer import SampleProducer
+
+log = logging.getLogger(__name__)
+
+SdoHandler = Callable[[int, bytearray, float], None]
+
+
+class FaultHooks:
+    """Mixin: what the node does with the faults its injector decides."""
+
+    node_id: int
+    faults: FaultInjector
+    _lock: threading.RLock
+    _node: canopen.LocalNode
+    _network: canopen.Network
+    _producer: SampleProducer
+    _serve_sdo: SdoHandler
+    _send_sdo: Callable[[bytes], None]
+    _mute_sdo: bool
+
+    def reboot(self) -> None:  # implemented by the node
+        """Power-cycle the node."""
+        raise NotImplementedError
+
+    def od_value(self, index: int, sub: int = 0) -> Any:  # implemented by the node
+        """Return the current decoded value of an object."""
+        raise NotImplementedError
+
+    def send_emergency(self, code: int, register: int = 0x01) -> None:
+        """Send an EMCY frame (0x80 + node id) and set the error register 0x1001."""
+        with self._lock:
+            self._producer.error_register = register & 0xFF
+            self._producer.live[(od.ERROR_REGISTER, 0)] = register & 0xFF
+        self.faults.stats.emergencies += 1
+        log.warning("simulated EMCY 0x%04X (error register 0x%02X)", code, register)
+        self._network.send_message(EMCY_BASE + self.node_id, emcy_frame(code, register))
+
+    def send_error_frame(self) -> None:
+        """Put a CAN error frame on the bus (as a controller reporting a bus error does)."""
+        self.faults.stats.error_frames += 1
+        msg = can.Message(is_error_frame=True, arbitration_id=0x20000004, data=bytes(8))
+        if self._network.bus is not None:
+            self._network.bus.send(msg)
+
+    def _wrap_sdo_server(self) -> None:
+        """Route SDO requests through the fault injector (before the network subscribes)."""
+        sdo = self._node.sdo
+        self._serve_sdo = sdo.on_request
+        self._send_sdo = sdo.send_response
+        self._mute_sdo = False
+        sdo.on_request = self._on_sdo_request  # type: ignore[method-assign]
+        sdo.send_response = self._on_sdo_response  # type: ignore[method-assign]
+
+    def _on_sdo_request(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        fate = self.faults.on_sdo_request(bytes(data))
+        if fate == "serve":
+            self._serve_sdo(can_id, data, timestamp)
+        elif fate == "mute":
+            self._mute_sdo = True
+            try:
+                self._serve_sdo(can_id, data, timestamp)
+            finally:
+                self._mute_sdo = False
+        elif fate == "reboot":
+            log.warning("simulated power cycle while serving an SDO request")
+            self.reboot()
+        elif fate.startswith("abort:"):
+            code = int(fate.split(":")[1])
+            head = bytes([0x80]) + bytes(data[1:4])
+            self._send_sdo(head + code.to_bytes(4, "little"))
+
+    def _on_sdo_response(self, response: bytes | bytearray) -> None:
+        if not self._mute_sdo:
+            self._send_sdo(bytes(response))
+
+    def _on_sim_time(self, t_s: float) -> None:
+        """Run the timed faults due at simulated time ``t_s`` (producer thread)."""
+        for kind, arg in self.faults.due(t_s):
+            if kind == "reboot":
+                self.faults.stats.reboots += 1
+                log.warning("simulated power cycle at t = %.3f s", t_s)
+                self.reboot()
+            elif kind == "emergency" and isinstance(arg, Emergency):
+                self.send_emergency(arg.code, arg.register)
+            elif kind == "error_frame":
+                self.send_error_frame()
+            elif kind == "heartbeat":
+                self._set_heartbeat(bool(arg))
+
+    def _set_heartbeat(self, on: bool) -> None:
+        nmt = self._node.nmt
+        if on:
+            nmt.start_heartbeat(int(self.od_value(od.HEARTBEAT, 0)))
+            log.warning("simulated heartbeat resumed")
+        else:
+            nmt.stop_heartbeat()
+            log.warning("simulated heartbeat loss")

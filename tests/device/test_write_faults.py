@@ -1,0 +1,261 @@
+"""≥ 1,000 injected faults at random points of the transactional write (DESIGN §4, issue 6).
+
+The node and the client talk over :func:`loopback_pair` (frames delivered synchronously, in
+process), with a 3 ms SDO timeout and 1 ms backoff, so a fault costs milliseconds. Before
+each case the node holds a stored, valid "old" set; the transaction writes a "new" one
+while one fault fires at a random SDO request (or client send). Afterwards the node's
+objects are read in process (the SDO server may be silent) and must be the complete old
+set, the complete new set, or valid = 0 with the documented message and exit 3 — never
+valid = 1 over a mixed set; 0x1010:04 'save' is only ever sent after the last
+verification read of the valid flag and CRC, and the non-volatile memory holds old or new.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import can
+import canopen
+import numpy as np
+import pytest
+
+from canimucal.device import od
+from canimucal.device.client import ImuClient
+from canimucal.device.sim_bus import FaultyBus, LoopbackBus, loopback_pair
+from canimucal.device.sim_faults import FaultStats
+from canimucal.device.sim_node import SimulatedImuNode
+from canimucal.device.transaction import RollbackIncompleteError, write_calibration_transaction
+from canimucal.errors import DeviceError
+from canimucal.sim.truth import Truth
+
+NODE_ID = 0x10
+SERIAL = 4242
+ACCEL_LSB = 9.80665 / 2048.0
+GYRO_LSB = float(np.pi / (180.0 * 16.4))
+N_FAULTS = 1000
+SEED = 20260601
+ROLLBACK_MESSAGE = "rollback incomplete; device invalidated; restore with canimucal write-params "
+Raw = dict[tuple[int, int], bytes]
+STORE_REQUEST = bytes([0x23, 0x10, 0x10, od.STORE_CALIBRATION_SUB])
+VALID_UPLOAD = bytes([0x40, 0x21, 0x21, od.CAL_VALID_SUB])
+CRC_UPLOAD = bytes([0x40, 0x21, 0x21, od.CAL_CRC_SUB])
+
+
+def calibration(scale: float, bias: float) -> dict[str, Any]:
+    """A calibration JSON dict near nominal (cross-axis terms, g-sensitivity, tilt)."""
+    k = np.diag([scale, -scale, 0.99]) / ACCEL_LSB
+    k[0, 1] = 0.01 / ACCEL_LSB
+    s = np.eye(3) * 1.02 / GYRO_LSB
+    return {
+        "schema": "canimucal.calibration/1",
+        "plan": "five",
+        "device": {"node_id": NODE_ID, "serial": SERIAL},
+        "accel": {"bias": [bias, -3.25, 1.5], "K": k.tolist()},
+        "gyro": {"bias": [1.0, 2.0, 3.0], "S": s.tolist(), "G": np.eye(3).tolist()},
+        "base_tilt_deg": {"alpha0": 0.3, "beta0": -0.2},
+    }
+
+
+@dataclass
+class LoopRig:
+    """Node and client over a synchronous loopback link; SDO requests recorded in order."""
+
+    node: SimulatedImuNode
+    client: ImuClient
+    faulty: FaultyBus
+    backups: Path
+    requests: list[bytes] = field(default_factory=list)
+
+    def raw(self) -> Raw:
+        get = self.node.local_node.get_data
+        return {(i, s): bytes(get(i, s)) for i, s, _ in od.CALIBRATION_OBJECTS}
+
+    def stored(self) -> Raw:
+        stored = self.node.stored_objects()
+        return {k: stored[k] for k in self.raw() if k in stored}
+
+    def load(self, raw: Raw) -> None:
+        """Put ``raw`` into the node and store it (in process, no SDO)."""
+        self.node.faults.clear()
+        self.node.faults.stats = FaultStats()  # per-case counts: did this case's fault fire?
+        self.faulty.heal()
+        self.faulty.failed_sends = 0
+        node = self.node.local_node
+        node.set_data(od.CAL_INFO, od.CAL_VALID_SUB, bytes([0]))
+        for (index, sub), data in raw.items():
+            if (index, sub) != (od.CAL_INFO, od.CAL_VALID_SUB):
+                node.set_data(index, sub, data)
+        node.set_data(od.CAL_INFO, od.CAL_VALID_SUB, raw[(od.CAL_INFO, od.CAL_VALID_SUB)])
+        node.set_data(od.STORE, od.STORE_CALIBRATION_SUB, od.encode("u32", od.SAVE_SIGNATURE))
+        while not self.client.events.empty():
+            self.client.events.get_nowait()
+        self.requests.clear()
+
+
+def _connect(bus: can.BusABC, end: LoopbackBus) -> canopen.Network:
+    network = canopen.Network(bus)
+    network.NOTIFIER_CYCLE = 0.05
+    network.connect()
+    assert network.notifier is not None
+    end.receivers = network.notifier.listeners
+    return network
+
+
+@pytest.fixture(scope="module")
+def loop_rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LoopRig]:
+    client_end, node_end = loopback_pair()
+    faulty = FaultyBus(client_end)
+    client_net, node_net = _connect(faulty, client_end), _connect(node_end, node_end)
+    truth = Truth.from_dict({"serial": SERIAL, "sample_rate_hz": 50})
+    node = SimulatedImuNode(node_net, NODE_ID, truth, seed=3)
+    client = ImuClient(client_net, NODE_ID, sdo_timeout_s=0.003, sdo_retries=1, sdo_backoff_s=0.001)
+    rig = LoopRig(node, client, faulty, tmp_path_factory.mktemp("backups"))
+    client_end.taps.append(
+        lambda msg: (
+            rig.requests.append(bytes(msg.data)) if msg.arbitration_id == 0x600 + NODE_ID else None
+        )
+    )
+    node.start()
+    yield rig
+    client.close()
+    node.stop()
+    for net in (client_net, node_net):
+        assert net.notifier is not None
+        net.notifier.stop()
+    faulty.shutdown()
+    node_end.shutdown()
+
+
+def _old_and_new(rig: LoopRig) -> tuple[Raw, Raw, int]:
+    """Write the old (stored) and the new set once without faults; return both and N requests."""
+    rig.node.faults.clear()
+    rig.faulty.heal()
+    write_calibration_transaction(rig.client, calibration(1.05, 40.0), backup_dir=rig.backups)
+    old = rig.raw()
+    rig.requests.clear()
+    rig.node.faults.set()  # restart the request count
+    write_calibration_transaction(rig.client, calibration(0.97, -12.0), backup_dir=rig.backups)
+    new = rig.raw()
+    n_requests = rig.node.faults.stats.sdo_requests
+    assert old != new and old[(od.CAL_INFO, od.CAL_VALID_SUB)] == b"\x01"
+    return old, new, n_requests
+
+
+def _arm(rig: LoopRig, rng: np.random.Generator, n_requests: int) -> str:
+    """Arm one fault at a random point of the transaction; return its name."""
+    kind = str(rng.choice(["abort", "silent", "mute", "reboot", "object", "send", "bus_off"]))
+    k = int(rng.integers(1, n_requests + 1))
+    faults = rig.node.faults
+    if kind == "abort":
+        faults.set(abort_at_sdo_request=k)
+    elif kind in ("silent", "mute"):
+        faults.set(
+            sdo_silent_after=k - 1, sdo_silent_mode="request" if kind == "silent" else "response"
+        )
+    elif kind == "reboot":
+        faults.set(reboot_at_sdo_request=k)
+    elif kind == "object":
+        index, sub, _ = od.CALIBRATION_OBJECTS[int(rng.integers(len(od.CALIBRATION_OBJECTS)))]
+        rule = {"object": od.format_key(index, sub), "access": str(rng.choice(["write", "any"]))}
+        faults.set(sdo_aborts=[rule | {"at_access": int(rng.integers(1, 3))}])
+    elif kind == "send":
+        rig.faulty.fail_sends(1, after=k - 1)  # one transient bus error: retried
+    else:
+        rig.faulty.fail_sends(-1, after=k - 1)  # bus off from request k on
+    return kind
+
+
+def _fired(rig: LoopRig) -> bool:
+    s = rig.node.faults.stats
+    return bool(s.sdo_aborted or s.sdo_ignored or s.reboots or rig.faulty.failed_sends)
+
+
+def _check_store_after_verification(requests: list[bytes]) -> None:
+    """0x1010:04 only after valid = 1 was written and valid and CRC were read back."""
+    heads = [r[:4] for r in requests]
+    for p, head in enumerate(heads):
+        if head != STORE_REQUEST:
+            continue
+        set_valid = max(q for q in range(p) if requests[q][:5] == bytes([0x2F, 0x21, 0x21, 5, 1]))
+        between = heads[set_valid + 1 : p]
+        assert VALID_UPLOAD in between and CRC_UPLOAD in between, "store before verification"
+
+
+@dataclass
+class Tally:
+    outcomes: dict[str, int] = field(default_factory=dict)
+
+    def add(self, kind: str, outcome: str) -> None:
+        key = f"{kind}:{outcome}"
+        self.outcomes[key] = self.outcomes.get(key, 0) + 1
+
+
+def _run_case(rig: LoopRig, old: Raw, new: Raw, kind: str, tally: Tally) -> None:
+    error: DeviceError | None = None
+    try:
+        write_calibration_transaction(rig.client, calibration(0.97, -12.0), backup_dir=rig.backups)
+    except DeviceError as exc:
+        error = exc
+    state = rig.raw()
+    valid = state[(od.CAL_INFO, od.CAL_VALID_SUB)]
+    if error is None:
+        assert state == new, f"{kind}: completed but the device does not hold the new set"
+        outcome = "new"
+    elif isinstance(error, RollbackIncompleteError):
+        assert str(error).startswith(ROLLBACK_MESSAGE) and error.exit_code == 3
+        # unreachable during rollback: valid = 0, or (the tool cannot tell) a whole set the
+        # device took before its answers stopped (new) or before any write arrived (old)
+        assert valid == b"\x00" or state in (old, new), f"{kind}: valid = 1 over a mixed set"
+        outcome = "invalid" if valid == b"\x00" else "unconfirmed"
+    else:
+        assert error.exit_code == 3
+        assert state == old, f"{kind}: failure reported but the old set is not back: {error}"
+        outcome = "old"
+    assert valid == b"\x00" or state in (old, new), f"{kind}: valid = 1 over a mixed set"
+    assert rig.stored() in (old, new), f"{kind}: a mixed set was stored"
+    _check_store_after_verification(rig.requests)
+    tally.add(kind, outcome)
+
+
+def test_thousand_injected_write_faults(loop_rig: LoopRig) -> None:
+    rig = loop_rig
+    old, new, n_requests = _old_and_new(rig)
+    rng = np.random.default_rng(SEED)
+    tally, fired, cases, started = Tally(), 0, 0, time.monotonic()
+    while fired < N_FAULTS:
+        rig.load(old)
+        kind = _arm(rig, rng, n_requests)
+        _run_case(rig, old, new, kind, tally)
+        fired += _fired(rig)
+        cases += 1
+    elapsed = time.monotonic() - started
+    outcomes_text = sorted(tally.outcomes.items())
+    print(f"\n{fired} faults fired in {cases} cases, {elapsed:.1f} s: {outcomes_text}")
+    outcomes = {key.split(":")[1] for key in tally.outcomes}
+    # every kind of ending was exercised: rolled back, completed, invalidated
+    assert {"old", "new", "invalid"} <= outcomes
+    assert all(tally.outcomes.get(f"{kind}:old", 0) for kind in ("abort", "reboot", "object"))
+
+
+def test_reboot_as_another_unit_mid_write_restores_nothing(loop_rig: LoopRig) -> None:
+    rig = loop_rig
+    old, _, _ = _old_and_new(rig)
+    rig.load(old)
+    k = 60  # inside "write block": identity, LSBs and the 44-object read-out come first
+    rig.node.faults.set(reboot_at_sdo_request=k, serial_after_reboot=SERIAL + 1)
+    try:
+        with pytest.raises(DeviceError, match="came back as serial 4243, not 4242") as info:
+            write_calibration_transaction(
+                rig.client, calibration(0.97, -12.0), backup_dir=rig.backups
+            )
+        assert info.value.exit_code == 3 and "nothing restored" in str(info.value)
+        downloads = [r for r in rig.requests[k:] if r[0] & 0xE0 == 0x20]
+        assert downloads == []  # not one write to the other unit after its boot-up
+        assert rig.raw() == old  # it booted with its stored set, untouched since
+    finally:
+        rig.node.faults.clear()
+        rig.node.reboot()  # back to the original serial for any later test
