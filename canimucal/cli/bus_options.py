@@ -72,7 +72,11 @@ def add_bus_options(parser: argparse.ArgumentParser, *, sim: bool = True) -> Non
     bus = parser.add_argument_group("CAN bus (python-can)")
     bus.add_argument("--interface", help="python-can interface (default socketcan with --channel)")
     bus.add_argument("--channel", help="CAN channel, e.g. vcan0 or can0")
-    bus.add_argument("--bitrate", type=int, help="bit rate, bit/s (interfaces that set it)")
+    bus.add_argument(
+        "--bitrate",
+        type=int,
+        help="bit rate, bit/s (interfaces that set it; bus load: 500 kbit/s assumed without)",
+    )
     bus.add_argument("--can-config", metavar="PATH", help="python-can config file")
     bus.add_argument(
         "--node-id",
@@ -170,8 +174,11 @@ class DeviceSession:
                 self._buses.append(bus)
                 enlarge_receive_buffer(bus)
             self.where = "simulated IMU (in-process virtual bus)" if self.sim_nodes else ""
+            bitrate = getattr(args, "bitrate", None)
             if not self.where:
-                self.where = describe(bus_settings(args).resolve())
+                config = bus_settings(args).resolve()
+                self.where = describe(config)
+                bitrate = bitrate or config.get("bitrate")
             network = self._network(bus)
             for nid in self.ids:
                 self.clients[nid] = ImuClient(
@@ -179,6 +186,7 @@ class DeviceSession:
                     nid,
                     sdo_timeout_s=args.sdo_timeout,
                     sync_producer=bool(args.sync_producer),
+                    bitrate_bps=int(bitrate) if bitrate else None,
                 )
                 if find and not self.sim_nodes:
                     how = self.clients[nid].find_node(FIND_NODE_TIMEOUT_S)

@@ -84,6 +84,7 @@ def read_document(client: ImuClient) -> dict[str, Any]:
         "readback": readback_dict(readout.block, readout.valid, readout.crc_ok),
         "crc_stored": readout.crc_stored,
         "calibration": calibration,
+        "bus_load": client.bus_load(full_window=True).as_dict(),
     }
 
 
@@ -114,6 +115,11 @@ def report(document: dict[str, Any]) -> str:
         *("  " + _row(row) for row in r["gyro_g"]),
         "base tilt (deg): " + _row(list(np.rad2deg(r["base_tilt_rad"]))),
     ]
+    if "bus_load" in document:
+        from canimucal.device.busload import BusLoad
+
+        load = document["bus_load"]
+        lines.append(BusLoad(**{key: load[key] for key in BusLoad._fields}).text())
     return "\n".join(lines) + "\n"
 
 

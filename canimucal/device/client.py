@@ -28,6 +28,7 @@ from canimucal.device.bus import (
     SdoChannel,
     default_sdo_timeout_s,
 )
+from canimucal.device.busload import BusLoad, BusLoadMeter
 from canimucal.device.events import (
     EMCY_BASE,
     HEARTBEAT_BASE,
@@ -99,6 +100,7 @@ class ImuClient:
         sync_producer: bool = False,
         sync_period_s: float = 0.005,
         sdo_backoff_s: float = BACKOFF_START_S,
+        bitrate_bps: int | None = None,
     ) -> None:
         if not 1 <= node_id <= 127:
             raise ValueError(f"node id must be 1..127, got {node_id}")
@@ -122,8 +124,11 @@ class ImuClient:
         )
         network.subscribe(HEARTBEAT_BASE + node_id, self.heartbeat.on_heartbeat)
         network.subscribe(EMCY_BASE + node_id, self.heartbeat.on_emergency)
+        self.bus_meter = BusLoadMeter(bitrate_bps)
+        """Every frame the network receives (``bitrate_bps=None``: 500 kbit/s assumed)."""
         if network.notifier is not None:
             network.notifier.add_listener(self.heartbeat)  # error frames
+            network.notifier.add_listener(self.bus_meter)
         self._serial: int | None = None
         self.sync_producer = sync_producer
         self.sync_period_s = sync_period_s
@@ -238,6 +243,13 @@ class ImuClient:
     def store_calibration(self) -> None:
         """Persist the calibration objects: 0x1010:04 = 'save'."""
         self.write_value(od.STORE, od.STORE_CALIBRATION_SUB, "u32", od.SAVE_SIGNATURE)
+
+    def bus_load(self, *, full_window: bool = False) -> BusLoad:
+        """Load of the bus over the last second, all frames seen (:mod:`~.busload`).
+
+        ``full_window``: wait until the client has listened for a whole second first.
+        """
+        return self.bus_meter.load(full_window=full_window)
 
     # ----------------------------------------------------------------------- streaming
     def _boots(self) -> int:
@@ -372,10 +384,11 @@ class ImuClient:
         self.network.unsubscribe(HEARTBEAT_BASE + self.node_id, self.heartbeat.on_heartbeat)
         self.network.unsubscribe(EMCY_BASE + self.node_id, self.heartbeat.on_emergency)
         if self.network.notifier is not None:
-            try:
-                self.network.notifier.remove_listener(self.heartbeat)
-            except ValueError:
-                pass
+            for listener in (self.heartbeat, self.bus_meter):
+                try:
+                    self.network.notifier.remove_listener(listener)
+                except ValueError:
+                    pass
         if self.node_id in self.network:
             del self.network[self.node_id]
         if self._owns_network and self.network.notifier is not None:

@@ -115,12 +115,16 @@ class ConnectionScreen(Screen[None]):
         self.status.update("\n".join(lines))
 
     def refresh_heartbeats(self) -> None:
-        """Update the heartbeat column (no SDO: the client's last heartbeat)."""
+        """Update the heartbeat column and the bus load (no SDO: what the clients saw)."""
+        load = None
         for s in self.statuses:
             beat = self.source.heartbeat(s.node_id)
             state = STATE_WORDS.get(str(beat.state), str(beat.state).lower())
             text = "none yet" if beat.age_s is None else f"{state} {beat.age_s:.1f} s ago"
             self.table.update_cell(str(s.node_id), "heartbeat", text, update_width=True)
+            load = beat.bus_load if load is None else load
+        if load is not None:
+            self.bus.update(f"bus: {self.source.description} · {load.text()}")
 
     def on_connect_failed(self, message: ConnectFailed) -> None:
         """Show the error in a modal; c retries."""
