@@ -212,6 +212,19 @@ class LevelChecked(Event):
 
 
 @dataclass(frozen=True)
+class DeviceEventReported(Event):
+    """The node reported something on the bus (a notice; the machine reacts where needed).
+
+    ``kind``: ``reboot``, ``heartbeat_lost``, ``heartbeat_resumed``, ``emergency``,
+    ``serial_changed`` or ``bus_error``; ``message`` says it in words.
+    """
+
+    node_id: int
+    kind: str
+    message: str
+
+
+@dataclass(frozen=True)
 class ProcedureFailed(Event):
     """The procedure stopped on an error (shown in a modal, never a traceback)."""
 

@@ -22,6 +22,7 @@ Three ways to label:
 from __future__ import annotations
 
 import logging
+import queue
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -30,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.device.client import ImuClient
+from canimucal.device.events import NodeRebooted
 from canimucal.device.stream import SampleBlock, concat_blocks
 from canimucal.errors import DeviceError, InputError
 from canimucal.io.recording import RecordingWriter
@@ -66,6 +68,7 @@ class NodeTally:
     lost_gyro: int = 0
     duplicates: int = 0
     late: int = 0
+    reboots: int = 0
 
     def add(self, block: SampleBlock) -> None:
         """Add a block's loss counts."""
@@ -239,6 +242,7 @@ class Recorder:
         """Take blocks from every node and write them, in batches, until ``done()``."""
         while not done():
             for track in self._tracks:
+                self._device_events(track, labeller)  # a reboot first resumes streaming
                 block = track.client.get_block(POLL_S / len(self._tracks))
                 now = time.monotonic()
                 if block is not None:
@@ -254,6 +258,42 @@ class Recorder:
                     self._flush(track, labeller)
         for track in self._tracks:
             self._flush(track, labeller)
+
+    def _device_events(self, track: _Track, labeller: Labeller) -> None:
+        """React to what the node reported: a reboot resumes streaming (see ``_rebooted``)."""
+        while True:
+            try:
+                event = track.client.events.get_nowait()
+            except queue.Empty:
+                return
+            if isinstance(event, NodeRebooted):
+                self._rebooted(track, labeller)
+            else:
+                log.warning("node %d reported %s", track.client.node_id, event)
+
+    def _rebooted(self, track: _Track, labeller: Labeller) -> None:
+        """Write what came before the boot-up, restart the counters and resume streaming.
+
+        The node's counter starts again after a reboot: unwrapping restarts, so the fall
+        back is not taken for a ~65,000-sample jump. A position whose rows were being
+        labelled (a window past its settling, or a schedule) is never continued across
+        the reboot: the rows so far stay in the file and a DeviceError asks to record that
+        position again.
+        """
+        node_id = track.client.node_id
+        self._drain(track, labeller)
+        track.tally.reboots += 1
+        track.seq_last = None
+        track.client.resume_streaming()
+        track.last_data = time.monotonic()
+        log.warning("node %d rebooted; streaming resumed", node_id)
+        labelling = track.index >= 0 and track.skip == 0 and track.remaining > 0
+        if labelling or labeller is not _window:
+            what = f"position {track.index}" if labeller is _window else "the schedule"
+            raise DeviceError(
+                f"node {node_id} rebooted while {what} was being recorded: the rows up to "
+                f"the reboot are in {track.writer.path}; record {what} again"
+            )
 
     def _drain(self, track: _Track, labeller: Labeller) -> None:
         while (block := track.client.get_block(0.0)) is not None:

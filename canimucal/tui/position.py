@@ -319,4 +319,6 @@ def notice_text(event: ev.Event) -> str:
         return f"write node {event.node_id}: {event.message}"
     if isinstance(event, ev.RecordSaved):
         return f"saved {event.record_path}"
+    if isinstance(event, ev.DeviceEventReported):
+        return f"[b]{event.kind.replace('_', ' ')}[/b]: {event.message}"
     return ""
