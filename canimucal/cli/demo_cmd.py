@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from canimucal.cli.output import add_json_option, check_outputs, dumps, emit
+from canimucal.errors import InputError
 from canimucal.io.atomic import write_text_atomic
 from canimucal.io.plans import resolve_plan
 from canimucal.io.truth_file import load_truth
@@ -37,6 +38,7 @@ from canimucal.model.positions import Plan
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.procedure.demo_rig import DemoRig, comparison_table, readback_deviations
+from canimucal.procedure.resume import load_resume_state
 from canimucal.procedure.session import Session, output_name, run_automatic
 from canimucal.sim.truth import Truth
 
@@ -72,6 +74,12 @@ def add_subparser(subparsers: Any) -> None:
         help=f"simulated seconds per wall second (default {DEFAULT_TIME_SCALE:g})",
     )
     p.add_argument("--out", default="demo-out", help="directory for the demo's files")
+    p.add_argument(
+        "--resume",
+        metavar="DIR",
+        help="go on with the interrupted session in DIR (same plan and seed or truth; "
+        "headless only; its files go to DIR)",
+    )
     add_json_option(p)
     p.set_defaults(run=run)
 
@@ -110,8 +118,10 @@ def run(args: argparse.Namespace) -> int:
     plan = resolve_plan(args.plan, builtin_plan)
     plan_name = plan.name if plan.name in ("two", "five", "recommended") else "custom"
     truths = _truths(args)
-    out = Path(args.out)
+    out = Path(args.resume or args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.resume and not args.headless and _terminal():
+        raise InputError("--resume works with --headless only in the demo")
     if not args.headless and _terminal():
         return _run_tui(args, plan, plan_name, truths, out)
     if not args.headless:
@@ -119,6 +129,10 @@ def run(args: argparse.Namespace) -> int:
     policy = AveragingPolicy(fixed_s=args.seconds)
     verify_s = min(args.seconds, 10.0) if args.seconds else 10.0
     with DemoRig(truths, time_scale=args.time_scale, seed=args.seed + 1) as rig:
+        resume = load_resume_state(out, plan, tuple(rig.clients)) if args.resume else None
+        if resume is not None:
+            n = resume.next_index
+            print(f"resuming {out}: {n} position(s) from the recording", file=sys.stderr)
         session = rig.session(
             plan,
             out,
@@ -127,6 +141,7 @@ def run(args: argparse.Namespace) -> int:
             averaging=policy,
             warmup=False,
             verify_seconds=verify_s,
+            resume_from=resume,
         )
         history = run_automatic(session, write_anyway=True)
         truth_by_node = dict(rig.truths)

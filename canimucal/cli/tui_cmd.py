@@ -46,6 +46,11 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("--height-m", type=float, default=0.0, help="height above the ellipsoid, m")
     p.add_argument("--heading-deg", type=float, default=0.0, help="azimuth of body z, degrees")
     p.add_argument("--no-warmup", action="store_true", help="do not wait for warm-up")
+    p.add_argument(
+        "--resume",
+        metavar="DIR",
+        help="go on with the interrupted session in DIR (same plan; its files go to DIR)",
+    )
     p.set_defaults(run=run)
 
 
@@ -79,18 +84,22 @@ def _where(args: argparse.Namespace) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Open the TUI on the bus the flags name."""
+    from canimucal.procedure.resume import load_resume_state
     from canimucal.tui.app import make_app
     from canimucal.tui.source import BusSource
 
     plan = resolve_plan(args.plan, builtin_plan)
     plan_name = plan.name if plan.name in BUILTIN else "custom"
+    if args.resume:  # a different plan or an unreadable recording: exit 2 before the TUI
+        load_resume_state(args.resume, plan)
     source = BusSource(
         opener=lambda: DeviceSession(args, find=False),
-        out_dir=Path(args.out),
+        out_dir=Path(args.resume or args.out),
         site=_site(args),
         backup_dir=Path(args.backup_dir) if args.backup_dir else None,
         warmup=not args.no_warmup,
         description=_where(args),
+        resume=bool(args.resume),
     )
     custom = plan if plan_name == "custom" else None
     app = make_app(source, plan_name=plan_name, gyro=args.gyro, custom_plan=custom)

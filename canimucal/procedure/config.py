@@ -11,6 +11,7 @@ from canimucal.model.layout import JointSpec
 from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.procedure.acceptance import AcceptanceLimits
 from canimucal.procedure.averaging import AveragingPolicy
+from canimucal.procedure.resume import ResumeState
 from canimucal.procedure.solution import SiteConditions
 
 LEVEL = PlannedPosition(0.0, 0.0, 0.0)
@@ -55,3 +56,5 @@ class ProcedureConfig:
     verify_seconds: float = 10.0
     live_period_s: float = 0.5
     progress_period_s: float = 0.25
+    resume_from: ResumeState | None = None
+    """Positions an interrupted session accepted (:mod:`.resume`); the procedure goes on."""

@@ -13,6 +13,7 @@ stillness and progress wait for the slowest node; motion on any node restarts th
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from dataclasses import replace
 
 import numpy as np
@@ -71,6 +72,10 @@ class Procedure:
         self._still = False
         self._last_progress_s = -np.inf
         self._last_warm_s = -np.inf
+        if config.resume_from is not None:
+            for node_id in config.node_ids:
+                self.preload(node_id, config.resume_from.averages.get(node_id, {}))
+            self.index = config.resume_from.next_index
 
     # -- queries -----------------------------------------------------------------------------
 
@@ -101,6 +106,21 @@ class Procedure:
         if self.phase is Phase.WARMUP:
             return [ev.PhaseChanged(Phase.WARMUP.value, "")]
         return self._instruct()
+
+    def preload(self, node_id: int, averages: Mapping[int, PositionAverage]) -> None:
+        """Take positions an interrupted session accepted (by plan index) as accepted.
+
+        The level position's average gives the pose check its offset, as on acceptance; the
+        first-position long recording rule does not apply again (later positions use the
+        averaging policy's later time).
+        """
+        track = self.tracks[node_id]
+        for index, average in sorted(averages.items()):
+            self.accepted[node_id][index] = average
+            track.stillness.learn_noise(average.std_accel)
+            if track.offset_ms2 is None:
+                f_pred = predicted_force(average.pose, self.config.site.g)
+                track.offset_ms2 = track.accel_lsb * average.mean_accel - f_pred
 
     # -- samples -----------------------------------------------------------------------------
 
@@ -275,6 +295,20 @@ class Procedure:
         self.pending_averages = {}
         rejected = ev.PositionRejected(self.index, "redo by the operator", None, restarting=True)
         return [rejected, *self._instruct()]
+
+    def device_interrupted(self, node_id: int, reason: str) -> list[ev.Event]:
+        """Take a node's reboot or emergency: never average across it.
+
+        While averaging, the attempt is rejected (as a disturbance is) and the position is
+        settled and averaged again; while settling, stillness starts over. Otherwise nothing.
+        """
+        if self.phase is Phase.AVERAGING:
+            return self._reject(reason, node_id)
+        if self.phase is Phase.SETTLING:
+            for track in self.tracks.values():
+                track.stillness.reset()
+            self._still = False
+        return []
 
     def skip(self) -> list[ev.Event]:
         """Leave the current position out (not allowed for the first, level one)."""

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import json
 import logging
+import os
+import queue
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -26,6 +28,14 @@ import numpy as np
 
 from canimucal.device.calibration_map import readback_dict
 from canimucal.device.client import Identity, ImuClient
+from canimucal.device.events import (
+    BusErrorReceived,
+    EmergencyReceived,
+    HeartbeatLost,
+    HeartbeatResumed,
+    NodeRebooted,
+    SerialChanged,
+)
 from canimucal.device.sim_node import SimulatedImuNode
 from canimucal.device.transaction import write_calibration_transaction
 from canimucal.errors import CanimucalError, DeviceError
@@ -41,6 +51,7 @@ from canimucal.model.positions import Pose
 from canimucal.procedure import events as ev
 from canimucal.procedure.certificate import certificate_markdown
 from canimucal.procedure.machine import Phase, Procedure
+from canimucal.procedure.resume import partial_path
 from canimucal.procedure.tracks import LabelledRows
 
 logger = logging.getLogger(__name__)
@@ -97,7 +108,10 @@ class Session:
         for node_id, client in clients.items():
             path = output_name(out_dir, "recording", node_id, several, ".csv")
             head = dict((header or {}).get(node_id, {}))
-            writer = RecordingWriter.open(path, head, overwrite=overwrite)
+            if procedure.config.resume_from is not None:
+                writer = _open_resumed(path, head)
+            else:
+                writer = RecordingWriter.open(path, head, overwrite=overwrite)
             sim = None if sims is None else sims.get(node_id)
             self.links[node_id] = NodeLink(client, identities[node_id], writer, sim, head)
         self.several = several
@@ -124,8 +138,67 @@ class Session:
             while block is not None:
                 out += self.procedure.feed(node_id, block)
                 block = link.client.get_block(0.0)
+            out += self._device_events(node_id, link)  # after the blocks sent before them
             self._write_rows(node_id)
         return self._keep(out)
+
+    def _device_events(self, node_id: int, link: NodeLink) -> list[ev.Event]:
+        """Turn what the node reported (``client.events``) into procedure events.
+
+        A reboot or an EMCY rejects the attempt being averaged (never averaged across); after
+        a reboot the identity is read again and streaming resumed, unless another unit came
+        back (``SerialChanged``: the procedure stops with :class:`ProcedureFailed`).
+        """
+        out: list[ev.Event] = []
+        while True:
+            try:
+                event = link.client.events.get_nowait()
+            except queue.Empty:
+                return out
+            out += self._device_event(node_id, link, event)
+            if self.procedure.phase is Phase.CANCELLED:
+                return out
+
+    def _device_event(self, node_id: int, link: NodeLink, event: object) -> list[ev.Event]:
+        proc = self.procedure
+        if isinstance(event, NodeRebooted):
+            message = f"node {node_id} rebooted (boot-up seen); values it had not stored are gone"
+            out: list[ev.Event] = [ev.DeviceEventReported(node_id, "reboot", message)]
+            out += proc.device_interrupted(node_id, f"node {node_id} rebooted")
+            serial = link.client.identity().serial  # a new serial queues SerialChanged
+            if serial == link.identity.serial:
+                link.client.resume_streaming()
+                self._last_block_s[node_id] = time.monotonic()
+            return out
+        if isinstance(event, SerialChanged):
+            message = (
+                f"node {node_id} came back as serial {event.new_serial}, not "
+                f"{event.old_serial}: a different unit is on the bus; the session stops "
+                "(what was recorded is kept)"
+            )
+            stopped = [e for e in proc.cancel() if not isinstance(e, ev.ProcedureFinished)]
+            return [  # stopped like on an error: the TUI shows the failure, not a summary
+                ev.DeviceEventReported(node_id, "serial_changed", message),
+                ev.ProcedureFailed(message, "Different unit"),
+                *stopped,
+            ]
+        if isinstance(event, EmergencyReceived):
+            message = f"node {node_id} sent an emergency: {event.text}"
+            out = [ev.DeviceEventReported(node_id, "emergency", message)]
+            return out + proc.device_interrupted(node_id, message)
+        if isinstance(event, HeartbeatLost):
+            message = (
+                f"node {node_id}: no heartbeat for {event.timeout_s:g} s "
+                f"(the session stops after {self.silence_timeout_s:g} s without samples)"
+            )
+            return [ev.DeviceEventReported(node_id, "heartbeat_lost", message)]
+        if isinstance(event, HeartbeatResumed):
+            message = f"node {node_id}: heartbeat back"
+            return [ev.DeviceEventReported(node_id, "heartbeat_resumed", message)]
+        if isinstance(event, BusErrorReceived):
+            message = f"CAN error frame on the bus (id 0x{event.can_id:X})"
+            return [ev.DeviceEventReported(node_id, "bus_error", message)]
+        return []
 
     def _write_rows(self, node_id: int) -> None:
         writer = self.links[node_id].writer
@@ -143,6 +216,10 @@ class Session:
         for node_id, link in self.links.items():
             link.client.start_streaming()
             self._last_block_s[node_id] = time.monotonic()
+            try:
+                link.client.watch_heartbeat()  # HeartbeatLost after 3 periods (0x1017)
+            except DeviceError:
+                logger.info("node %d sends no heartbeat: its loss is not watched", node_id)
         return self._keep(self.procedure.start())
 
     def confirm_pose(self) -> list[ev.Event]:
@@ -304,6 +381,14 @@ def _write_text(path: Path, text: str) -> None:
     from canimucal.io.atomic import write_text_atomic
 
     write_text_atomic(path, text, overwrite=True)
+
+
+def _open_resumed(path: Path, header: Mapping[str, Any]) -> RecordingWriter:
+    """Append to the recording of an interrupted session (its ``.partial`` is the newer copy)."""
+    partial = partial_path(path)
+    if partial.exists():
+        os.replace(partial, path)
+    return RecordingWriter.open(path, header, append=True)
 
 
 def _write_piece(writer: RecordingWriter, piece: LabelledRows) -> None:

@@ -18,12 +18,14 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from canimucal.device.busload import BusLoad
 from canimucal.device.client import CalibrationReadout, Identity, ImuClient
 from canimucal.io.calibration import Device
 from canimucal.model.positions import Plan
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.procedure.demo_rig import DemoRig, spec_for_plan
 from canimucal.procedure.machine import Procedure, ProcedureConfig
+from canimucal.procedure.resume import load_resume_state
 from canimucal.procedure.session import Session
 from canimucal.procedure.solution import SiteConditions
 from canimucal.sim.truth import Truth
@@ -48,10 +50,14 @@ class NodeStatus:
 
 @dataclass(frozen=True)
 class Heartbeat:
-    """NMT state last reported and the age of the last heartbeat (None before any)."""
+    """NMT state last reported and the age of the last heartbeat (None before any).
+
+    ``bus_load``: the load of the node's bus over the last second, as its client sees it.
+    """
 
     state: str | None
     age_s: float | None
+    bus_load: BusLoad | None = None
 
 
 class ClientSet(Protocol):
@@ -97,7 +103,8 @@ def heartbeat_of(client: ImuClient | None) -> Heartbeat:
     if client is None:
         return Heartbeat(None, None)
     last = client.last_heartbeat_s
-    return Heartbeat(client.node_state, None if last is None else max(0.0, time.time() - last))
+    age = None if last is None else max(0.0, time.time() - last)
+    return Heartbeat(client.node_state, age, client.bus_load())
 
 
 @dataclass
@@ -156,6 +163,8 @@ class BusSource:
     backup_dir: Path | None = None
     warmup: bool = True
     description: str = "CAN bus"
+    resume: bool = False
+    """Go on with the interrupted session in ``out_dir`` (:mod:`canimucal.procedure.resume`)."""
     opened: ClientSet | None = field(default=None, init=False)
     statuses: dict[int, NodeStatus] = field(default_factory=dict, init=False)
 
@@ -193,6 +202,9 @@ class BusSource:
             devices={n: device_of(n, i) for n, i in identities.items()},
             plan_name=plan_name,
             warmup=self.warmup,
+            resume_from=load_resume_state(self.out_dir, plan, tuple(clients))
+            if self.resume
+            else None,
         )
         headers = {n: recording_header(first.rate_hz, site, identities[n], n) for n in clients}
         sims = getattr(self.opened, "sim_nodes", None) or None  # --sim: poses move the unit

@@ -1,0 +1,123 @@
+"""Resuming an interrupted session from the recording(s) it left in its output directory.
+
+A session writes every sample to ``recording.csv`` (``recording.node<ID>.csv`` with several
+nodes) with each accepted position's label and angles. :func:`load_resume_state` reads them
+back — a leftover ``.partial`` (the process died before closing it) is the newer copy and is
+read instead —, checks the plan's poses against the recorded angles and returns the accepted
+averages per node and the next position to measure. The procedure then starts there (warm-up
+still applies after a power cycle) and the session appends to the same recording(s).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from canimucal.errors import InputError
+from canimucal.io.grouping import position_averages
+from canimucal.io.recording import read_recording
+from canimucal.model.positions import Plan, PositionAverage
+
+ANGLE_MATCH_DEG = 1e-3
+"""Recorded angles (written in degrees) must equal the plan's to this many degrees."""
+
+
+@dataclass(frozen=True)
+class ResumeState:
+    """What an interrupted session measured: accepted averages per node, in plan order."""
+
+    averages: dict[int, dict[int, PositionAverage]]
+    next_index: int
+    recordings: dict[int, Path] = field(default_factory=dict)
+    """The file read per node (the ``.partial`` when one was left over)."""
+
+
+def recording_path(out_dir: Path, node_id: int, several: bool) -> Path:
+    """``recording.csv``, or ``recording.node<ID>.csv`` when several nodes (DESIGN §7)."""
+    return out_dir / (f"recording.node{node_id}.csv" if several else "recording.csv")
+
+
+def partial_path(path: Path) -> Path:
+    """Return the ``.partial`` file a recording is written to until it is closed."""
+    return path.with_name(path.name + ".partial")
+
+
+def load_resume_state(
+    out_dir: str | Path, plan: Plan, node_ids: Sequence[int] | None = None
+) -> ResumeState:
+    """Read the recording(s) in ``out_dir`` and say where the procedure goes on.
+
+    ``node_ids`` defaults to every ``recording*.csv`` found (one file: a single node, id 0
+    unless given). Raises :class:`InputError` when a recording is missing or unreadable, when
+    a recorded position is not in the plan or its angles differ from the plan's pose, or when
+    the nodes disagree about which positions were accepted.
+    """
+    out = Path(out_dir)
+    if not out.is_dir():
+        raise InputError(f"cannot resume: {out} is not a directory")
+    ids = list(node_ids) if node_ids is not None else _found_nodes(out)
+    several = len(ids) > 1
+    averages: dict[int, dict[int, PositionAverage]] = {}
+    files: dict[int, Path] = {}
+    for node_id in ids:
+        path = recording_path(out, node_id, several)
+        source = partial_path(path) if partial_path(path).exists() else path
+        if not source.exists():
+            raise InputError(f"cannot resume: no {path.name} in {out}")
+        averages[node_id] = _accepted(source, plan)
+        files[node_id] = source
+    done = {frozenset(a) for a in averages.values()}
+    if len(done) > 1:
+        raise InputError(f"cannot resume: the recordings in {out} hold different positions")
+    indices = sorted(next(iter(done))) if done else []
+    if indices != list(range(len(indices))):
+        raise InputError(f"cannot resume: positions {indices} are not the plan's first ones")
+    if len(indices) >= len(plan.positions):
+        raise InputError(f"cannot resume: every position of the plan is already in {out}")
+    return ResumeState(averages, len(indices), files)
+
+
+def _found_nodes(out: Path) -> list[int]:
+    ids: set[int] = set()
+    for p in out.glob("recording.node*.csv*"):
+        digits = p.name.removeprefix("recording.node").split(".")[0]
+        if digits.isdigit() and p.name.endswith((".csv", ".csv.partial")):
+            ids.add(int(digits))
+    if ids:
+        return sorted(ids)
+    if (out / "recording.csv").exists() or (out / "recording.csv.partial").exists():
+        return [0]
+    raise InputError(f"cannot resume: no recording in {out}")
+
+
+def _accepted(source: Path, plan: Plan) -> dict[int, PositionAverage]:
+    recording = read_recording(source)
+    labelled = recording.position[recording.position >= 0]
+    if labelled.size == 0:
+        return {}
+    out: dict[int, PositionAverage] = {}
+    for index, average in zip(
+        sorted({int(x) for x in labelled}), position_averages(recording), strict=True
+    ):
+        if index >= len(plan.positions):
+            raise InputError(
+                f"{source}: position {index + 1} recorded, the plan has "
+                f"{len(plan.positions)}: a different plan?"
+            )
+        pose = plan.positions[index]
+        recorded = np.rad2deg([average.pose.alpha, average.pose.beta, average.pose.psi])
+        planned = np.rad2deg([pose.alpha, pose.beta, pose.psi])
+        if not np.allclose(recorded, planned, rtol=0.0, atol=ANGLE_MATCH_DEG):
+            raise InputError(
+                f"{source}: position {index + 1} was recorded at angles "
+                f"{_deg(recorded)} but the plan's pose is {_deg(planned)}: a different plan?"
+            )
+        out[index] = replace(average, pose=pose)
+    return out
+
+
+def _deg(angles: np.ndarray) -> str:
+    return "(" + ", ".join(f"{a:g}°" for a in angles) + ")"
