@@ -22,10 +22,10 @@ import numpy as np
 
 from canimucal.device.client import Identity, ImuClient
 from canimucal.device.sim_node import SimulatedImuNode
-from canimucal.io.calibration import Device
 from canimucal.model.layout import JointSpec
 from canimucal.model.positions import Plan
 from canimucal.procedure.machine import Procedure, ProcedureConfig
+from canimucal.procedure.records import device_of, recording_header
 from canimucal.procedure.session import Session
 from canimucal.procedure.solution import SiteConditions
 from canimucal.sim.truth import Truth
@@ -103,7 +103,7 @@ class DemoRig:
         first = next(iter(self.clients.values()))
         rate = float(first.output_data_rate())
         site = self.site()
-        devices = {n: _device(n, i) for n, i in identities.items()}
+        devices = {n: device_of(n, i) for n, i in identities.items()}
         cfg = ProcedureConfig(
             plan=plan,
             node_ids=tuple(self.clients),
@@ -114,7 +114,7 @@ class DemoRig:
             plan_name=plan_name,
             **config,
         )
-        header = {n: _header(rate, site, identities[n], n) for n in self.clients}
+        header = {n: recording_header(rate, site, identities[n], n) for n in self.clients}
         for sim in self.sims.values():
             sim.set_pose(0.0, 0.0, 0.0)
         return Session(
@@ -165,31 +165,6 @@ class DemoRig:
         tb: TracebackType | None,
     ) -> None:
         self.close()
-
-
-def _device(node_id: int, identity: Identity) -> Device:
-    return Device(
-        node_id=node_id,
-        vendor_id=identity.vendor_id,
-        product_code=identity.product_code,
-        revision=identity.revision,
-        serial=identity.serial,
-    )
-
-
-def _header(rate: float, site: SiteConditions, identity: Identity, node_id: int) -> dict[str, Any]:
-    header: dict[str, Any] = {
-        "sample_rate_hz": rate,
-        "node_id": node_id,
-        "device_serial": identity.serial,
-        "g": site.g,
-        "heading_deg": float(np.rad2deg(site.heading)),
-        "accel_lsb": site.accel_lsb,
-        "gyro_lsb": site.gyro_lsb,
-    }
-    if site.latitude is not None:
-        header["latitude_deg"] = float(np.rad2deg(site.latitude))
-    return header
 
 
 @dataclass(frozen=True)

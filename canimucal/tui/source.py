@@ -14,17 +14,15 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
-
-import numpy as np
+from typing import Protocol
 
 from canimucal.device.busload import BusLoad
 from canimucal.device.client import CalibrationReadout, Identity, ImuClient
-from canimucal.io.calibration import Device
 from canimucal.model.positions import Plan
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.procedure.demo_rig import DemoRig, spec_for_plan
 from canimucal.procedure.machine import Procedure, ProcedureConfig
+from canimucal.procedure.records import device_of, recording_header
 from canimucal.procedure.resume import load_resume_state
 from canimucal.procedure.session import Session
 from canimucal.procedure.solution import SiteConditions
@@ -232,34 +230,3 @@ def _with_lsb(site: SiteConditions, accel_lsb: float, gyro_lsb: float) -> SiteCo
     from dataclasses import replace
 
     return replace(site, accel_lsb=accel_lsb, gyro_lsb=gyro_lsb)
-
-
-def device_of(node_id: int, identity: Identity) -> Device:
-    """Return the calibration record's ``device`` block of a node."""
-    return Device(
-        node_id=node_id,
-        vendor_id=identity.vendor_id,
-        product_code=identity.product_code,
-        revision=identity.revision,
-        serial=identity.serial,
-    )
-
-
-def recording_header(
-    rate_hz: float, site: SiteConditions, identity: Identity, node_id: int
-) -> dict[str, Any]:
-    """Header of a node's recording CSV (DESIGN §5)."""
-    header: dict[str, Any] = {
-        "sample_rate_hz": rate_hz,
-        "node_id": node_id,
-        "device_serial": identity.serial,
-        "g": site.g,
-        "heading_deg": float(np.rad2deg(site.heading)),
-        "accel_lsb": site.accel_lsb,
-        "gyro_lsb": site.gyro_lsb,
-    }
-    if site.latitude is not None:
-        header["latitude_deg"] = float(np.rad2deg(site.latitude))
-    if site.height_m is not None:
-        header["height_m"] = site.height_m
-    return header

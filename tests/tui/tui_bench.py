@@ -19,11 +19,12 @@ from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
 from canimucal.procedure import events as ev
 from canimucal.procedure.acceptance import AcceptanceLimits, check_acceptance
 from canimucal.procedure.demo_rig import spec_for_plan
+from canimucal.procedure.records import device_of
 from canimucal.procedure.session import Session
 from canimucal.procedure.solution import SiteConditions, solve_positions
 from canimucal.sim.averages import simulate_averages
 from canimucal.sim.truth import Truth
-from canimucal.tui.source import Heartbeat, NodeStatus, device_of
+from canimucal.tui.source import Heartbeat, NodeStatus
 
 SERIAL = 4242
 G = 9.80665
