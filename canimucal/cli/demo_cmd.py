@@ -143,12 +143,23 @@ def run(args: argparse.Namespace) -> int:
             verify_seconds=verify_s,
             resume_from=resume,
         )
-        history = run_automatic(session, write_anyway=True)
+        history = run_automatic(session, write_anyway=True, deadline_s=_deadline_s(plan, args))
         truth_by_node = dict(rig.truths)
     documents, report = _results(session, history, truth_by_node, out)
     document: Any = next(iter(documents.values())) if len(documents) == 1 else documents
     emit(args, document, report)
     return 0 if all("readback" in d for d in documents.values()) else 3
+
+
+def _deadline_s(plan: Plan, args: argparse.Namespace) -> float:
+    """Return the wall seconds after which the automatic operator gives up.
+
+    Four times the sample time the plan needs (at most 120 s a position, settling, the
+    verification) at the time scale, plus two minutes.
+    """
+    per_position_s = (args.seconds or 120.0) + 10.0
+    sample_s = (len(plan.positions) + 1) * per_position_s
+    return 120.0 + 4.0 * sample_s / args.time_scale
 
 
 def _terminal() -> bool:

@@ -413,18 +413,34 @@ def _write_piece(writer: RecordingWriter, piece: LabelledRows) -> None:
 
 
 def run_automatic(
-    session: Session, *, write_anyway: bool = False, max_polls: int = 1_000_000
+    session: Session,
+    *,
+    write_anyway: bool = False,
+    max_polls: int = 1_000_000,
+    deadline_s: float | None = None,
 ) -> list[ev.Event]:
     """Drive a session to the end with an automatic operator (the headless demo).
 
     Skips the warm-up, confirms each pose (moving the simulated nodes), accepts every
     position, solves, writes when the acceptance limits pass (or ``write_anyway``), verifies
     at level. Gives up (cancels) after ``MAX_REFUSALS`` refused poses in a row. Returns the
-    session's history (every event but the live readouts).
+    session's history (every event but the live readouts). With ``deadline_s`` (wall
+    seconds) a session that has not finished by then is cancelled and DeviceError raised:
+    the sample clock is the procedure's, but a simulated bus that cannot keep up must not
+    turn the demo into an endless wait.
     """
+    give_up_at = None if deadline_s is None else time.monotonic() + deadline_s
     try:
         session.start()
         for _ in range(max_polls):
+            if give_up_at is not None and time.monotonic() > give_up_at:
+                proc = session.procedure
+                session.command("cancel")
+                raise DeviceError(
+                    f"the automatic operator gave up after {deadline_s:.0f} s (phase "
+                    f"{proc.phase.value}, position {proc.index + 1}): the simulated bus "
+                    "cannot keep up at this time scale; lower --time-scale"
+                )
             _react(session, write_anyway)
             if session.procedure.phase in (Phase.DONE, Phase.CANCELLED):
                 break

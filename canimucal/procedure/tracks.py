@@ -48,12 +48,44 @@ class Attempt:
     lost: int = 0
     chunk_accel: list[Array] = field(default_factory=list)
     chunk_gyro: list[Array] = field(default_factory=list)
+    sums: RunningMeans = field(default_factory=lambda: RunningMeans())
 
     def rows(self) -> tuple[Array, Array]:
         """All accel and gyro rows so far."""
         accel = np.concatenate(self.accel) if self.accel else np.empty((0, 3))
         gyro = np.concatenate(self.gyro) if self.gyro else np.empty((0, 3))
         return accel, gyro
+
+
+@dataclass
+class RunningMeans:
+    """Per-axis sums and counts of the finite rows of an attempt.
+
+    Each chunk's motion test then costs O(chunk) however long the attempt has run
+    (recomputing the mean over every row made a long attempt quadratic).
+    """
+
+    accel_sum: Array = field(default_factory=lambda: np.zeros(3))
+    gyro_sum: Array = field(default_factory=lambda: np.zeros(3))
+    accel_n: int = 0
+    gyro_n: int = 0
+
+    def add(self, accel: Array, gyro: Array) -> None:
+        """Add a chunk's finite rows."""
+        a = accel[np.all(np.isfinite(accel), axis=1)]
+        g = gyro[np.all(np.isfinite(gyro), axis=1)]
+        self.accel_sum = self.accel_sum + a.sum(axis=0)
+        self.gyro_sum = self.gyro_sum + g.sum(axis=0)
+        self.accel_n += a.shape[0]
+        self.gyro_n += g.shape[0]
+
+    def accel_mean(self) -> Array | None:
+        """Mean of the accel rows so far (None below two rows)."""
+        return self.accel_sum / self.accel_n if self.accel_n >= 2 else None
+
+    def gyro_mean(self) -> Array | None:
+        """Mean of the gyro rows so far (None below two rows)."""
+        return self.gyro_sum / self.gyro_n if self.gyro_n >= 2 else None
 
 
 def lost_in(block: SampleBlock) -> int:
@@ -131,20 +163,21 @@ class NodeTrack:
         chunk_a = np.concatenate(attempt.chunk_accel)
         chunk_g = np.concatenate(attempt.chunk_gyro)
         attempt.chunk_accel, attempt.chunk_gyro = [], []
-        before_a, before_g = attempt.rows()
-        n_before = int(np.sum(np.all(np.isfinite(before_a), axis=1)))
+        sums = attempt.sums
+        n_before = sums.accel_n
         disturbed = detect_disturbance(
             chunk_a,
             chunk_g if np.isfinite(chunk_g).any() else None,
             self.reference_std[0],
             self.reference_std[1],
-            reference_mean_accel=np.nanmean(before_a, axis=0) if n_before >= 2 else None,
-            reference_mean_gyro=_mean_or_none(before_g),
+            reference_mean_accel=sums.accel_mean(),
+            reference_mean_gyro=sums.gyro_mean(),
             reference_n=n_before if n_before >= 2 else None,
             k=k,
         )
         attempt.accel.append(chunk_a)
         attempt.gyro.append(chunk_g)
+        sums.add(chunk_a, chunk_g)
         return not disturbed
 
     def finish_attempt(self) -> tuple[Array, Array]:
@@ -211,11 +244,6 @@ def live_readout(
 def _nanmean(rows: Array) -> Array:
     finite = rows[np.all(np.isfinite(rows), axis=1)]
     return finite.mean(axis=0) if finite.shape[0] else np.full(3, np.nan)
-
-
-def _mean_or_none(rows: Array) -> Array | None:
-    finite = rows[np.all(np.isfinite(rows), axis=1)]
-    return finite.mean(axis=0) if finite.shape[0] >= 2 else None
 
 
 def _tail(blocks: list[SampleBlock], keep: int) -> list[SampleBlock]:

@@ -27,7 +27,7 @@ from canimucal.sim.truth import Truth
 SEED = 1
 REFERENCE_SEED = 999
 SIZE_SIGMAS = 8.0
-TIME_SCALE = "1000"
+TIME_SCALE = "200"
 
 
 def _clean_truth(seed: int) -> dict[str, Any]:

@@ -19,7 +19,7 @@ RMS_LIMIT = 2.0
 """The rms of n ≈ 17 deviations in σ is √(χ²_n/n): rms > 2 means χ²_17 > 68, p ≈ 1e-8 (the
 seed is fixed; a σ under-reported by half would fail it)."""
 
-FAST = ("--headless", "--seconds", "5", "--time-scale", "200", "--seed", "2026")
+FAST = ("--headless", "--seconds", "5", "--time-scale", "30", "--seed", "2026")
 
 
 def test_demo_writes_files_and_prints_rms_deviation(cli: Cli, tmp_path: Path) -> None:
