@@ -26,6 +26,7 @@ from canopen.objectdictionary.datatypes import SIGNED_TYPES
 from numpy.typing import NDArray
 
 from canimucal.device import od
+from canimucal.device.sim_backlog import VirtualBusBacklog
 from canimucal.device.sim_checks import check_subindex_exists, check_write
 from canimucal.device.sim_faults import FaultInjector
 from canimucal.device.sim_hooks import FaultHooks
@@ -102,6 +103,7 @@ class SimulatedImuNode(FaultHooks):
             send=self._send,
             cal_active=self.calibration_active,
             on_time=self._on_sim_time,
+            backlog=VirtualBusBacklog(self._network.bus),
         )
         self._layout_cache: tuple[TpdoLayout, ...] | None = None
         self._cal_cache: bool | None = None
@@ -132,6 +134,11 @@ class SimulatedImuNode(FaultHooks):
         """Samples produced since start (OPERATIONAL or not)."""
         return self._producer.samples_produced
 
+    @property
+    def clock_slip_s(self) -> float:
+        """Simulated seconds the clock ran behind ``time_scale`` because the host lagged."""
+        return self._producer.clock_slip_s
+
     def start(self) -> SimulatedImuNode:
         """Join the network, send the boot-up message, enter PRE-OPERATIONAL, start sampling."""
         if self._started:
@@ -158,7 +165,12 @@ class SimulatedImuNode(FaultHooks):
         if self._network.nodes.get(self.node_id) is self._node:
             del self._network[self.node_id]
         self._stop_own_notifier()
-        log.info("simulated IMU node %d stopped", self.node_id)
+        log.info(
+            "simulated IMU node %d stopped (its clock slipped %.3g s behind %g× wall time)",
+            self.node_id,
+            self.clock_slip_s,
+            self.time_scale,
+        )
 
     def _stop_own_notifier(self) -> None:
         """Stop the notifier of a network this node made itself (never a caller's)."""

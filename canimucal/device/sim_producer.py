@@ -3,9 +3,16 @@
 Samples are produced at the output data rate in *simulated* time; ``time_scale`` simulated
 seconds pass per wall second. The thread wakes every millisecond or so and produces the
 samples that are due, in small batches, so a fast time scale paces frames onto the bus
-instead of flooding it in one burst. Event-driven TPDOs (transmission type 254/255) follow
-their event timers in simulated time; SYNC-driven ones (1..240) are sent from
-:meth:`SampleProducer.on_sync`. Nothing is sent unless the node is OPERATIONAL.
+instead of flooding it in one burst. After a stall it catches up at most
+:data:`MAX_LAG_WALL_S` of wall time; beyond that, and while the listeners of a virtual bus
+lag (``backlog()`` above :data:`~canimucal.device.sim_backlog.BACKLOG_LIMIT_FRAMES`), the
+simulated clock slips instead: ``time_scale`` is an upper bound, never a reason to bury the
+bus under frames the host cannot dispatch (the slip is counted in ``clock_slip_s``). Samples
+are never skipped: the counter and the simulated time run on, only slower.
+
+Event-driven TPDOs (transmission type 254/255) follow their event timers in simulated time;
+SYNC-driven ones (1..240) are sent from :meth:`SampleProducer.on_sync`. Nothing is sent unless
+the node is OPERATIONAL.
 """
 
 from __future__ import annotations
@@ -19,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from canimucal.device import od
+from canimucal.device.sim_backlog import BACKLOG_LIMIT_FRAMES
 from canimucal.device.sim_pdo import EventTimer, TpdoLayout
 from canimucal.sim.imu import ImuSimulator, SimBlock
 
@@ -30,6 +38,8 @@ Frame = tuple[int, bytes]
 MAX_BATCH = 32
 """Most samples produced per wake-up (64 PDO frames at most), to pace a fast time scale."""
 MIN_SLEEP_S = 0.001
+MAX_LAG_WALL_S = 0.1
+"""A stall longer than this (wall time) is not caught up: the simulated clock slips."""
 MAX_SLEEP_S = 0.02
 INT16_MIN, INT16_MAX = -32768, 32767
 
@@ -60,6 +70,7 @@ class SampleProducer:
         send: Callable[[int, bytes], None],
         cal_active: Callable[[], bool],
         on_time: Callable[[float], None] | None = None,
+        backlog: Callable[[], int] | None = None,
     ) -> None:
         self.simulator = simulator
         self.lock = lock
@@ -69,6 +80,9 @@ class SampleProducer:
         self._send = send
         self._cal_active = cal_active
         self._on_time = on_time
+        self._backlog = backlog
+        self.clock_slip_s = 0.0
+        """Simulated seconds the clock fell behind ``time_scale`` × wall time (host too slow)."""
         self.error_register = 0
         """0x1001 as the live value reports it (an EMCY sets it)."""
         self.live: dict[Key, int] = {}
@@ -144,6 +158,15 @@ class SampleProducer:
             if due <= 0:
                 next_in = (self._anchor_count + 1) / rate - elapsed
                 return [], min(MAX_SLEEP_S, max(MIN_SLEEP_S, next_in))
+            held_back = self._backlog is not None and self._backlog() > BACKLOG_LIMIT_FRAMES
+            lag_limit = max(MAX_BATCH, int(MAX_LAG_WALL_S * rate))
+            if held_back or due > lag_limit:
+                slip = due if held_back else due - lag_limit
+                self._anchor_count += slip
+                self.clock_slip_s += slip / self._rate_hz
+                if held_back:
+                    return [], MIN_SLEEP_S
+                due -= slip
             n = min(due, MAX_BATCH)
             block = self.simulator.next_block(n)
             self._anchor_count += n

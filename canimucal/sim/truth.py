@@ -41,6 +41,10 @@ DEFAULT_ACCEL_NOISE_DENSITY = 1.5e-3
 DEFAULT_GYRO_NOISE_DENSITY = 1.2e-4
 """Default gyro white noise, input-referred, rad/s/√Hz (≈0.007 °/s/√Hz)."""
 DEFAULT_CORRELATION_TIME_S = 100.0
+NOISE_LIMIT_COUNTS = 65536.0
+"""Largest noise σ a truth may ask for, in counts (per sample at the fastest output data
+rate for white noise): beyond the INT16 span every sample saturates, and far beyond it the
+arithmetic overflows."""
 _TILT_MODELS = ("rigid", "additive")
 _COMMON_KEYS = tuple(
     "nominal_lsb quantization bias noise_density temp_coeff random_walk bias_instability"
@@ -147,6 +151,21 @@ def _common(obj: Mapping[str, Any], path: str, lsb0: float, noise0: float) -> di
     return out
 
 
+def _check_noise(common: Mapping[str, Any], scale: Vector, path: str) -> None:
+    """Refuse noise no INT16 sensor can report (see :data:`NOISE_LIMIT_COUNTS`)."""
+    with np.errstate(over="ignore"):  # an absurd density may overflow to inf: refused below
+        white = common["noise_density"] * np.abs(np.diag(scale)) * np.sqrt(max(SAMPLE_RATES_HZ))
+    if np.any(white > NOISE_LIMIT_COUNTS):
+        _fail(
+            _join(path, "noise_density"),
+            f"gives a white-noise σ above {NOISE_LIMIT_COUNTS:g} counts per sample at "
+            f"{max(SAMPLE_RATES_HZ)} Hz",
+        )
+    for key in ("random_walk", "bias_instability"):
+        if np.any(common[key] > NOISE_LIMIT_COUNTS):
+            _fail(_join(path, key), f"must be at most {NOISE_LIMIT_COUNTS:g} counts")
+
+
 @dataclass(frozen=True, eq=False)
 class _SensorTruth:
     """Fields the accelerometer and the gyro share (units in the module docstring)."""
@@ -183,9 +202,11 @@ class AccelTruth(_SensorTruth):
         obj = _object(obj, path, (*_COMMON_KEYS, "K", "quadratic"))
         common = _common(obj, path, DEFAULT_ACCEL_LSB, DEFAULT_ACCEL_NOISE_DENSITY)
         k_default = np.eye(3) / common["nominal_lsb"]
+        K = _array(obj.get("K", k_default), _join(path, "K"), (3, 3))
+        _check_noise(common, K, path)
         return cls(
             **common,
-            K=_array(obj.get("K", k_default), _join(path, "K"), (3, 3)),
+            K=K,
             quadratic=_array(obj.get("quadratic", [0.0] * 3), _join(path, "quadratic"), (3,)),
         )
 
@@ -214,9 +235,11 @@ class GyroTruth(_SensorTruth):
         obj = _object(obj, path, (*_COMMON_KEYS, "S", "G"))
         common = _common(obj, path, DEFAULT_GYRO_LSB, DEFAULT_GYRO_NOISE_DENSITY)
         s_default = np.eye(3) / common["nominal_lsb"]
+        S = _array(obj.get("S", s_default), _join(path, "S"), (3, 3))
+        _check_noise(common, S, path)
         return cls(
             **common,
-            S=_array(obj.get("S", s_default), _join(path, "S"), (3, 3)),
+            S=S,
             G=_array(obj.get("G", np.zeros((3, 3))), _join(path, "G"), (3, 3)),
         )
 
