@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from canimucal.cli.analyze_plots import check_plot_targets, write_plots
 from canimucal.cli.conditions import recording_conditions
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.errors import InputError
@@ -58,6 +59,8 @@ def _check_files(args: argparse.Namespace) -> None:
     for target in (args.truth_out, args.poses_out):
         if target:
             refuse_existing(Path(target), overwrite=bool(args.overwrite))
+    if args.plots:
+        check_plot_targets(Path(args.plots), overwrite=bool(args.overwrite))
     if args.g is not None and not (np.isfinite(args.g) and args.g > 0):
         raise InputError(f"--g must be a positive number, got {args.g}")
     if args.latitude_deg is not None and not abs(args.latitude_deg) <= 90.0:
@@ -108,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
     if args.poses_out and plan is not None:
         write_plan(args.poses_out, plan, overwrite=args.overwrite)
     if args.plots:
-        plot_analysis(analysis, Path(args.plots))
+        write_plots(analysis, Path(args.plots), overwrite=bool(args.overwrite))
     return 0
 
 
@@ -217,31 +220,3 @@ def _replay_lines(rows: list[ReplayRow] | None) -> list[str]:
         for r in rows
     ]
     return out
-
-
-def plot_analysis(a: Analysis, directory: Path) -> None:
-    """Write residuals.png and allan.png to ``directory`` (matplotlib, optional extra)."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        raise InputError("--plots needs matplotlib: pip install 'canimucal[plots]'") from None
-    directory.mkdir(parents=True, exist_ok=True)
-    fig, ax = plt.subplots()
-    ax.plot(a.result.residuals, marker="o")
-    ax.set_xlabel("position")
-    ax.set_ylabel("base-model residual")
-    ax.legend(list(a.result.residual_labels))
-    fig.savefig(directory / "residuals.png")
-    plt.close(fig)
-    fig, ax = plt.subplots()
-    for sensor, c in a.allan.items():
-        ax.loglog(c.taus_s, c.adev, label=f"{sensor} measured")
-        ax.loglog(c.taus_s, c.white, "--", label=f"{sensor} white prediction")
-    ax.set_xlabel("τ (s)")
-    ax.set_ylabel("Allan deviation (counts)")
-    ax.legend()
-    fig.savefig(directory / "allan.png")
-    plt.close(fig)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -69,15 +70,50 @@ def test_clean_recording_names_nothing(tmp_path: Path, capsys: Any) -> None:
     assert doc["noise"]["accel_white"][0] == pytest.approx(1.5e-3, rel=0.2)
 
 
-def test_existing_output_is_refused_and_plots_need_matplotlib(tmp_path: Path) -> None:
+def test_existing_output_is_refused(tmp_path: Path) -> None:
     path = _recording(tmp_path, 5, 0.0)
     taken = tmp_path / "taken.json"
     taken.write_text("{}")
     assert main(["analyze", str(path), "--json", str(taken)]) == 2
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        assert main(["analyze", str(path), "--plots", str(tmp_path / "plots")]) == 2
+    assert taken.read_text() == "{}"
+
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def test_plots_are_written_and_never_replace_a_file_unasked(tmp_path: Path, capsys: Any) -> None:
+    pytest.importorskip("matplotlib")  # the dev extra installs it: skipped only outside it
+    path = _recording(tmp_path, 5, CROSS_AXIS)
+    plots = tmp_path / "plots"
+    assert main(["analyze", str(path), "--plots", str(plots)]) == 0
+    images = {p.name: p.read_bytes() for p in plots.iterdir()}
+    assert set(images) == {"residuals.png", "allan.png"}  # and no temporary file left
+    for data in images.values():
+        assert data.startswith(PNG_SIGNATURE) and len(data) > 10_000
+    # a second run refuses before any work, and the plots stay as they were
+    json_out = tmp_path / "a.json"
+    assert main(["analyze", str(path), "--plots", str(plots), "--json", str(json_out)]) == 2
+    assert "residuals.png exists; use --overwrite" in capsys.readouterr().err
+    assert not json_out.exists()
+    assert {p.name: p.read_bytes() for p in plots.iterdir()} == images
+    assert main(["analyze", str(path), "--plots", str(plots), "--overwrite"]) == 0
+    # a file where the directory should be
+    blocked = tmp_path / "file"
+    blocked.write_text("x")
+    assert main(["analyze", str(path), "--plots", str(blocked)]) == 2
+    assert "is not a directory" in capsys.readouterr().err
+
+
+def test_plots_without_matplotlib_are_refused_before_any_output(
+    tmp_path: Path, capsys: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = _recording(tmp_path, 5, 0.0)
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # as if not installed
+    json_out = tmp_path / "a.json"
+    argv = ["analyze", str(path), "--plots", str(tmp_path / "p"), "--json", str(json_out)]
+    assert main(argv) == 2
+    assert "--plots needs matplotlib: pip install 'canimucal[plots]'" in capsys.readouterr().err
+    assert not json_out.exists() and not (tmp_path / "p").exists()
 
 
 def test_wrong_format_override_is_an_input_error(tmp_path: Path) -> None:
