@@ -33,6 +33,7 @@ from canimucal.io.recording import write_recording
 from canimucal.model.plan import builtin_plan
 from canimucal.procedure.offline import simulate_plan_recording
 from canimucal.sim.truth import Truth
+from tests.fuzzing import byte_mutations
 
 
 def _recording() -> bytes:
@@ -77,8 +78,6 @@ PLAN: dict[str, Any] = {
         {"alpha_deg": -45, "beta_deg": 5, "psi_deg": 180},
     ]
 }
-TOKENS = [b"nan", b"Infinity", b"-1", b"1e999", b",", b"\n", b"#", b":", b"\x00", b"\xff"]
-TOKENS += [b'"', b"{", b"]", b"null", b"true", b"# schema: canimucal.recording/2\n", b"e"]
 NASTY: list[Any] = [math.nan, math.inf, -math.inf, 1e308, -1, 0, "x", None, [], {}, True]
 
 
@@ -95,29 +94,6 @@ class _StubRig:
             finally:
                 bus.shutdown()
         raise _ReachedRig
-
-
-@st.composite
-def byte_mutations(draw: st.DrawFn, base: bytes) -> bytes:
-    """1–3 byte-level edits of ``base``."""
-    data = bytearray(base)
-    for _ in range(draw(st.integers(1, 3))):
-        at = draw(st.integers(0, len(data)))
-        kind = draw(st.sampled_from(["insert", "delete", "truncate", "overwrite", "drop"]))
-        token = draw(st.one_of(st.sampled_from(TOKENS), st.binary(min_size=1, max_size=4)))
-        if kind == "insert":
-            data[at:at] = token
-        elif kind == "delete":
-            del data[at : at + draw(st.integers(1, 12))]
-        elif kind == "truncate":
-            del data[at:]
-        elif kind == "overwrite":
-            data[at : at + len(token)] = token
-        else:
-            lines = bytes(data).split(b"\n")
-            del lines[draw(st.integers(0, len(lines) - 1))]
-            data = bytearray(b"\n".join(lines))
-    return bytes(data)
 
 
 def _paths(node: Any, prefix: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:

@@ -15,12 +15,12 @@ from typing import Any
 
 import pytest
 from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
 
 from canimucal.errors import InputError
 from canimucal.io.calibration import read_calibration
 from canimucal.io.plans import read_plan
 from canimucal.io.recording import read_recording
+from tests.fuzzing import byte_mutations
 
 RECORDING = (
     b"# schema: canimucal.recording/1\n# sample_rate_hz: 200\n# device_serial: 42\n"
@@ -57,75 +57,6 @@ PLAN_TOML = (
     b"[[positions]]\nalpha_deg = 0\nbeta_deg = 0\n\n"
     b"[[positions]]\nalpha_deg = 45.0\nbeta_deg = 5\nseconds = 60\ntolerance_deg = 0.2\n"
 )
-
-TOKENS = [
-    b"nan",
-    b"NaN",
-    b"inf",
-    b"-Infinity",
-    b"Infinity",
-    b"1e999",
-    b"-1",
-    b"0",
-    b"1.5",
-    b"99999999999",
-    b",",
-    b",,",
-    b"\n",
-    b"\r\n",
-    b"\n\n",
-    b"#",
-    b"# schema: canimucal.recording/2\n",
-    b"# x: 1\n",
-    b":",
-    b" ",
-    b"\t",
-    b"\x00",
-    b"\xff",
-    b"\xc3",
-    b"\xe2\x82\xac",
-    b'"',
-    b"{",
-    b"}",
-    b"[",
-    b"]",
-    b"null",
-    b"true",
-    b"[[positions]]\n",
-    b"=",
-    b"'",
-    b'"schema"',
-    b"e",
-    b"-",
-    b".",
-    b"\\",
-]
-
-
-@st.composite
-def mutations(draw: st.DrawFn, base: bytes) -> bytes:
-    data = bytearray(base)
-    for _ in range(draw(st.integers(1, 4))):
-        at = draw(st.integers(0, len(data)))
-        kind = draw(st.sampled_from(["insert", "delete", "truncate", "overwrite", "dup", "drop"]))
-        token = draw(st.one_of(st.sampled_from(TOKENS), st.binary(min_size=1, max_size=6)))
-        if kind == "insert":
-            data[at:at] = token
-        elif kind == "delete":
-            del data[at : at + draw(st.integers(1, 20))]
-        elif kind == "truncate":
-            del data[at:]
-        elif kind == "overwrite":
-            data[at : at + len(token)] = token
-        else:
-            lines = bytes(data).split(b"\n")
-            i = draw(st.integers(0, max(len(lines) - 1, 0)))
-            if kind == "dup":
-                lines.insert(i, lines[i])
-            else:
-                del lines[i]
-            data = bytearray(b"\n".join(lines))
-    return bytes(data)
 
 
 FUZZ = settings(
@@ -164,24 +95,24 @@ def test_the_valid_bases_are_valid(scratch: Path) -> None:
 
 
 @FUZZ
-@given(data=mutations(RECORDING))
+@given(data=byte_mutations(RECORDING))
 def test_fuzz_recording(scratch: Path, data: bytes) -> None:
     _only_input_errors(read_recording, scratch / "r.csv", data)
 
 
 @FUZZ
-@given(data=mutations(CALIBRATION))
+@given(data=byte_mutations(CALIBRATION))
 def test_fuzz_calibration(scratch: Path, data: bytes) -> None:
     _only_input_errors(read_calibration, scratch / "c.json", data)
 
 
 @FUZZ
-@given(data=mutations(PLAN_JSON))
+@given(data=byte_mutations(PLAN_JSON))
 def test_fuzz_plan_json(scratch: Path, data: bytes) -> None:
     _only_input_errors(read_plan, scratch / "p.json", data)
 
 
 @FUZZ
-@given(data=mutations(PLAN_TOML))
+@given(data=byte_mutations(PLAN_TOML))
 def test_fuzz_plan_toml(scratch: Path, data: bytes) -> None:
     _only_input_errors(read_plan, scratch / "p.toml", data)
