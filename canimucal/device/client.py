@@ -116,7 +116,10 @@ class ImuClient:
         self.node = canopen.RemoteNode(node_id, canopen.ObjectDictionary())
         network.add_node(self.node)
         timeout = default_sdo_timeout_s() if sdo_timeout_s is None else sdo_timeout_s
-        self.events: queue.Queue[DeviceEvent] = queue.Queue()
+        # SimpleQueue, not Queue: its get and put are single C calls, so a Ctrl-C landing in
+        # the main thread's get cannot leave a lock held that the producing thread then waits
+        # on forever (Queue's Python-level Condition can; see StreamConsumer.stop)
+        self.events: queue.SimpleQueue[DeviceEvent] = queue.SimpleQueue()
         """Boot-ups, heartbeat loss, EMCY, serial changes and bus errors, as they happen."""
         self.heartbeat = NodeMonitor(node_id, self.events)
         self.sdo = SdoChannel(
@@ -132,7 +135,7 @@ class ImuClient:
         self._serial: int | None = None
         self.sync_producer = sync_producer
         self.sync_period_s = sync_period_s
-        self.samples: queue.Queue[SampleBlock] = queue.Queue()
+        self.samples: queue.SimpleQueue[SampleBlock] = queue.SimpleQueue()
         self._stream: StreamConsumer | None = None
 
     # ----------------------------------------------------------------- typed SDO access

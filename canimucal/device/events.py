@@ -121,7 +121,7 @@ class NodeMonitor(can.Listener):
     step); ``watch(timeout_s)`` starts a watchdog thread emitting :class:`HeartbeatLost`.
     """
 
-    def __init__(self, node_id: int, events: queue.Queue[DeviceEvent]) -> None:
+    def __init__(self, node_id: int, events: queue.SimpleQueue[DeviceEvent]) -> None:
         self.node_id = node_id
         self.events = events
         self.seen = threading.Event()

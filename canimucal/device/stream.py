@@ -62,6 +62,8 @@ STALL_GRACE_S = 1.0
 A starved receive thread looks like a stalled stream: with 0.25 s, the one-hour soak at 8×
 on a loaded 2-core host gave up 22 halves whose partners were only delayed (counted as
 late, nothing hidden, but lost). While frames flow, the counter rule decides, not this."""
+STOP_TIMEOUT_S = 10.0
+"""How long stopping the stream waits for the consumer to drain what was received."""
 RECENT_WINDOW = 1024
 """How many finalized counters are remembered to tell duplicates from late halves."""
 
@@ -353,7 +355,7 @@ def concat_blocks(blocks: Sequence[SampleBlock]) -> SampleBlock:
 class StreamConsumer:
     """Raw-frame queue (filled by the callback) and the consumer thread that pairs."""
 
-    def __init__(self, pairer: SamplePairer, out: queue.Queue[SampleBlock]) -> None:
+    def __init__(self, pairer: SamplePairer, out: queue.SimpleQueue[SampleBlock]) -> None:
         self.pairer = pairer
         self.out = out
         self.raw: queue.SimpleQueue[tuple[int, bytes, float]] = queue.SimpleQueue()
@@ -387,9 +389,20 @@ class StreamConsumer:
             self.pairer.feed(can_id, data, timestamp)
 
     def stop(self) -> None:
-        """Drain what was received, flush pending halves, hand out the last block."""
+        """Drain what was received, flush pending halves, hand out the last block.
+
+        The caller unsubscribes first, so the raw queue only shrinks and the drain is
+        bounded; the join still has a deadline, so a stuck consumer is reported, never a
+        hung Ctrl-C (which would keep a recording's ``.partial`` from being renamed).
+        """
         self.stopping.set()
-        self.thread.join()
+        self.thread.join(STOP_TIMEOUT_S)
+        if self.thread.is_alive():
+            logger.error(
+                "stream consumer did not finish within %g s; %d frames not paired",
+                STOP_TIMEOUT_S,
+                self.raw.qsize(),
+            )
 
     def _run(self) -> None:
         pairer, last_put = self.pairer, time.monotonic()

@@ -307,10 +307,23 @@ def test_recorder_prompted_plan_follows_the_operator(tmp_path: Path) -> None:
         assert np.ptp(np.nanmean(rec.accel[rows].reshape(4, 50, 3), axis=1)[:, 0]) < 10.0
 
 
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_record_interrupted_keeps_what_was_recorded(tmp_path: Path) -> None:
     out = tmp_path / "cut.csv"
-    cmd = [sys.executable, "-m", "canimucal", "record", str(out), "--sim", "--plan", "five"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # -X faulthandler: if Ctrl-C ever hangs, SIGABRT makes the child print every thread's stack
+    cmd = [sys.executable, "-X", "faulthandler", "-m", "canimucal", "record", str(out), "--sim"]
+    proc = subprocess.Popen(
+        [*cmd, "--plan", "five"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        # a shell without job control starts background jobs with SIGINT ignored, and the
+        # child would inherit that (pytest run as `... &`): give it the terminal's default
+        preexec_fn=_default_sigint,
+    )
     partial = tmp_path / "cut.csv.partial"
     try:
         for _ in range(300):  # until rows are being written (≤ 30 s)
@@ -318,7 +331,12 @@ def test_record_interrupted_keeps_what_was_recorded(tmp_path: Path) -> None:
                 break
             time_module.sleep(0.1)
         proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=30)
+        try:
+            _, err = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGABRT)
+            _, err = proc.communicate(timeout=10)
+            pytest.fail(f"record did not stop within 30 s of Ctrl-C; its threads:\n{err}")
     finally:
         if proc.poll() is None:
             proc.kill()
