@@ -3,8 +3,9 @@
 ``{"positions": [{"alpha_deg", "beta_deg", "psi_deg", "seconds", "tolerance_deg"}]}`` in
 JSON, or ``[[positions]]`` tables in TOML. ``alpha_deg`` and ``beta_deg`` are required;
 ``psi_deg`` defaults to 0, ``seconds`` to 30 and ``tolerance_deg`` to 0.1. Tilts are at most
-90° in magnitude; the turn ``psi_deg`` about the unit's own y axis at most 360° (the
-recommended plan turns the unit 0/90/180/270°).
+180° in magnitude (an upside-down pose of a measured six-position session is alpha = 180°);
+the turn ``psi_deg`` about the unit's own y axis at most 360° (the recommended plan turns the
+unit 0/90/180/270°).
 The built-in plans (``two``, ``five``, ``recommended``) live in :mod:`canimucal.model.plan`.
 """
 
@@ -30,7 +31,7 @@ BUILTIN_PLANS = ("two", "five", "recommended")
 DEFAULT_TOLERANCE_DEG = 0.1
 """Angle-setting tolerance of a position that names none (DESIGN §3)."""
 
-_LIMITS_DEG = {"alpha_deg": 90.0, "beta_deg": 90.0, "psi_deg": 360.0}
+_LIMITS_DEG = {"alpha_deg": 180.0, "beta_deg": 180.0, "psi_deg": 360.0}
 _KEYS = ("alpha_deg", "beta_deg", "psi_deg", "seconds", "tolerance_deg")
 _DECIMALS = 10
 """Degrees are written rounded to 1e-10°, hiding the radian round trip's last bits."""

@@ -30,6 +30,8 @@ log = logging.getLogger(__name__)
 Array = NDArray[np.float64]
 
 ANALYSIS_SCHEMA = "canimucal.analysis/1"
+INT16_HEADROOM = 30000.0
+"""Largest count a rescaled truth lets the data's largest value reach (INT16: 32767)."""
 
 
 @dataclass(frozen=True)
@@ -169,6 +171,7 @@ def extended_truth(a: Analysis) -> dict[str, Any]:
     mean_t = float(np.mean([t for _, t in temps])) if temps else temp0
     accel_bias = p.accel_bias + p.accel_temp_coeff * (temp0 - mean_t)
     rate = min(SAMPLE_RATES_HZ, key=lambda r: abs(r - rec.sample_rate_hz))
+    ka, kg = _count_scale(rec.accel), _count_scale(rec.gyro)
     doc: dict[str, Any] = {
         "schema": "canimucal.truth/1",
         "sample_rate_hz": rate,
@@ -179,13 +182,13 @@ def extended_truth(a: Analysis) -> dict[str, Any]:
             "beta0": float(np.rad2deg(p.beta0)),
         },
         "accel": {
-            "nominal_lsb": s.accel_lsb,
-            "quantization": _step(rec.accel),
-            "bias": accel_bias.tolist(),
-            "K": p.K.tolist(),
-            "quadratic": p.quadratic.tolist(),
-            "temp_coeff": p.accel_temp_coeff.tolist(),
-            "random_walk": p.accel_random_walk.tolist(),
+            "nominal_lsb": s.accel_lsb / ka,
+            "quantization": _step(rec.accel, ka),
+            "bias": (ka * accel_bias).tolist(),
+            "K": (ka * p.K).tolist(),
+            "quadratic": (ka * p.quadratic).tolist(),
+            "temp_coeff": (ka * p.accel_temp_coeff).tolist(),
+            "random_walk": (ka * p.accel_random_walk).tolist(),
             "noise_density": input_referred_white(a, "accel"),
         },
     }
@@ -194,12 +197,12 @@ def extended_truth(a: Analysis) -> dict[str, Any]:
     if p.gyro_bias is not None:
         gyro_bias = p.gyro_bias + p.gyro_temp_coeff * (temp0 - mean_t)
         doc["gyro"] = {
-            "nominal_lsb": s.gyro_lsb,
-            "quantization": _step(rec.gyro),
-            "bias": gyro_bias.tolist(),
-            "G": p.G.tolist(),
-            "temp_coeff": p.gyro_temp_coeff.tolist(),
-            "random_walk": p.gyro_random_walk.tolist(),
+            "nominal_lsb": s.gyro_lsb / kg,
+            "quantization": _step(rec.gyro, kg),
+            "bias": (kg * gyro_bias).tolist(),
+            "G": (kg * p.G).tolist(),
+            "temp_coeff": (kg * p.gyro_temp_coeff).tolist(),
+            "random_walk": (kg * p.gyro_random_walk).tolist(),
             "noise_density": input_referred_white(a, "gyro"),
         }
     if temps:
@@ -207,10 +210,28 @@ def extended_truth(a: Analysis) -> dict[str, Any]:
     return doc
 
 
-def _step(samples: Array) -> float:
-    """1 (INT16 rounding) when the data are whole counts, else 0 (no quantization)."""
+def _whole_counts(samples: Array) -> bool:
     finite = samples[np.isfinite(samples)]
-    return 1.0 if finite.size and np.all(finite == np.round(finite)) else 0.0
+    return bool(finite.size) and bool(np.all(finite == np.round(finite)))
+
+
+def _step(samples: Array, scale: float = 1.0) -> float:
+    """1 (INT16 rounding) when the data are whole counts or rescaled to counts, else 0."""
+    return 1.0 if scale != 1.0 or _whole_counts(samples) else 0.0
+
+
+def _count_scale(samples: Array) -> float:
+    """Return counts of the simulated unit per unit of the data (1 for whole counts).
+
+    Data in physical units (an importer's ``accel_lsb: 1``, floats) cannot travel as INT16
+    counts of that size: a 1 m/s² count would round the signal away. The truth then takes
+    the finest power-of-two count whose INT16 range still holds the data's largest value
+    (:data:`INT16_HEADROOM`); the input-referred noise densities are unchanged.
+    """
+    finite = np.abs(samples[np.isfinite(samples)])
+    if _whole_counts(samples) or not finite.size or float(finite.max()) == 0.0:
+        return 1.0
+    return float(2.0 ** np.floor(np.log2(INT16_HEADROOM / float(finite.max()))))
 
 
 def _temperature_profile(a: Analysis) -> tuple[list[tuple[float, float]], float]:

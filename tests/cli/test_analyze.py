@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -143,3 +144,36 @@ def test_imucal_set_names_cross_axis(capsys: Any) -> None:
     doc = json.loads(capsys.readouterr().out)
     assert "cross_axis" in [f["effect"] for f in doc["findings"]]
     assert doc["sensors"]["accel"]["gain"]["rms_ratio"] > 2.0
+
+
+@needs_data
+def test_imucal_session_replays_through_canopen(tmp_path: Path, capsys: Any) -> None:
+    """`--truth-out`/`--poses-out` drive the simulated node over CAN; what the base model
+    gets wrong on the measurement, it gets wrong on the replay, for the same named cause."""
+    truth, poses, replayed = tmp_path / "t.json", tmp_path / "p.json", tmp_path / "rec.csv"
+    measured_argv = [
+        "analyze", str(DATA / "imucal_example_ferraris_session.csv"),
+        str(DATA / "imucal_example_ferraris_session_list.json"), "--sample-rate-hz", "102.4",
+        "--g", "9.81", "--truth-out", str(truth), "--poses-out", str(poses), "--json", "-",
+    ]  # fmt: skip
+    assert main(measured_argv) == 0
+    measured = json.loads(capsys.readouterr().out)
+    assert [p["alpha_deg"] for p in json.loads(poses.read_text())["positions"]].count(180.0) == 1
+    record_argv = ["record", str(replayed), "--sim", "--truth", str(truth), "--plan", str(poses)]
+    assert main([*record_argv, "--time-scale", "20"]) == 0
+    capsys.readouterr()
+    assert main(["analyze", str(replayed), "--json", "-"]) == 0
+    replay = json.loads(capsys.readouterr().out)
+    # the physical-unit data travel as INT16 counts of a finer power-of-two LSB
+    lsb = load_truth(truth).accel.nominal_lsb
+    assert lsb == 2.0**-10
+    base = [d["sensors"]["accel"]["base_model"]["rms"] for d in (measured, replay)]
+    assert 0.8 < base[1] / base[0] < 1.25, base  # m/s², ≈ 0.078 both
+    found = {f["effect"]: f for f in replay["findings"] if f["sensor"] == "accel"}
+    assert set(found) == {"cross_axis"}
+    size = next(f["size"] for f in measured["findings"] if f["effect"] == "cross_axis")
+    term = re.match(r"K\[0\]\[1\] = \S+ ± (\S+) ", found["cross_axis"]["evidence"])
+    assert term is not None, found["cross_axis"]["evidence"]
+    # K[0][1] in the data's units (counts of 1 m/s²) from the replay's counts of `lsb`, 4σ
+    sigma = float(term.group(1)) * lsb
+    assert found["cross_axis"]["size"] * lsb == pytest.approx(size, abs=4 * sigma)
