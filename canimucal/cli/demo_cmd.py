@@ -36,10 +36,12 @@ from canimucal.io.truth_file import load_truth
 from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
 from canimucal.procedure import events as ev
+from canimucal.procedure.automatic_operator import run_automatic
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.procedure.demo_rig import DemoRig, comparison_table, readback_deviations
 from canimucal.procedure.resume import load_resume_state
-from canimucal.procedure.session import Session, output_name, run_automatic
+from canimucal.procedure.session import Session
+from canimucal.procedure.session_files import output_name
 from canimucal.sim.truth import Truth
 
 log = logging.getLogger(__name__)

@@ -14,25 +14,23 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
-from dataclasses import replace
 
 import numpy as np
 
 from canimucal.device.stream import SampleBlock
-from canimucal.io.calibration import Device
-from canimucal.model.positions import PlannedPosition, PositionAverage, average_position
+from canimucal.model.positions import PlannedPosition, PositionAverage
 from canimucal.procedure import events as ev
-from canimucal.procedure.acceptance import check_acceptance
 from canimucal.procedure.averaging import choose_time
 from canimucal.procedure.config import LEVEL, Phase, ProcedureConfig
 from canimucal.procedure.level import level_check
-from canimucal.procedure.posecheck import (
-    check_pose,
-    describe_pose,
-    measured_force,
-    predicted_force,
+from canimucal.procedure.machine_nodes import (
+    average_attempts,
+    check_poses,
+    learn_from_average,
+    solve_nodes,
 )
-from canimucal.procedure.solution import Solution, solve_positions
+from canimucal.procedure.posecheck import describe_pose
+from canimucal.procedure.solution import Solution
 from canimucal.procedure.tracks import Attempt, LabelledRows, NodeTrack, live_readout
 from canimucal.procedure.warmup import WarmupTracker, progress_event
 
@@ -117,10 +115,7 @@ class Procedure:
         track = self.tracks[node_id]
         for index, average in sorted(averages.items()):
             self.accepted[node_id][index] = average
-            track.stillness.learn_noise(average.std_accel)
-            if track.offset_ms2 is None:
-                f_pred = predicted_force(average.pose, self.config.site.g)
-                track.offset_ms2 = track.accel_lsb * average.mean_accel - f_pred
+            learn_from_average(track, average, average.pose, self.config.site.g)
 
     # -- samples -----------------------------------------------------------------------------
 
@@ -174,26 +169,22 @@ class Procedure:
         cfg = self.config
         first = not any(self.accepted[n] for n in cfg.node_ids)
         tol = cfg.first_pose_tolerance_deg if first else cfg.pose_tolerance_deg
-        worst = None
-        for track in self.tracks.values():
-            accel, _ = track.recent_rows(cfg.settle_s)
-            f = measured_force(np.nanmean(accel, axis=0), track.accel_lsb, track.offset_ms2)
-            result = check_pose(self.target, f, cfg.site.g, tol)
-            if not result.passed:
-                self._set_phase(Phase.INSTRUCT)
-                return [
-                    ev.PoseRefused(
-                        self.index,
-                        track.node_id,
-                        result.measured_deg,
-                        result.target_deg,
-                        result.error_deg,
-                        tol,
-                        result.message(),
-                    )
-                ]
-            worst = result if worst is None or result.error_deg > worst.error_deg else worst
-            track.set_reference(cfg.settle_s)
+        tracks = self.tracks.values()
+        refused, worst = check_poses(tracks, self.target, cfg.site.g, tol, cfg.settle_s)
+        if refused is not None:
+            node_id, result = refused
+            self._set_phase(Phase.INSTRUCT)
+            return [
+                ev.PoseRefused(
+                    self.index,
+                    node_id,
+                    result.measured_deg,
+                    result.target_deg,
+                    result.error_deg,
+                    tol,
+                    result.message(),
+                )
+            ]
         for track in self.tracks.values():
             track.attempt = Attempt()
         self._last_progress_s = -np.inf
@@ -228,20 +219,7 @@ class Procedure:
 
     def _position_done(self, total: float) -> list[ev.Event]:
         pose = self.target
-        averages = {}
-        for track in self.tracks.values():
-            attempt = track.attempt
-            assert attempt is not None
-            accel, gyro = track.finish_attempt()
-            temps = [t for t in attempt.temps if np.isfinite(t)]
-            averages[track.node_id] = average_position(
-                pose,
-                accel,
-                gyro,
-                self.config.sample_rate_hz,
-                float(np.mean(temps)) if temps else None,
-                attempt.lost,
-            )
+        averages = average_attempts(self.tracks.values(), pose, self.config.sample_rate_hz)
         self.pending_averages = averages
         if self.verifying:
             return self._verified(averages)
@@ -278,10 +256,7 @@ class Procedure:
             self.accepted[node_id][index] = average
             track.decide(index, (angles[0], angles[1], angles[2]))
             track.attempt = None
-            track.stillness.learn_noise(average.std_accel)
-            if track.offset_ms2 is None:
-                f_pred = predicted_force(pose, self.config.site.g)
-                track.offset_ms2 = track.accel_lsb * average.mean_accel - f_pred
+            learn_from_average(track, average, pose, self.config.site.g)
         events: list[ev.Event] = [ev.PositionAccepted(index), *chosen]
         return events + self._next_position()
 
@@ -328,18 +303,7 @@ class Procedure:
         """Solve every node and check the acceptance limits."""
         if self.phase is not Phase.READY_TO_SOLVE:
             return []
-        cfg = self.config
-        solutions, acceptance = {}, {}
-        for node_id in cfg.node_ids:
-            device = cfg.devices.get(node_id, Device(node_id=node_id, serial=0))
-            averages = self.averages(node_id)
-            temps = [a.temp_c for a in averages if a.temp_c is not None]
-            site = replace(cfg.site, temp_c=float(np.mean(temps)) if temps else cfg.site.temp_c)
-            solution = solve_positions(averages, cfg.spec, site, device, plan_name=cfg.plan_name)
-            solutions[node_id] = solution
-            acceptance[node_id] = check_acceptance(
-                solution, cfg.limits, cfg.site.accel_lsb, cfg.site.g
-            )
+        solutions, acceptance = solve_nodes(self.config, self.averages)
         self.solutions = solutions
         self.solved = ev.Solved(solutions, acceptance)
         events = self._set_phase(Phase.REVIEW)

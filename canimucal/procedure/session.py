@@ -14,12 +14,10 @@ worker and posts the events to its screen.
 
 from __future__ import annotations
 
-import json
 import logging
-import os
 import queue
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -39,24 +37,24 @@ from canimucal.device.events import (
 from canimucal.device.sim_node import SimulatedImuNode
 from canimucal.device.transaction import write_calibration_transaction
 from canimucal.errors import CanimucalError, DeviceError
-from canimucal.io.calibration import (
-    CalibrationRecord,
-    RecordingRef,
-    calibration_to_dict,
-    read_calibration,
-    sha256_of,
-)
+from canimucal.io.calibration import CalibrationRecord, RecordingRef, sha256_of
 from canimucal.io.recording import RecordingWriter
 from canimucal.model.positions import Pose
 from canimucal.procedure import events as ev
 from canimucal.procedure.certificate import certificate_markdown
 from canimucal.procedure.machine import Phase, Procedure
-from canimucal.procedure.resume import partial_path
-from canimucal.procedure.tracks import LabelledRows
+from canimucal.procedure.session_files import (
+    calibration_ref,
+    open_resumed,
+    output_name,
+    record_json,
+    record_with,
+    write_piece,
+    write_text,
+)
 
 logger = logging.getLogger(__name__)
 
-MAX_REFUSALS = 3
 SILENCE_TIMEOUT_S = 5.0
 """A streaming node silent this long (wall time) stops the session with a DeviceError."""
 DEMO_MOVE_S = 3.0
@@ -75,11 +73,6 @@ class NodeLink:
     record_path: Path | None = None
     certificate_path: Path | None = None
     record: CalibrationRecord | None = None
-
-
-def output_name(out_dir: Path, stem: str, node_id: int, several: bool, suffix: str) -> Path:
-    """``stem.suffix``, or ``stem.node<ID>.suffix`` when several nodes (DESIGN §7)."""
-    return out_dir / (f"{stem}.node{node_id}{suffix}" if several else f"{stem}{suffix}")
 
 
 class Session:
@@ -109,7 +102,7 @@ class Session:
             path = output_name(out_dir, "recording", node_id, several, ".csv")
             head = dict((header or {}).get(node_id, {}))
             if procedure.config.resume_from is not None:
-                writer = _open_resumed(path, head)
+                writer = open_resumed(path, head)
             else:
                 writer = RecordingWriter.open(path, head, overwrite=overwrite)
             sim = None if sims is None else sims.get(node_id)
@@ -203,7 +196,7 @@ class Session:
     def _write_rows(self, node_id: int) -> None:
         writer = self.links[node_id].writer
         for piece in self.procedure.take_rows(node_id):
-            _write_piece(writer, piece)
+            write_piece(writer, piece)
 
     def _keep(self, events: list[ev.Event]) -> list[ev.Event]:
         self.history += [e for e in events if not isinstance(e, ev.SamplesReceived)]
@@ -290,11 +283,11 @@ class Session:
             link.writer = RecordingWriter.open(verify_path, link.header or {}, overwrite=True)
             solution = self.procedure.solutions[node_id]
             ref = RecordingRef(file=rec_path.name, sha256=sha256_of(rec_path))
-            link.record = _with(solution.record, recording=calibration_ref(ref))
+            link.record = record_with(solution.record, recording=calibration_ref(ref))
             link.record_path = self._name("calibration", node_id, ".json")
-            _write_text(link.record_path, _record_json(link.record))
+            write_text(link.record_path, record_json(link.record))
             link.certificate_path = self._name("certificate", node_id, ".md")
-            _write_text(link.certificate_path, self.certificate(node_id))
+            write_text(link.certificate_path, self.certificate(node_id))
             out.append(
                 ev.RecordSaved(
                     node_id, str(link.record_path), str(link.certificate_path), str(rec_path)
@@ -346,8 +339,8 @@ class Session:
         readout = link.client.read_calibration_block()
         assert link.record is not None and link.record_path is not None
         back = readback_dict(readout.block, readout.valid, readout.crc_ok)
-        link.record = _with(link.record, readback=back)
-        _write_text(link.record_path, _record_json(link.record))
+        link.record = record_with(link.record, readback=back)
+        write_text(link.record_path, record_json(link.record))
 
     def finish(self) -> None:
         """Rewrite the certificates with the verification, close what is open (idempotent)."""
@@ -355,128 +348,7 @@ class Session:
             self._write_rows(node_id)
             link.writer.close()
             if link.certificate_path is not None and self.procedure.solved is not None:
-                _write_text(link.certificate_path, self.certificate(node_id))
+                write_text(link.certificate_path, self.certificate(node_id))
 
     def _name(self, stem: str, node_id: int, suffix: str) -> Path:
         return output_name(self.out_dir, stem, node_id, self.several, suffix)
-
-
-def calibration_ref(ref: RecordingRef) -> dict[str, Any]:
-    """Return the ``recording`` block as a dict."""
-    return {"file": ref.file, "sha256": ref.sha256}
-
-
-def _with(record: CalibrationRecord, **blocks: Any) -> CalibrationRecord:
-    """Return the record with top-level blocks replaced (through the strict reader)."""
-    d = calibration_to_dict(record)
-    d.update(blocks)
-    return read_calibration(json.dumps(d, allow_nan=False))
-
-
-def _record_json(record: CalibrationRecord) -> str:
-    return json.dumps(calibration_to_dict(record), indent=2, allow_nan=False) + "\n"
-
-
-def _write_text(path: Path, text: str) -> None:
-    from canimucal.io.atomic import write_text_atomic
-
-    write_text_atomic(path, text, overwrite=True)
-
-
-def _open_resumed(path: Path, header: Mapping[str, Any]) -> RecordingWriter:
-    """Append to the recording of an interrupted session (its ``.partial`` is the newer copy)."""
-    partial = partial_path(path)
-    if partial.exists():
-        os.replace(partial, path)
-    return RecordingWriter.open(path, header, append=True)
-
-
-def _write_piece(writer: RecordingWriter, piece: LabelledRows) -> None:
-    block = piece.block
-    n = block.n
-    if n == 0:
-        return
-    angles = np.full((n, 3), np.nan)
-    if piece.angles_deg is not None:
-        angles[:] = piece.angles_deg
-    writer.write_rows(
-        t=block.t,
-        accel=block.accel,
-        gyro=block.gyro,
-        counter=block.counter,
-        position=np.full(n, piece.position),
-        alpha_deg=angles[:, 0],
-        beta_deg=angles[:, 1],
-        psi_deg=angles[:, 2],
-        temp_c=np.full(n, block.temp_c),
-    )
-
-
-def run_automatic(
-    session: Session,
-    *,
-    write_anyway: bool = False,
-    max_polls: int = 1_000_000,
-    deadline_s: float | None = None,
-) -> list[ev.Event]:
-    """Drive a session to the end with an automatic operator (the headless demo).
-
-    Skips the warm-up, confirms each pose (moving the simulated nodes), accepts every
-    position, solves, writes when the acceptance limits pass (or ``write_anyway``), verifies
-    at level. Gives up (cancels) after ``MAX_REFUSALS`` refused poses in a row. Returns the
-    session's history (every event but the live readouts). With ``deadline_s`` (wall
-    seconds) a session that has not finished by then is cancelled and DeviceError raised:
-    the sample clock is the procedure's, but a simulated bus that cannot keep up must not
-    turn the demo into an endless wait.
-    """
-    give_up_at = None if deadline_s is None else time.monotonic() + deadline_s
-    try:
-        session.start()
-        for _ in range(max_polls):
-            if give_up_at is not None and time.monotonic() > give_up_at:
-                proc = session.procedure
-                session.command("cancel")
-                raise DeviceError(
-                    f"the automatic operator gave up after {deadline_s:.0f} s (phase "
-                    f"{proc.phase.value}, position {proc.index + 1}): the simulated bus "
-                    "cannot keep up at this time scale; lower --time-scale"
-                )
-            _react(session, write_anyway)
-            if session.procedure.phase in (Phase.DONE, Phase.CANCELLED):
-                break
-            session.poll()
-            if _refusals_in_a_row(session.history) >= MAX_REFUSALS:
-                session.command("cancel")
-                break
-    finally:
-        session.finish()  # what was recorded is kept, even on an error or Ctrl-C
-    return session.history
-
-
-def _refusals_in_a_row(history: Sequence[ev.Event]) -> int:
-    count = 0
-    for event in reversed(history):
-        if isinstance(event, ev.PoseRefused):
-            count += 1
-        elif isinstance(event, ev.AveragingStarted | ev.PositionAccepted):
-            break
-    return count
-
-
-def _react(session: Session, write_anyway: bool) -> list[ev.Event]:
-    proc = session.procedure
-    phase = proc.phase
-    if phase is Phase.WARMUP:
-        return session.command("skip_warmup")
-    if phase is Phase.INSTRUCT:
-        return session.confirm_pose()
-    if phase is Phase.REVIEW_POSITION:
-        return session.command("accept")
-    if phase is Phase.READY_TO_SOLVE:
-        return session.solve()
-    if phase is Phase.REVIEW:
-        assert proc.solved is not None
-        if proc.solved.acceptable or write_anyway:
-            return session.write(override=write_anyway)
-        return session.command("finish_without_writing")
-    return []

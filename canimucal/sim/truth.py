@@ -20,239 +20,26 @@ import copy
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, NoReturn
+from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-from canimucal.errors import InputError
 from canimucal.model.frames import TiltModel
 from canimucal.model.gravity import normal_gravity
-from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, AccelParams, GyroParams
+from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
+from canimucal.sim.truth_fields import Vector, fail, is_numeric_tree, json_object, key_path, number
+from canimucal.sim.truth_sensors import SAMPLE_RATES_HZ, AccelTruth, GyroTruth
 
 log = logging.getLogger(__name__)
 
 SCHEMA = "canimucal.truth/1"
-SAMPLE_RATES_HZ = (50, 100, 200, 250, 500, 1000)
-"""Output data rates the node accepts (0x2010:03)."""
 DEFAULT_LATITUDE_DEG = 50.45
-DEFAULT_ACCEL_NOISE_DENSITY = 1.5e-3
-"""Default accelerometer white noise, input-referred, m/s²/√Hz (≈150 µg/√Hz)."""
-DEFAULT_GYRO_NOISE_DENSITY = 1.2e-4
-"""Default gyro white noise, input-referred, rad/s/√Hz (≈0.007 °/s/√Hz)."""
-DEFAULT_CORRELATION_TIME_S = 100.0
-NOISE_LIMIT_COUNTS = 65536.0
-"""Largest noise σ a truth may ask for, in counts (per sample at the fastest output data
-rate for white noise): beyond the INT16 span every sample saturates, and far beyond it the
-arithmetic overflows."""
 _TILT_MODELS = ("rigid", "additive")
-_COMMON_KEYS = tuple(
-    "nominal_lsb quantization bias noise_density temp_coeff random_walk bias_instability"
-    " correlation_time_s".split()
-)
 _TOP_KEYS = tuple(
     "schema sample_rate_hz g latitude_deg height_m heading_deg serial tilt_model base_tilt_deg"
     " accel gyro temperature faults".split()
 )
-
-Vector = NDArray[np.float64]
-
-
-def _fail(path: str, what: str) -> NoReturn:
-    raise InputError(f"truth: {path} {what}")
-
-
-def _join(path: str, key: str) -> str:
-    return f"{path}.{key}" if path else key
-
-
-def _object(value: Any, path: str, allowed: tuple[str, ...]) -> Mapping[str, Any]:
-    """Check that ``value`` is a JSON object whose keys are all in ``allowed``."""
-    if not isinstance(value, Mapping) or not all(isinstance(k, str) for k in value):
-        _fail(path or "document", "must be a JSON object")
-    for key in value:
-        if key not in allowed:
-            _fail(_join(path, key), "is not a known key")
-    return value
-
-
-def _number(value: Any, path: str, *, minimum: float | None = None) -> float:
-    """Read a finite number (bools and strings refused), at least ``minimum`` if given."""
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        _fail(path, "must be a finite number")
-    x = float(value)
-    if not np.isfinite(x):
-        _fail(path, "must be a finite number")
-    if minimum is not None and x < minimum:
-        _fail(path, f"must be >= {minimum:g}")
-    return x
-
-
-def _is_numeric_tree(value: Any) -> bool:
-    if isinstance(value, np.ndarray):
-        return value.dtype.kind in "iuf"
-    if isinstance(value, list | tuple):
-        return all(_is_numeric_tree(v) for v in value)
-    return not isinstance(value, bool) and isinstance(value, int | float | np.integer | np.floating)
-
-
-def _array(value: Any, path: str, shape: tuple[int, ...]) -> Vector:
-    """Read a finite float array of exactly ``shape`` (read-only)."""
-    desc = "a 3x3 array of" if len(shape) == 2 else "an array of 3"
-    arr = None
-    if isinstance(value, list | tuple | np.ndarray) and _is_numeric_tree(value):
-        try:
-            arr = np.array(value, dtype=float)
-        except ValueError:  # ragged nesting
-            arr = None
-    if arr is None or arr.shape != shape or not np.all(np.isfinite(arr)):
-        _fail(path, f"must be {desc} finite numbers")
-    arr.setflags(write=False)
-    return arr
-
-
-def _nonneg(arr: Vector, path: str) -> Vector:
-    if np.any(arr < 0):
-        _fail(path, "must be non-negative")
-    return arr
-
-
-def _frozen(value: ArrayLike) -> Vector:
-    arr = np.array(value, dtype=float)
-    arr.setflags(write=False)
-    return arr
-
-
-def _common(obj: Mapping[str, Any], path: str, lsb0: float, noise0: float) -> dict[str, Any]:
-    """Read the keys accelerometer and gyro share; absent keys get their defaults."""
-    out: dict[str, Any] = {}
-    lsb = _number(obj.get("nominal_lsb", lsb0), _join(path, "nominal_lsb"))
-    if lsb == 0.0:
-        _fail(_join(path, "nominal_lsb"), "must be non-zero")
-    out["nominal_lsb"] = lsb
-    out["quantization"] = _number(
-        obj.get("quantization", 1.0), _join(path, "quantization"), minimum=0.0
-    )
-    out["bias"] = _array(obj.get("bias", [0.0] * 3), _join(path, "bias"), (3,))
-    defaults = {
-        "noise_density": [noise0] * 3,
-        "temp_coeff": [0.0] * 3,
-        "random_walk": [0.0] * 3,
-        "bias_instability": [0.0] * 3,
-        "correlation_time_s": [DEFAULT_CORRELATION_TIME_S] * 3,
-    }
-    for key, default in defaults.items():
-        arr = _array(obj.get(key, default), _join(path, key), (3,))
-        if key != "temp_coeff":
-            arr = _nonneg(arr, _join(path, key))
-        out[key] = arr
-    if np.any(out["correlation_time_s"] <= 0.0):
-        _fail(_join(path, "correlation_time_s"), "must be positive")
-    return out
-
-
-def _check_noise(common: Mapping[str, Any], scale: Vector, path: str) -> None:
-    """Refuse noise no INT16 sensor can report (see :data:`NOISE_LIMIT_COUNTS`)."""
-    with np.errstate(over="ignore"):  # an absurd density may overflow to inf: refused below
-        white = common["noise_density"] * np.abs(np.diag(scale)) * np.sqrt(max(SAMPLE_RATES_HZ))
-    if np.any(white > NOISE_LIMIT_COUNTS):
-        _fail(
-            _join(path, "noise_density"),
-            f"gives a white-noise σ above {NOISE_LIMIT_COUNTS:g} counts per sample at "
-            f"{max(SAMPLE_RATES_HZ)} Hz",
-        )
-    for key in ("random_walk", "bias_instability"):
-        if np.any(common[key] > NOISE_LIMIT_COUNTS):
-            _fail(_join(path, key), f"must be at most {NOISE_LIMIT_COUNTS:g} counts")
-
-
-@dataclass(frozen=True, eq=False)
-class _SensorTruth:
-    """Fields the accelerometer and the gyro share (units in the module docstring)."""
-
-    nominal_lsb: float
-    quantization: float
-    bias: Vector
-    noise_density: Vector
-    temp_coeff: Vector
-    random_walk: Vector
-    bias_instability: Vector
-    correlation_time_s: Vector
-
-    def _common_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {
-            "nominal_lsb": self.nominal_lsb,
-            "quantization": self.quantization,
-        }
-        for key in _COMMON_KEYS[2:]:
-            out[key] = np.asarray(getattr(self, key)).tolist()
-        return out
-
-
-@dataclass(frozen=True, eq=False)
-class AccelTruth(_SensorTruth):
-    """Accelerometer truth: ``U = b + K f + quadratic ⊙ f² + drifts + noise`` (counts)."""
-
-    K: Vector = field(default_factory=lambda: _frozen(np.eye(3) / DEFAULT_ACCEL_LSB))
-    quadratic: Vector = field(default_factory=lambda: _frozen(np.zeros(3)))
-
-    @classmethod
-    def from_dict(cls, obj: Any, path: str = "accel") -> AccelTruth:
-        """Validate and read the ``accel`` object of the truth JSON."""
-        obj = _object(obj, path, (*_COMMON_KEYS, "K", "quadratic"))
-        common = _common(obj, path, DEFAULT_ACCEL_LSB, DEFAULT_ACCEL_NOISE_DENSITY)
-        k_default = np.eye(3) / common["nominal_lsb"]
-        K = _array(obj.get("K", k_default), _join(path, "K"), (3, 3))
-        _check_noise(common, K, path)
-        return cls(
-            **common,
-            K=K,
-            quadratic=_array(obj.get("quadratic", [0.0] * 3), _join(path, "quadratic"), (3,)),
-        )
-
-    def to_dict(self) -> dict[str, Any]:
-        """Return the ``accel`` object of the truth JSON."""
-        out = self._common_dict()
-        out["K"] = self.K.tolist()
-        out["quadratic"] = self.quadratic.tolist()
-        return out
-
-    def params(self) -> AccelParams:
-        """Return the model's bias and K (no drifts, no noise)."""
-        return AccelParams(np.array(self.bias), np.array(self.K))
-
-
-@dataclass(frozen=True, eq=False)
-class GyroTruth(_SensorTruth):
-    """Gyro truth: ``V = B + S w + G f + drifts + noise`` (counts)."""
-
-    S: Vector = field(default_factory=lambda: _frozen(np.eye(3) / DEFAULT_GYRO_LSB))
-    G: Vector = field(default_factory=lambda: _frozen(np.zeros((3, 3))))
-
-    @classmethod
-    def from_dict(cls, obj: Any, path: str = "gyro") -> GyroTruth:
-        """Validate and read the ``gyro`` object of the truth JSON."""
-        obj = _object(obj, path, (*_COMMON_KEYS, "S", "G"))
-        common = _common(obj, path, DEFAULT_GYRO_LSB, DEFAULT_GYRO_NOISE_DENSITY)
-        s_default = np.eye(3) / common["nominal_lsb"]
-        S = _array(obj.get("S", s_default), _join(path, "S"), (3, 3))
-        _check_noise(common, S, path)
-        return cls(
-            **common,
-            S=S,
-            G=_array(obj.get("G", np.zeros((3, 3))), _join(path, "G"), (3, 3)),
-        )
-
-    def to_dict(self) -> dict[str, Any]:
-        """Return the ``gyro`` object of the truth JSON."""
-        out = self._common_dict()
-        out["S"] = self.S.tolist()
-        out["G"] = self.G.tolist()
-        return out
-
-    def params(self) -> GyroParams:
-        """Return the model's bias, S and G (no drifts, no noise)."""
-        return GyroParams(np.array(self.bias), np.array(self.S), np.array(self.G))
 
 
 @dataclass(frozen=True)
@@ -271,19 +58,19 @@ class TemperatureProfile:
     @classmethod
     def from_dict(cls, obj: Any, path: str = "temperature") -> TemperatureProfile:
         """Validate and read the ``temperature`` object of the truth JSON."""
-        obj = _object(obj, path, ("start_c", "rate_c_per_s", "profile"))
-        start = _number(obj.get("start_c", 25.0), _join(path, "start_c"))
-        rate = _number(obj.get("rate_c_per_s", 0.0), _join(path, "rate_c_per_s"))
+        obj = json_object(obj, path, ("start_c", "rate_c_per_s", "profile"))
+        start = number(obj.get("start_c", 25.0), key_path(path, "start_c"))
+        rate = number(obj.get("rate_c_per_s", 0.0), key_path(path, "rate_c_per_s"))
         profile = None
         if "profile" in obj:
-            p_path = _join(path, "profile")
+            p_path = key_path(path, "profile")
             raw = obj["profile"]
-            ok = isinstance(raw, list | tuple) and len(raw) > 0 and _is_numeric_tree(raw)
+            ok = isinstance(raw, list | tuple) and len(raw) > 0 and is_numeric_tree(raw)
             arr = np.array(raw, dtype=float) if ok else np.empty((0, 0))
             if arr.ndim != 2 or arr.shape[1] != 2 or not np.all(np.isfinite(arr)):
-                _fail(p_path, "must be a non-empty list of [seconds, °C] pairs of finite numbers")
+                fail(p_path, "must be a non-empty list of [seconds, °C] pairs of finite numbers")
             if np.any(np.diff(arr[:, 0]) <= 0.0):
-                _fail(p_path, "times must be strictly increasing")
+                fail(p_path, "times must be strictly increasing")
             profile = tuple((float(t), float(c)) for t, c in arr)
         return cls(start, rate, profile)
 
@@ -324,35 +111,35 @@ class Truth:
     @classmethod
     def from_dict(cls, d: Any) -> Truth:
         """Validate a truth JSON document; raise :class:`InputError` naming the bad key."""
-        d = _object(d, "", _TOP_KEYS)
+        d = json_object(d, "", _TOP_KEYS)
         if d.get("schema", SCHEMA) != SCHEMA:
-            _fail("schema", f"must be {SCHEMA!r}")
-        rate = _number(d.get("sample_rate_hz", 200), "sample_rate_hz")
+            fail("schema", f"must be {SCHEMA!r}")
+        rate = number(d.get("sample_rate_hz", 200), "sample_rate_hz")
         if rate not in SAMPLE_RATES_HZ:
-            _fail("sample_rate_hz", f"must be one of {', '.join(map(str, SAMPLE_RATES_HZ))}")
-        lat_deg = _number(d.get("latitude_deg", DEFAULT_LATITUDE_DEG), "latitude_deg")
+            fail("sample_rate_hz", f"must be one of {', '.join(map(str, SAMPLE_RATES_HZ))}")
+        lat_deg = number(d.get("latitude_deg", DEFAULT_LATITUDE_DEG), "latitude_deg")
         if abs(lat_deg) > 90.0:
-            _fail("latitude_deg", "must be within [-90, 90]")
-        height = _number(d.get("height_m", 0.0), "height_m")
+            fail("latitude_deg", "must be within [-90, 90]")
+        height = number(d.get("height_m", 0.0), "height_m")
         if "g" in d:
-            g = _number(d["g"], "g")
+            g = number(d["g"], "g")
             if g <= 0.0:
-                _fail("g", "must be positive")
+                fail("g", "must be positive")
         else:
             g = normal_gravity(np.deg2rad(lat_deg), height)
             log.info(
                 "truth: g = %.6f m/s² from latitude %.4f° and height %.1f m", g, lat_deg, height
             )
-        tilt = _object(d.get("base_tilt_deg", {}), "base_tilt_deg", ("alpha0", "beta0"))
+        tilt = json_object(d.get("base_tilt_deg", {}), "base_tilt_deg", ("alpha0", "beta0"))
         faults = d.get("faults", {})
         if not isinstance(faults, Mapping) or not all(isinstance(k, str) for k in faults):
-            _fail("faults", "must be a JSON object")
+            fail("faults", "must be a JSON object")
         return cls(
             sample_rate_hz=rate,
             g=g,
             latitude=float(np.deg2rad(lat_deg)),
             height_m=height,
-            heading=float(np.deg2rad(_number(d.get("heading_deg", 0.0), "heading_deg"))),
+            heading=float(np.deg2rad(number(d.get("heading_deg", 0.0), "heading_deg"))),
             serial=_serial(d.get("serial", 0)),
             tilt_model=_tilt_model(d.get("tilt_model", "rigid")),
             alpha0=float(np.deg2rad(_tilt_angle(tilt, "alpha0"))),
@@ -430,9 +217,9 @@ class Truth:
 
 def _serial(value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, int | np.integer):
-        _fail("serial", "must be an integer")
+        fail("serial", "must be an integer")
     if not 0 <= int(value) < 2**32:
-        _fail("serial", "must be within [0, 2**32)")
+        fail("serial", "must be within [0, 2**32)")
     return int(value)
 
 
@@ -441,12 +228,12 @@ def _tilt_model(value: Any) -> TiltModel:
         return "rigid"
     if value == "additive":
         return "additive"
-    _fail("tilt_model", f"must be one of {', '.join(map(repr, _TILT_MODELS))}")
+    fail("tilt_model", f"must be one of {', '.join(map(repr, _TILT_MODELS))}")
 
 
 def _tilt_angle(tilt: Mapping[str, Any], key: str) -> float:
     path = f"base_tilt_deg.{key}"
-    angle = _number(tilt.get(key, 0.0), path)
+    angle = number(tilt.get(key, 0.0), path)
     if abs(angle) >= 90.0:
-        _fail(path, "must be within (-90, 90) degrees")
+        fail(path, "must be within (-90, 90) degrees")
     return angle

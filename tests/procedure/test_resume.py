@@ -21,6 +21,7 @@ from canimucal.cli.main import main
 from canimucal.io.recording import read_recording
 from canimucal.model.plan import builtin_plan
 from canimucal.procedure import session as session_mod
+from canimucal.procedure.automatic_operator import run_automatic
 from canimucal.procedure.demo_rig import readback_deviations
 from canimucal.procedure.resume import load_resume_state
 from canimucal.sim.truth import Truth
@@ -31,7 +32,7 @@ SEED = ["--seed", "2031"]
 
 def _interrupt_after(monkeypatch: pytest.MonkeyPatch, positions: int) -> None:
     """Make the demo's automatic operator press Ctrl-C once ``positions`` are accepted."""
-    real = session_mod.run_automatic
+    real = run_automatic
 
     def run_until(session: session_mod.Session, **kwargs: Any) -> Any:
         command = session.command
