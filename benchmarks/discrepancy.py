@@ -121,7 +121,8 @@ def _two_position_errors(
 ) -> np.ndarray:
     """Estimate minus truth of the two-position method (eq. 11-14), noise-free; k per axis."""
     from canimucal.model.closed_form_accel import two_position_accel
-    from canimucal.model.layout import ModelContext, dcm_stack
+    from canimucal.model.dcm_stack import dcm_stack
+    from canimucal.model.layout import ModelContext
 
     f_level = ModelContext.build(G_PAPER).f_level
     second = [45.0 + second_error_deg[0], 5.0 + second_error_deg[1], 0.0]
@@ -265,7 +266,8 @@ def _equivalent_pose_error(tilt: tuple[float, float]) -> np.ndarray:
     gravity there as the rigid tilt (the level pose is the same under both readings)."""
     from scipy.optimize import least_squares
 
-    from canimucal.model.layout import ModelContext, dcm_stack
+    from canimucal.model.dcm_stack import dcm_stack
+    from canimucal.model.layout import ModelContext
 
     f_level = ModelContext.build(G_PAPER).f_level
     a0, b0 = np.deg2rad(tilt)

@@ -29,7 +29,8 @@ from canimucal.model.closed_form import (  # noqa: E402
     TILT_CHANNEL_NAMES,
 )
 from canimucal.model.closed_form_accel import fourier_accel  # noqa: E402
-from canimucal.model.layout import ModelContext, dcm_stack  # noqa: E402
+from canimucal.model.dcm_stack import dcm_stack  # noqa: E402
+from canimucal.model.layout import ModelContext  # noqa: E402
 from canimucal.model.positions import Pose, PositionAverage  # noqa: E402
 
 SECONDS = np.array([5.0, 15.0, 30.0, 45.0, 60.0])

@@ -7,7 +7,7 @@ The simulated node follows a pose schedule (six positions, ``sim_seconds / 6`` e
 moves) at 1000 Hz and drops each TPDO frame with probability ``loss`` (fault injection,
 fixed seed). The tool's side is the real chain: :class:`ImuClient` (pairing, loss counts)
 → the procedure's :class:`~canimucal.procedure.recorder.Recorder` (schedule labelling) →
-:class:`~canimucal.io.recording.RecordingWriter` (CSV on disk). Checks, printed at the end:
+:class:`~canimucal.io.recording_writer.RecordingWriter` (CSV on disk). Checks, printed at the end:
 
 1. resident memory (``VmRSS`` of ``/proc/self/status``) grows < 5 % between simulated
    minutes 10 and 60 (scaled to ``sim_seconds``: 1/6 and the end);
@@ -40,7 +40,7 @@ from numpy.typing import NDArray
 from canimucal.device.client import ImuClient
 from canimucal.device.sim_bus import LoopbackBus, loopback_pair
 from canimucal.device.sim_node import POSE_TRANSIENT_S, SimulatedImuNode
-from canimucal.io.recording import RecordingWriter
+from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.procedure.recorder import Recorder
 from canimucal.sim.truth import Truth

@@ -22,7 +22,8 @@ from canimucal.cli.bus_options import DeviceSession, add_bus_options, node_ids, 
 from canimucal.errors import InputError
 from canimucal.io.atomic import refuse_existing
 from canimucal.io.plans import resolve_plan
-from canimucal.io.recording import HeaderValue, RecordingWriter
+from canimucal.io.recording import HeaderValue
+from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import DEFAULT_SECONDS, Plan, PlannedPosition
 from canimucal.sim.truth import Truth

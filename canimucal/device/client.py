@@ -40,10 +40,10 @@ from canimucal.device.stream import (
     SampleBlock,
     SampleLayout,
     SamplePairer,
-    StreamConsumer,
     concat_blocks,
     layout_from_mapping,
 )
+from canimucal.device.stream_consumer import StreamConsumer
 from canimucal.errors import DeviceError, NoDeviceError
 
 logger = logging.getLogger(__name__)

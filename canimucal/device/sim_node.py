@@ -3,17 +3,16 @@
 What canopen's ``LocalNode`` lacks and this class adds (STYLE.md, DESIGN §4): TPDOs on their
 event timer or on SYNC, only while OPERATIONAL; storing on 0x1010 and restoring defaults on
 0x1011 (effective at the next reset); NMT reset node / reset communication with a new
-boot-up; range checks on writes; live values for SDO reads of 0x2000–0x2002. Calibration
-objects stay raw on the bus: the firmware semantics are exposed as :meth:`corrected_sample`.
+boot-up; range checks on writes; live values for SDO reads of 0x2000–0x2002 (the SDO
+read/write side: :mod:`canimucal.device.sim_od_access`). Calibration objects stay raw on the
+bus: the firmware semantics are exposed as :meth:`corrected_sample`.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import struct
 import threading
-from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -22,22 +21,16 @@ import can
 import canopen
 import numpy as np
 from canopen.objectdictionary import ODVariable
-from canopen.objectdictionary.datatypes import SIGNED_TYPES
 from numpy.typing import NDArray
 
 from canimucal.device import od
 from canimucal.device.sim_backlog import VirtualBusBacklog
-from canimucal.device.sim_checks import check_subindex_exists, check_write
 from canimucal.device.sim_faults import FaultInjector
 from canimucal.device.sim_hooks import FaultHooks
-from canimucal.device.sim_pdo import TpdoLayout, read_layout
+from canimucal.device.sim_od_access import ImuLocalNode, ObjectAccessHooks
+from canimucal.device.sim_pdo import TpdoLayout
 from canimucal.device.sim_producer import SampleProducer
-from canimucal.device.sim_store import (
-    COMM_PARAMETERS,
-    NonVolatileStore,
-    factory_values,
-    group_of,
-)
+from canimucal.device.sim_store import COMM_PARAMETERS, NonVolatileStore, factory_values
 from canimucal.errors import InputError, NoDeviceError
 from canimucal.model.positions import Plan
 from canimucal.sim.imu import ImuSimulator
@@ -51,12 +44,11 @@ NMT_COB_ID = 0x000
 POSE_TRANSIENT_S = 1.0
 NOTIFIER_CYCLE_S = 0.1
 """Receive-poll period of a network the node creates (how long ``stop()`` may wait)."""
-_LIVE_INDICES = (od.ACCEL_RAW, od.GYRO_RAW, od.SAMPLE_INFO, od.ERROR_REGISTER)
 
 Key = tuple[int, int]
 
 
-class SimulatedImuNode(FaultHooks):
+class SimulatedImuNode(FaultHooks, ObjectAccessHooks):
     """The simulated IMU on a CAN bus (python-can bus or canopen ``Network``).
 
     ``truth`` defaults to a nominal unit; ``state_file`` is the node's non-volatile memory
@@ -87,7 +79,7 @@ class SimulatedImuNode(FaultHooks):
         eds = od.eds_path()
         if not eds.is_file():
             raise InputError(f"object dictionary not found: {eds}")
-        self._node = _ImuLocalNode(self.node_id, canopen.import_od(str(eds), self.node_id))
+        self._node = ImuLocalNode(self.node_id, canopen.import_od(str(eds), self.node_id))
         self._wrap_sdo_server()
         self._node.after_store = self._after_write
         self._node.add_read_callback(self._on_read)
@@ -311,65 +303,10 @@ class SimulatedImuNode(FaultHooks):
         for cob_id, frame in self._producer.on_sync():
             self._send(cob_id, frame)
 
-    def _on_read(self, index: int, subindex: int, **_: Any) -> int | None:
-        check_subindex_exists(self._node, index, subindex)
-        if index in _LIVE_INDICES:
-            with self._lock:
-                return self._producer.live.get((index, subindex), None)
-        if index in (od.STORE, od.RESTORE) and subindex >= 1:
-            return 1  # CiA 301: the device saves / restores on command
-        return None
-
-    def _on_write(self, index: int, subindex: int, data: bytes, **_: Any) -> None:
-        """Refuse a write before ``LocalNode`` stores it (raising ``SdoAbortedError``)."""
-        check_write(
-            self._node,
-            index,
-            subindex,
-            bytes(data),
-            self._node.get_data,
-            self.truth.accel.nominal_lsb,
-            self.truth.gyro.nominal_lsb,
-        )
-
-    def _after_write(self, index: int, subindex: int, data: bytes) -> None:
-        """Side effects of a write every callback accepted and ``LocalNode`` stored."""
-        with self._lock:
-            if group_of((index, subindex)) == od.STORE_CALIBRATION_SUB:
-                self._cal_cache = None
-            if index in od.TPDO_COMM or index in od.TPDO_MAP:
-                self._layout_cache = None
-        if index == od.NOMINAL and subindex == 3:
-            self._set_odr(struct.unpack("<H", data)[0])
-        elif index == od.STORE:
-            self._store.store(self._current_raw(), subindex)
-        elif index == od.RESTORE:
-            self._store.forget(subindex)
-
     # -- helpers ----------------------------------------------------------------------------
-
-    def _set_odr(self, odr_hz: int) -> None:
-        """0x2010:03 written: TPDO1/2 event timers become 1000/ODR ms."""
-        with self._lock:
-            for comm in od.TPDO_COMM[:2]:
-                self._node.data_store.setdefault(comm, {})[5] = od.encode("u16", 1000 // odr_hz)
-            self._layout_cache = None
-        self._producer.set_rate(odr_hz)
-        log.info("output data rate set to %d Hz", odr_hz)
 
     def _odr_hz(self) -> int:
         return int(self.od_value(od.NOMINAL, 3))
-
-    def _current_raw(self) -> dict[Key, bytes]:
-        """Raw current value of every storable object."""
-        out: dict[Key, bytes] = {}
-        for index in self._node.object_dictionary:
-            entry = self._node.object_dictionary[index]
-            subs = [0] if isinstance(entry, ODVariable) else list(entry.subindices)
-            for sub in subs:
-                if group_of((index, sub)) is not None:
-                    out[(index, sub)] = self._node.get_data(index, sub)
-        return out
 
     def _calibration_values(self) -> dict[Key, float | int]:
         return {(i, s): self.od_value(i, s) for i, s, _ in od.CRC_ORDER}
@@ -377,19 +314,6 @@ class SimulatedImuNode(FaultHooks):
     def _invalidate(self) -> None:
         self._layout_cache = None
         self._cal_cache = None
-
-    def _layouts(self) -> tuple[TpdoLayout, ...]:
-        with self._lock:
-            if self._layout_cache is None:
-                self._layout_cache = tuple(
-                    read_layout(n, self._node.get_data, self._is_signed) for n in (1, 2, 3)
-                )
-            return self._layout_cache
-
-    def _is_signed(self, key: Key) -> bool:
-        entry = self._node.object_dictionary[key[0]]
-        var = entry if isinstance(entry, ODVariable) else entry[key[1]]
-        return var.data_type in SIGNED_TYPES
 
     def _operational(self) -> bool:
         return not self._booting and self._node.nmt.state == "OPERATIONAL"
@@ -399,20 +323,6 @@ class SimulatedImuNode(FaultHooks):
             return
         for frame_id, frame in self.faults.filter_tpdo(cob_id, data):
             self._network.send_message(frame_id, frame)
-
-
-class _ImuLocalNode(canopen.LocalNode):
-    """A ``LocalNode`` that reports each stored write (its callbacks run *before* storing)."""
-
-    after_store: Callable[[int, int, bytes], None] | None = None
-
-    def set_data(
-        self, index: int, subindex: int, data: bytes, check_writable: bool = False
-    ) -> None:
-        """Store as ``LocalNode`` does (callbacks may refuse), then run ``after_store``."""
-        super().set_data(index, subindex, data, check_writable)
-        if self.after_store is not None:
-            self.after_store(index, subindex, bytes(data))
 
 
 def _network_of(bus_or_network: can.BusABC | canopen.Network) -> tuple[canopen.Network, bool]:

@@ -27,7 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from canimucal.model.layout import ModelContext, dcm_stack
+from canimucal.model.dcm_stack import dcm_stack
+from canimucal.model.layout import ModelContext
 from canimucal.model.positions import PositionAverage
 
 Array = NDArray[np.float64]

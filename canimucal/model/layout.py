@@ -6,12 +6,12 @@ parameters and with respect to the position's own angles (for the angle-setting 
 
 Sensor models (DESIGN §2, counts): accelerometer ``U = b + K C f_L`` (eq. 6, 15 with a rigid
 or additive base tilt), gyro ``V = B + S C w_L + G C f_L`` (eq. 35 with g-sensitivity).
-Angles are radians; the base tilt parameters ``base_tilt.alpha0/beta0`` too.
+Angles are radians; the base tilt parameters ``base_tilt.alpha0/beta0`` too. The DCMs of
+all positions and their derivatives come from :mod:`canimucal.model.dcm_stack`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.errors import ModelError
+from canimucal.model.dcm_stack import dcm_stack
 from canimucal.model.frames import (
     EARTH_RATE_RAD_S,
     TiltModel,
@@ -215,86 +216,6 @@ class Prediction:
     mean: Array
     d_theta: Array
     d_angles: Array
-
-
-def _stack(rows: Array) -> Array:
-    """``(n, 9)`` entries to ``(n, 3, 3)`` matrices."""
-    return rows.reshape(-1, 3, 3)
-
-
-def _rotations(axis: str, angle: Array) -> tuple[Array, Array]:
-    """A1 (``z``), A2 (``x``) or Ay (``y``) of each angle and its derivative, ``(n, 3, 3)``.
-
-    Same matrices as ``frames.a1``/``a2``/``ay`` (eq. 1-2), for a vector of angles.
-    """
-    c, s = np.cos(angle), np.sin(angle)
-    o, i = np.zeros_like(c), np.ones_like(c)
-    if axis == "z":
-        rot = [c, s, o, -s, c, o, o, o, i]
-        der = [-s, c, o, -c, -s, o, o, o, o]
-    elif axis == "x":
-        rot = [i, o, o, o, c, s, o, -s, c]
-        der = [o, o, o, o, -s, c, o, -c, -s]
-    else:
-        rot = [c, o, -s, o, i, o, s, o, c]
-        der = [-s, o, -c, o, o, o, c, o, -s]
-    return _stack(np.stack(rot, axis=1)), _stack(np.stack(der, axis=1))
-
-
-def _partials(factors: Sequence[Array], derivs: Sequence[Array]) -> tuple[Array, list[Array]]:
-    """Multiply stacks of ``factors``; also each product with factor k replaced by its derivative.
-
-    Prefix and suffix products keep the cost linear in the number of factors.
-    """
-    n = len(factors)
-    eye = np.broadcast_to(np.eye(3), factors[0].shape)
-    prefix = [eye]
-    for f in factors:
-        prefix.append(prefix[-1] @ f)
-    suffix = [eye] * (n + 1)
-    for k in range(n - 1, -1, -1):
-        suffix[k] = factors[k] @ suffix[k + 1]
-    return prefix[n], [prefix[k] @ derivs[k] @ suffix[k + 1] for k in range(n)]
-
-
-def dcm_stack(
-    angles: Array, alpha0: float, beta0: float, tilt_model: TiltModel
-) -> tuple[Array, Array, Array]:
-    """DCMs of positions ``(n, 3)`` and their derivatives (the product of ``position_dcm``).
-
-    Returns ``C`` ``(n, 3, 3)``, ``dC/d(alpha, beta, psi)`` ``(n, 3, 3, 3)`` (angle on axis
-    1) and ``dC/d(alpha0, beta0)`` ``(n, 2, 3, 3)``.
-    rigid: ``C = Ay(psi) A2(beta) A1(alpha) A2(beta0) A1(alpha0)``;
-    additive: ``C = Ay(psi) A2(beta + beta0) A1(alpha + alpha0)`` (eq. 15).
-    """
-    rows = np.atleast_2d(np.asarray(angles, dtype=float))
-    alpha, beta, psi = rows[:, 0], rows[:, 1], rows[:, 2]
-    tilt = np.ones_like(alpha)
-    if tilt_model == "rigid":
-        parts = [
-            _rotations("y", psi), _rotations("x", beta), _rotations("z", alpha),
-            _rotations("x", beta0 * tilt), _rotations("z", alpha0 * tilt),
-        ]  # fmt: skip
-        which_angles, which_tilt = (2, 1, 0), (4, 3)
-    else:
-        parts = [
-            _rotations("y", psi),
-            _rotations("x", beta + beta0),
-            _rotations("z", alpha + alpha0),
-        ]
-        which_angles, which_tilt = (2, 1, 0), (2, 1)
-    c, replaced = _partials([r for r, _ in parts], [d for _, d in parts])
-    d_angles = np.stack([replaced[k] for k in which_angles], axis=1)
-    d_tilt = np.stack([replaced[k] for k in which_tilt], axis=1)
-    return c, d_angles, d_tilt
-
-
-def dcm_derivatives(
-    angles: Array, alpha0: float, beta0: float, tilt_model: TiltModel
-) -> tuple[Array, Array, Array]:
-    """One position's DCM, ``dC/d(alpha, beta, psi)`` ``(3, 3, 3)``, ``dC/d(alpha0, beta0)``."""
-    c, d_angles, d_tilt = dcm_stack(np.asarray(angles)[None, :3], alpha0, beta0, tilt_model)
-    return c[0], d_angles[0], d_tilt[0]
 
 
 def predict(layout: ParameterLayout, theta: Array, angles: Array, ctx: ModelContext) -> Prediction:

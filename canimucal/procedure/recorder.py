@@ -1,7 +1,7 @@
 """Recording sample blocks from IMU nodes into recording CSVs (DESIGN §5), labelled by position.
 
 One :class:`Recorder` drives one or more nodes (one :class:`~canimucal.device.client.ImuClient`
-and one :class:`~canimucal.io.recording.RecordingWriter` each) and writes **every** sample it
+and one :class:`~canimucal.io.recording_writer.RecordingWriter` each) and writes **every** sample it
 receives: rows of a static position carry its index and angles (degrees), all others (waiting
 for the operator, settling, moving) leave them empty. ``t`` is the CAN receive time, the
 ``counter`` column the node's sample counter; a lost PDO half stays empty.
@@ -34,7 +34,7 @@ from canimucal.device.client import ImuClient
 from canimucal.device.events import NodeRebooted
 from canimucal.device.stream import SampleBlock, concat_blocks
 from canimucal.errors import DeviceError, InputError
-from canimucal.io.recording import RecordingWriter
+from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.sim.schedule import PoseTrajectory
 

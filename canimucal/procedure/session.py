@@ -38,7 +38,7 @@ from canimucal.device.sim_node import SimulatedImuNode
 from canimucal.device.transaction import write_calibration_transaction
 from canimucal.errors import CanimucalError, DeviceError
 from canimucal.io.calibration import CalibrationRecord, RecordingRef, sha256_of
-from canimucal.io.recording import RecordingWriter
+from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.positions import Pose
 from canimucal.procedure import events as ev
 from canimucal.procedure.certificate import certificate_markdown

@@ -20,7 +20,7 @@ from canimucal.io.calibration import (
     calibration_to_dict,
     read_calibration,
 )
-from canimucal.io.recording import RecordingWriter
+from canimucal.io.recording_writer import RecordingWriter
 from canimucal.procedure.resume import partial_path
 from canimucal.procedure.tracks import LabelledRows
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from canimucal.cli.main import main
-from canimucal.io.recording import write_recording
+from canimucal.io.recording_writer import write_recording
 from canimucal.model.plan import builtin_plan
 from canimucal.procedure.offline import simulate_plan_recording
 from canimucal.sim.truth import Truth

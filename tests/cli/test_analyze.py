@@ -13,7 +13,7 @@ import pytest
 
 from canimucal.cli.main import main
 from canimucal.io.plans import read_plan
-from canimucal.io.recording import write_recording
+from canimucal.io.recording_writer import write_recording
 from canimucal.io.truth_file import load_truth
 from canimucal.model.plan import RECOMMENDED
 from canimucal.procedure.offline import simulate_plan_recording

@@ -268,7 +268,7 @@ def test_recorder_prompted_plan_follows_the_operator(tmp_path: Path) -> None:
 
     from canimucal.device.client import ImuClient
     from canimucal.device.sim_node import SimulatedImuNode
-    from canimucal.io.recording import RecordingWriter
+    from canimucal.io.recording_writer import RecordingWriter
     from canimucal.model.plan import builtin_plan
     from canimucal.procedure.recorder import Recorder
 

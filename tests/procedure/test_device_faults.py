@@ -15,7 +15,8 @@ import numpy as np
 
 from canimucal.device import od
 from canimucal.errors import DeviceError
-from canimucal.io.recording import RecordingWriter, read_recording
+from canimucal.io.recording import read_recording
+from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.plan import builtin_plan
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy

@@ -29,7 +29,7 @@ from hypothesis import strategies as st
 from canimucal.cli import demo_cmd
 from canimucal.cli.main import COMMANDS, main
 from canimucal.device.sim_node import SimulatedImuNode
-from canimucal.io.recording import write_recording
+from canimucal.io.recording_writer import write_recording
 from canimucal.model.plan import builtin_plan
 from canimucal.procedure.offline import simulate_plan_recording
 from canimucal.sim.truth import Truth

@@ -10,7 +10,8 @@ import pytest
 
 from canimucal.errors import InputError
 from canimucal.io.importers import detect_format, load_any, read_imucal, read_imutk
-from canimucal.io.recording import recording_from_columns, write_recording
+from canimucal.io.recording import recording_from_columns
+from canimucal.io.recording_writer import write_recording
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 

@@ -12,11 +12,10 @@ from canimucal.errors import InputError
 from canimucal.io.recording import (
     COLUMN_LINE,
     Recording,
-    RecordingWriter,
     read_recording,
     recording_from_columns,
-    write_recording,
 )
+from canimucal.io.recording_writer import RecordingWriter, write_recording
 
 HEADER = (
     "# schema: canimucal.recording/1\n"

@@ -20,6 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from canimucal.errors import ModelError
+from canimucal.model.dcm_stack import dcm_derivatives
 from canimucal.model.frames import TiltModel, position_dcm
 from canimucal.model.joint import solve_joint
 from canimucal.model.layout import (
@@ -27,7 +28,6 @@ from canimucal.model.layout import (
     ModelContext,
     ModelParams,
     ParameterLayout,
-    dcm_derivatives,
     nominal_theta,
     predict,
 )

@@ -1,0 +1,127 @@
+"""What the simulated node does when its object dictionary is read or written over SDO.
+
+Live values for reads of 0x2000–0x2002 and 0x1001, range checks before a write is stored, and
+the side effects after it: storing on 0x1010, restoring defaults on 0x1011, a new output data
+rate, dropped caches of the TPDO layout and the calibration state. A mixin of
+:class:`~canimucal.device.sim_node.SimulatedImuNode`, as
+:class:`~canimucal.device.sim_hooks.FaultHooks` is for the faults.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import canopen
+from canopen.objectdictionary import ODVariable
+from canopen.objectdictionary.datatypes import SIGNED_TYPES
+
+from canimucal.device import od
+from canimucal.device.sim_checks import check_subindex_exists, check_write
+from canimucal.device.sim_pdo import TpdoLayout, read_layout
+from canimucal.device.sim_producer import SampleProducer
+from canimucal.device.sim_store import NonVolatileStore, group_of
+from canimucal.sim.truth import Truth
+
+log = logging.getLogger(__name__)
+
+_LIVE_INDICES = (od.ACCEL_RAW, od.GYRO_RAW, od.SAMPLE_INFO, od.ERROR_REGISTER)
+
+Key = tuple[int, int]
+
+
+class ObjectAccessHooks:
+    """Mixin: the node's SDO read/write callbacks and what an accepted write changes."""
+
+    truth: Truth
+    _lock: threading.RLock
+    _node: canopen.LocalNode
+    _producer: SampleProducer
+    _store: NonVolatileStore
+    _layout_cache: tuple[TpdoLayout, ...] | None
+    _cal_cache: bool | None
+
+    def _on_read(self, index: int, subindex: int, **_: Any) -> int | None:
+        check_subindex_exists(self._node, index, subindex)
+        if index in _LIVE_INDICES:
+            with self._lock:
+                return self._producer.live.get((index, subindex), None)
+        if index in (od.STORE, od.RESTORE) and subindex >= 1:
+            return 1  # CiA 301: the device saves / restores on command
+        return None
+
+    def _on_write(self, index: int, subindex: int, data: bytes, **_: Any) -> None:
+        """Refuse a write before ``LocalNode`` stores it (raising ``SdoAbortedError``)."""
+        check_write(
+            self._node,
+            index,
+            subindex,
+            bytes(data),
+            self._node.get_data,
+            self.truth.accel.nominal_lsb,
+            self.truth.gyro.nominal_lsb,
+        )
+
+    def _after_write(self, index: int, subindex: int, data: bytes) -> None:
+        """Side effects of a write every callback accepted and ``LocalNode`` stored."""
+        with self._lock:
+            if group_of((index, subindex)) == od.STORE_CALIBRATION_SUB:
+                self._cal_cache = None
+            if index in od.TPDO_COMM or index in od.TPDO_MAP:
+                self._layout_cache = None
+        if index == od.NOMINAL and subindex == 3:
+            self._set_odr(struct.unpack("<H", data)[0])
+        elif index == od.STORE:
+            self._store.store(self._current_raw(), subindex)
+        elif index == od.RESTORE:
+            self._store.forget(subindex)
+
+    def _set_odr(self, odr_hz: int) -> None:
+        """0x2010:03 written: TPDO1/2 event timers become 1000/ODR ms."""
+        with self._lock:
+            for comm in od.TPDO_COMM[:2]:
+                self._node.data_store.setdefault(comm, {})[5] = od.encode("u16", 1000 // odr_hz)
+            self._layout_cache = None
+        self._producer.set_rate(odr_hz)
+        log.info("output data rate set to %d Hz", odr_hz)
+
+    def _current_raw(self) -> dict[Key, bytes]:
+        """Raw current value of every storable object."""
+        out: dict[Key, bytes] = {}
+        for index in self._node.object_dictionary:
+            entry = self._node.object_dictionary[index]
+            subs = [0] if isinstance(entry, ODVariable) else list(entry.subindices)
+            for sub in subs:
+                if group_of((index, sub)) is not None:
+                    out[(index, sub)] = self._node.get_data(index, sub)
+        return out
+
+    def _layouts(self) -> tuple[TpdoLayout, ...]:
+        with self._lock:
+            if self._layout_cache is None:
+                self._layout_cache = tuple(
+                    read_layout(n, self._node.get_data, self._is_signed) for n in (1, 2, 3)
+                )
+            return self._layout_cache
+
+    def _is_signed(self, key: Key) -> bool:
+        entry = self._node.object_dictionary[key[0]]
+        var = entry if isinstance(entry, ODVariable) else entry[key[1]]
+        return var.data_type in SIGNED_TYPES
+
+
+class ImuLocalNode(canopen.LocalNode):
+    """A ``LocalNode`` that reports each stored write (its callbacks run *before* storing)."""
+
+    after_store: Callable[[int, int, bytes], None] | None = None
+
+    def set_data(
+        self, index: int, subindex: int, data: bytes, check_writable: bool = False
+    ) -> None:
+        """Store as ``LocalNode`` does (callbacks may refuse), then run ``after_store``."""
+        super().set_data(index, subindex, data, check_writable)
+        if self.after_store is not None:
+            self.after_store(index, subindex, bytes(data))
