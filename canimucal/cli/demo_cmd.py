@@ -29,7 +29,6 @@ from typing import Any
 import numpy as np
 
 from canimucal.cli.output import add_json_option, check_outputs, dumps, emit
-from canimucal.errors import InputError
 from canimucal.io.atomic import write_text_atomic
 from canimucal.io.plans import resolve_plan
 from canimucal.io.truth_file import load_truth
@@ -122,8 +121,8 @@ def run(args: argparse.Namespace) -> int:
     truths = _truths(args)
     out = Path(args.resume or args.out)
     out.mkdir(parents=True, exist_ok=True)
-    if args.resume and not args.headless and _terminal():
-        raise InputError("--resume works with --headless only in the demo")
+    if args.resume:  # a different plan or an unreadable recording: exit 2 before any work
+        load_resume_state(out, plan)
     if not args.headless and _terminal():
         return _run_tui(args, plan, plan_name, truths, out)
     if not args.headless:
@@ -131,10 +130,6 @@ def run(args: argparse.Namespace) -> int:
     policy = AveragingPolicy(fixed_s=args.seconds)
     verify_s = min(args.seconds, 10.0) if args.seconds else 10.0
     with DemoRig(truths, time_scale=args.time_scale, seed=args.seed + 1) as rig:
-        resume = load_resume_state(out, plan, tuple(rig.clients)) if args.resume else None
-        if resume is not None:
-            n = resume.next_index
-            print(f"resuming {out}: {n} position(s) from the recording", file=sys.stderr)
         session = rig.session(
             plan,
             out,
@@ -143,8 +138,12 @@ def run(args: argparse.Namespace) -> int:
             averaging=policy,
             warmup=False,
             verify_seconds=verify_s,
-            resume_from=resume,
+            resume=bool(args.resume),
         )
+        resumed = session.procedure.config.resume_from
+        if resumed is not None:
+            n = resumed.next_index
+            print(f"resuming {out}: {n} position(s) from the recording", file=sys.stderr)
         history = run_automatic(session, write_anyway=True, deadline_s=_deadline_s(plan, args))
         truth_by_node = dict(rig.truths)
     documents, report = _results(session, history, truth_by_node, out)
@@ -184,6 +183,7 @@ def _run_tui(
         seed=args.seed + 1,
         seconds=seconds,
         verify_seconds=min(seconds, 10.0) if seconds else 10.0,
+        resume=bool(args.resume),
     )
     custom = plan if plan_name == "custom" else None
     app = make_app(source, plan_name=plan_name, gyro=args.gyro, custom_plan=custom)

@@ -26,6 +26,7 @@ from canimucal.model.layout import JointSpec
 from canimucal.model.positions import Plan
 from canimucal.procedure.machine import Procedure, ProcedureConfig
 from canimucal.procedure.records import device_of, recording_header
+from canimucal.procedure.resume import load_resume_state
 from canimucal.procedure.session import Session
 from canimucal.procedure.solution import SiteConditions
 from canimucal.sim.truth import Truth
@@ -96,10 +97,18 @@ class DemoRig:
         *,
         plan_name: str,
         gyro: str = "mems",
+        resume: bool = False,
         **config: Any,
     ) -> Session:
-        """Build a session over every node, with the site taken from the first truth."""
+        """Build a session over every node, with the site taken from the first truth.
+
+        ``resume``: go on with the interrupted session in ``out_dir``, if its recordings came
+        from these very units (:func:`~canimucal.procedure.resume.load_resume_state`).
+        """
         identities = self.identities()
+        if resume:
+            serials = {n: i.serial for n, i in identities.items()}
+            config["resume_from"] = load_resume_state(out_dir, plan, tuple(self.clients), serials)
         first = next(iter(self.clients.values()))
         rate = float(first.output_data_rate())
         site = self.site()

@@ -3,22 +3,23 @@
 A session writes every sample to ``recording.csv`` (``recording.node<ID>.csv`` with several
 nodes) with each accepted position's label and angles. :func:`load_resume_state` reads them
 back — a leftover ``.partial`` (the process died before closing it) is the newer copy and is
-read instead —, checks the plan's poses against the recorded angles and returns the accepted
-averages per node and the next position to measure. The procedure then starts there (warm-up
+read instead —, checks the plan's poses against the recorded angles and that each node is
+still the unit the recording came from (its serial), and returns the accepted averages per
+node and the next position to measure. The procedure then starts there (warm-up
 still applies after a power cycle) and the session appends to the same recording(s).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from canimucal.errors import InputError
+from canimucal.errors import DeviceError, InputError
 from canimucal.io.grouping import position_averages
-from canimucal.io.recording import read_recording
+from canimucal.io.recording import Recording, read_recording
 from canimucal.model.positions import Plan, PositionAverage
 
 ANGLE_MATCH_DEG = 1e-3
@@ -46,14 +47,19 @@ def partial_path(path: Path) -> Path:
 
 
 def load_resume_state(
-    out_dir: str | Path, plan: Plan, node_ids: Sequence[int] | None = None
+    out_dir: str | Path,
+    plan: Plan,
+    node_ids: Sequence[int] | None = None,
+    serials: Mapping[int, int] | None = None,
 ) -> ResumeState:
     """Read the recording(s) in ``out_dir`` and say where the procedure goes on.
 
     ``node_ids`` defaults to every ``recording*.csv`` found (one file: a single node, id 0
     unless given). Raises :class:`InputError` when a recording is missing or unreadable, when
     a recorded position is not in the plan or its angles differ from the plan's pose, or when
-    the nodes disagree about which positions were accepted.
+    the nodes disagree about which positions were accepted; :class:`DeviceError` when
+    ``serials`` (node id → the serial the node answers with now) names another unit than the
+    recording's ``device_serial``: averages of two units must never make one calibration.
     """
     out = Path(out_dir)
     if not out.is_dir():
@@ -67,7 +73,10 @@ def load_resume_state(
         source = partial_path(path) if partial_path(path).exists() else path
         if not source.exists():
             raise InputError(f"cannot resume: no {path.name} in {out}")
-        averages[node_id] = _accepted(source, plan)
+        recording = read_recording(source)
+        if serials is not None and node_id in serials:
+            _check_unit(recording, source, node_id, serials[node_id])
+        averages[node_id] = _accepted(recording, source, plan)
         files[node_id] = source
     done = {frozenset(a) for a in averages.values()}
     if len(done) > 1:
@@ -93,8 +102,17 @@ def _found_nodes(out: Path) -> list[int]:
     raise InputError(f"cannot resume: no recording in {out}")
 
 
-def _accepted(source: Path, plan: Plan) -> dict[int, PositionAverage]:
-    recording = read_recording(source)
+def _check_unit(recording: Recording, source: Path, node_id: int, serial: int) -> None:
+    recorded = recording.header.get("device_serial")
+    if recorded is not None and int(recorded) != int(serial):
+        raise DeviceError(
+            f"cannot resume: {source.name} was recorded from serial {int(recorded)}, node "
+            f"{node_id} is serial {int(serial)} now: another unit (start a new session in "
+            "another directory)"
+        )
+
+
+def _accepted(recording: Recording, source: Path, plan: Plan) -> dict[int, PositionAverage]:
     labelled = recording.position[recording.position >= 0]
     if labelled.size == 0:
         return {}

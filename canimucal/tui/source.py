@@ -117,6 +117,8 @@ class DemoSource:
     warmup: bool = True
     verify_seconds: float = 10.0
     description: str = "simulated IMU (demo, in-process virtual CAN bus)"
+    resume: bool = False
+    """Go on with the interrupted demo in ``out_dir`` (same units: same truths and seed)."""
     rig: DemoRig | None = field(default=None, init=False)
 
     def connect(self) -> list[NodeStatus]:
@@ -142,6 +144,7 @@ class DemoSource:
             averaging=AveragingPolicy(fixed_s=self.seconds),
             warmup=self.warmup,
             verify_seconds=self.verify_seconds,
+            resume=self.resume,
         )
 
     def close(self) -> None:
@@ -200,7 +203,9 @@ class BusSource:
             devices={n: device_of(n, i) for n, i in identities.items()},
             plan_name=plan_name,
             warmup=self.warmup,
-            resume_from=load_resume_state(self.out_dir, plan, tuple(clients))
+            resume_from=load_resume_state(
+                self.out_dir, plan, tuple(clients), {n: i.serial for n, i in identities.items()}
+            )
             if self.resume
             else None,
         )

@@ -11,42 +11,20 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
 
-from canimucal.cli import demo_cmd
 from canimucal.cli.main import main
 from canimucal.io.recording import read_recording
 from canimucal.model.plan import builtin_plan
-from canimucal.procedure import session as session_mod
-from canimucal.procedure.automatic_operator import run_automatic
 from canimucal.procedure.demo_rig import readback_deviations
 from canimucal.procedure.resume import load_resume_state
 from canimucal.sim.truth import Truth
+from tests.interrupt import interrupt_after
 
 FAST = ["demo", "--headless", "--plan", "five", "--seconds", "3", "--time-scale", "30"]
 SEED = ["--seed", "2031"]
-
-
-def _interrupt_after(monkeypatch: pytest.MonkeyPatch, positions: int) -> None:
-    """Make the demo's automatic operator press Ctrl-C once ``positions`` are accepted."""
-    real = run_automatic
-
-    def run_until(session: session_mod.Session, **kwargs: Any) -> Any:
-        command = session.command
-
-        def interrupting(name: str) -> Any:
-            events = command(name)
-            if name == "accept" and session.procedure.index >= positions:
-                raise KeyboardInterrupt
-            return events
-
-        monkeypatch.setattr(session, "command", interrupting)
-        return real(session, **kwargs)
-
-    monkeypatch.setattr(demo_cmd, "run_automatic", run_until)
 
 
 def test_an_interrupted_demo_resumes_and_uses_every_position(
@@ -54,7 +32,7 @@ def test_an_interrupted_demo_resumes_and_uses_every_position(
 ) -> None:
     out = tmp_path / "demo-out"
     with monkeypatch.context() as m:
-        _interrupt_after(m, 2)
+        interrupt_after(m, 2)
         assert main([*FAST, *SEED, "--out", str(out)]) != 0
     plan = builtin_plan("five")
     first = load_resume_state(out, plan, (0x10,))
@@ -82,7 +60,7 @@ def test_resuming_with_another_plan_exits_2_with_a_clear_message(
 ) -> None:
     out = tmp_path / "demo-out"
     with monkeypatch.context() as m:
-        _interrupt_after(m, 2)
+        interrupt_after(m, 2)
         main([*FAST, *SEED, "--out", str(out)])
     capsys.readouterr()
     # killed before closing: the .partial is the newer copy and is read instead
@@ -94,3 +72,21 @@ def test_resuming_with_another_plan_exits_2_with_a_clear_message(
     assert "a different plan?" in err and "recording.csv" in err, err
     assert main(["tui", "--sim", "--plan", "two", "--resume", str(out)]) == 2
     assert "a different plan?" in capsys.readouterr().err
+
+
+def test_resuming_with_another_unit_exits_3_and_writes_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "demo-out"
+    with monkeypatch.context() as m:
+        interrupt_after(m, 2)
+        main([*FAST, *SEED, "--out", str(out)])
+    capsys.readouterr()
+    recording = (out / "recording.csv").read_bytes()
+    # another seed draws another unit (another serial): its averages must not join these
+    assert main([*FAST, "--seed", "7", "--resume", str(out)]) == 3
+    err = capsys.readouterr().err
+    assert "cannot resume: recording.csv was recorded from serial" in err, err
+    assert "another unit" in err
+    assert (out / "recording.csv").read_bytes() == recording
+    assert not (out / "calibration.json").exists()
