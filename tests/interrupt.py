@@ -1,14 +1,16 @@
-"""Interrupting the demo's automatic operator as Ctrl-C would (resume tests)."""
+"""Resume tests: interrupt the demo's automatic operator as Ctrl-C would, check what is kept."""
 
 from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 import pytest
 
 from canimucal.cli import demo_cmd
 from canimucal.procedure import session as session_mod
 from canimucal.procedure.automatic_operator import run_automatic
+from canimucal.procedure.resume import ResumeState
 
 
 def interrupt_after(monkeypatch: pytest.MonkeyPatch, positions: int) -> None:
@@ -28,3 +30,12 @@ def interrupt_after(monkeypatch: pytest.MonkeyPatch, positions: int) -> None:
         return real(session, **kwargs)
 
     monkeypatch.setattr(demo_cmd, "run_automatic", run_until)
+
+
+def assert_kept(first: ResumeState, record: dict[str, Any], node_id: int) -> None:
+    """The finished record holds every position, the interrupted run's ones unchanged."""
+    assert len(record["positions"]) == 5
+    for index, earlier in first.averages[node_id].items():
+        final = record["positions"][index]
+        assert final["n"] == earlier.n
+        np.testing.assert_allclose(final["mean_accel"], earlier.mean_accel, rtol=1e-9)

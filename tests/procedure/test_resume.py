@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from canimucal.cli.main import main
@@ -21,7 +20,7 @@ from canimucal.model.plan import builtin_plan
 from canimucal.procedure.demo_rig import readback_deviations
 from canimucal.procedure.resume import load_resume_state
 from canimucal.sim.truth import Truth
-from tests.interrupt import interrupt_after
+from tests.interrupt import assert_kept, interrupt_after
 
 FAST = ["demo", "--headless", "--plan", "five", "--seconds", "3", "--time-scale", "30"]
 SEED = ["--seed", "2031"]
@@ -42,11 +41,7 @@ def test_an_interrupted_demo_resumes_and_uses_every_position(
     code = main([*FAST, *SEED, "--resume", str(out), "--json", str(tmp_path / "cal.json")])
     assert code == 0, capsys.readouterr().err
     record = json.loads((out / "calibration.json").read_text())
-    assert len(record["positions"]) == 5
-    for index in (0, 1):
-        earlier, final = first.averages[0x10][index], record["positions"][index]
-        assert final["n"] == earlier.n
-        np.testing.assert_allclose(final["mean_accel"], earlier.mean_accel, rtol=1e-9)
+    assert_kept(first, record, 0x10)
     rec = read_recording(out / "recording.csv")
     assert rec.n_rows > rows_before
     assert sorted(set(rec.position.tolist()) - {-1}) == [0, 1, 2, 3, 4]

@@ -21,31 +21,16 @@ from canimucal.procedure.demo_rig import readback_deviations
 from canimucal.procedure.resume import load_resume_state
 from canimucal.sim.truth import Truth
 from canimucal.tui.app import make_app
-from canimucal.tui.modals import ConfirmWrite
 from canimucal.tui.position import PositionScreen
-from canimucal.tui.results import ResultsScreen
 from canimucal.tui.source import DemoSource
-from canimucal.tui.verification import VerificationScreen
-from tests.interrupt import interrupt_after
+from tests.interrupt import assert_kept, interrupt_after
+from tests.tui.pilot_steps import measure_positions, press, until, write_and_verify
 
 SEED = 1
 """Seed 20261122 was tried first and failed at 4.2σ on alpha0: that truth gives 1.7σ rms even
 uninterrupted, the five-position plan's parameters being correlated (one large pose-setting
 draw moves several at once); seeds 1–5 give 0.6–1.2σ rms."""
 pytestmark = pytest.mark.asyncio
-
-
-async def _until(pilot, condition, what: str, timeout_s: float = 30.0) -> None:  # type: ignore[no-untyped-def]
-    for _ in range(int(timeout_s / 0.05)):
-        if condition():
-            return
-        await pilot.pause(0.05)
-    raise AssertionError(f"timed out waiting for {what}")
-
-
-async def _press(pilot, key: str) -> None:  # type: ignore[no-untyped-def]
-    pilot.app.simulate_key(key)
-    await pilot.pause(0.05)
 
 
 async def test_the_tui_demo_resumes_an_interrupted_session(
@@ -67,38 +52,17 @@ async def test_the_tui_demo_resumes_an_interrupted_session(
     source.warmup, source.verify_seconds, source.resume = False, 3.0, True
     app = make_app(source, plan_name="five")
     async with app.run_test(size=(80, 24)) as pilot:
-        await _until(pilot, lambda: app.screen.check_action("next", ()) is True, "the node")
-        await _press(pilot, "enter")  # connection -> plan
+        await until(pilot, lambda: app.screen.check_action("next", ()) is True, "the node")
+        await press(pilot, "enter")  # connection -> plan
         await pilot.pause()
-        await _press(pilot, "enter")  # plan five -> position
+        await press(pilot, "enter")  # plan five -> position
         screen = app.screen
         assert isinstance(screen, PositionScreen)
-        for index in (2, 3, 4):
-            await _until(pilot, lambda: screen.phase == "instruct", f"pose {index + 1}")
-            assert screen.index == index  # positions 1 and 2 came from the recording
-            await _press(pilot, "enter")
-            await _until(pilot, lambda: screen.phase == "review_position", f"average {index}")
-            await _press(pilot, "a")
-        await _until(pilot, lambda: screen.phase == "ready_to_solve", "all positions")
-        await _press(pilot, "v")
-        await _until(pilot, lambda: isinstance(app.screen, ResultsScreen), "the results")
-        results = app.screen
-        assert isinstance(results, ResultsScreen)
-        await _press(pilot, "w" if results.solved.acceptable else "o")
-        await _until(pilot, lambda: isinstance(app.screen, ConfirmWrite), "the confirmation")
-        await _press(pilot, "y")
-        await _until(
-            pilot, lambda: screen.verification and screen.phase == "instruct", "verification"
-        )
-        await _press(pilot, "enter")
-        await _until(pilot, lambda: isinstance(app.screen, VerificationScreen), "the end")
+        await measure_positions(pilot, screen, (2, 3, 4))  # 1 and 2 came from the recording
+        await write_and_verify(pilot, screen)
     source.close()
     record = json.loads((out / "calibration.json").read_text())
-    assert len(record["positions"]) == 5
-    for index in (0, 1):
-        earlier, final = first.averages[0x10][index], record["positions"][index]
-        assert final["n"] == earlier.n
-        np.testing.assert_allclose(final["mean_accel"], earlier.mean_accel, rtol=1e-9)
+    assert_kept(first, record, 0x10)
     assert record["readback"]["valid"] == 1 and record["readback"]["crc_ok"] is True
     worst = max(readback_deviations(record, truth), key=lambda d: abs(d.dev_sigma))
     assert abs(worst.dev_sigma) < 4.0, worst
