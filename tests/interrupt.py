@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 import pytest
 
 from canimucal.cli import demo_cmd
+from canimucal.cli.main import main
 from canimucal.procedure import session as session_mod
 from canimucal.procedure.automatic_operator import run_automatic
 from canimucal.procedure.resume import ResumeState
@@ -39,3 +41,10 @@ def assert_kept(first: ResumeState, record: dict[str, Any], node_id: int) -> Non
         final = record["positions"][index]
         assert final["n"] == earlier.n
         np.testing.assert_allclose(final["mean_accel"], earlier.mean_accel, rtol=1e-9)
+
+
+def run_interrupted(monkeypatch: pytest.MonkeyPatch, argv: Sequence[str], positions: int) -> None:
+    """Run the headless demo ``argv`` and interrupt it once ``positions`` are accepted."""
+    with monkeypatch.context() as m:
+        interrupt_after(m, positions)
+        assert main(list(argv)) == 130  # interrupted, recording kept

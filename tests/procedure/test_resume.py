@@ -20,7 +20,7 @@ from canimucal.model.plan import builtin_plan
 from canimucal.procedure.demo_rig import readback_deviations
 from canimucal.procedure.resume import load_resume_state
 from canimucal.sim.truth import Truth
-from tests.interrupt import assert_kept, interrupt_after
+from tests.interrupt import assert_kept, run_interrupted
 
 FAST = ["demo", "--headless", "--plan", "five", "--seconds", "3", "--time-scale", "30"]
 SEED = ["--seed", "2031"]
@@ -30,9 +30,7 @@ def test_an_interrupted_demo_resumes_and_uses_every_position(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "demo-out"
-    with monkeypatch.context() as m:
-        interrupt_after(m, 2)
-        assert main([*FAST, *SEED, "--out", str(out)]) != 0
+    run_interrupted(monkeypatch, [*FAST, *SEED, "--out", str(out)], 2)
     plan = builtin_plan("five")
     first = load_resume_state(out, plan, (0x10,))
     assert first.next_index == 2 and sorted(first.averages[0x10]) == [0, 1]
@@ -54,9 +52,7 @@ def test_resuming_with_another_plan_exits_2_with_a_clear_message(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "demo-out"
-    with monkeypatch.context() as m:
-        interrupt_after(m, 2)
-        main([*FAST, *SEED, "--out", str(out)])
+    run_interrupted(monkeypatch, [*FAST, *SEED, "--out", str(out)], 2)
     capsys.readouterr()
     # killed before closing: the .partial is the newer copy and is read instead
     (out / "recording.csv").rename(out / "recording.csv.partial")
@@ -73,9 +69,7 @@ def test_resuming_with_another_unit_exits_3_and_writes_nothing(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "demo-out"
-    with monkeypatch.context() as m:
-        interrupt_after(m, 2)
-        main([*FAST, *SEED, "--out", str(out)])
+    run_interrupted(monkeypatch, [*FAST, *SEED, "--out", str(out)], 2)
     capsys.readouterr()
     recording = (out / "recording.csv").read_bytes()
     # another seed draws another unit (another serial): its averages must not join these

@@ -15,7 +15,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from canimucal.cli.main import main
 from canimucal.model.plan import builtin_plan
 from canimucal.procedure.demo_rig import readback_deviations
 from canimucal.procedure.resume import load_resume_state
@@ -23,7 +22,7 @@ from canimucal.sim.truth import Truth
 from canimucal.tui.app import make_app
 from canimucal.tui.position import PositionScreen
 from canimucal.tui.source import DemoSource
-from tests.interrupt import assert_kept, interrupt_after
+from tests.interrupt import assert_kept, run_interrupted
 from tests.tui.pilot_steps import measure_positions, press, until, write_and_verify
 
 SEED = 1
@@ -41,9 +40,9 @@ async def test_the_tui_demo_resumes_an_interrupted_session(
     truth_file.write_text(json.dumps(truth.to_dict()))
     out = tmp_path / "demo-out"
     argv = ["demo", "--headless", "--plan", "five", "--seconds", "3", "--time-scale", "30"]
-    with monkeypatch.context() as m:
-        interrupt_after(m, 2)
-        assert main([*argv, "--seed", str(SEED), "--truth", str(truth_file), "--out", str(out)])
+    run_interrupted(
+        monkeypatch, [*argv, "--seed", str(SEED), "--truth", str(truth_file), "--out", str(out)], 2
+    )
     first = load_resume_state(out, builtin_plan("five"), (0x10,))
     assert sorted(first.averages[0x10]) == [0, 1]
 
