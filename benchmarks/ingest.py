@@ -32,8 +32,9 @@ import canopen
 import numpy as np
 
 from canimucal.device.client import ImuClient
+from canimucal.device.pdo_layout import design_layout
 from canimucal.device.sim_node import SimulatedImuNode
-from canimucal.device.stream import SampleBlock, SamplePairer, layout_from_mapping
+from canimucal.device.stream import SampleBlock, SamplePairer
 from canimucal.device.transaction import write_calibration_transaction
 from canimucal.sim.truth import Truth
 
@@ -41,17 +42,7 @@ NODE = 0x10
 T1, T2 = 0x180 + NODE, 0x280 + NODE
 
 
-def _entry(index: int, sub: int, bits: int) -> int:
-    return (index << 16) | (sub << 8) | bits
-
-
-LAYOUT = layout_from_mapping(
-    {1: T1, 2: T2},
-    {
-        1: [_entry(0x2000, s, 16) for s in (1, 2, 3)] + [_entry(0x2002, 2, 16)],
-        2: [_entry(0x2001, s, 16) for s in (1, 2, 3)] + [_entry(0x2002, 2, 16)],
-    },
-)
+LAYOUT = design_layout(NODE)
 
 
 def decode_cost_us(n: int = 200_000) -> float:

@@ -28,23 +28,14 @@ import can
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from canimucal.device.client import ImuClient  # noqa: E402
-from canimucal.device.stream import concat_blocks, layout_from_mapping  # noqa: E402
+from canimucal.device.pdo_layout import design_layout  # noqa: E402
+from canimucal.device.stream import concat_blocks  # noqa: E402
 
 NODE = 0x10
 T1, T2 = 0x180 + NODE, 0x280 + NODE
 
 
-def _entry(index: int, sub: int, bits: int) -> int:
-    return (index << 16) | (sub << 8) | bits
-
-
-LAYOUT = layout_from_mapping(
-    {1: T1, 2: T2},
-    {
-        1: [_entry(0x2000, s, 16) for s in (1, 2, 3)] + [_entry(0x2002, 2, 16)],
-        2: [_entry(0x2001, s, 16) for s in (1, 2, 3)] + [_entry(0x2002, 2, 16)],
-    },
-)
+LAYOUT = design_layout(NODE)
 
 
 def produce(channel: str, rate_hz: float, seconds: float) -> None:

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from canimucal.device.client import ImuClient
+from canimucal.device.pdo_layout import design_layout
 from canimucal.device.sim_node import SimulatedImuNode
 from canimucal.device.stream import (
     PdoLayout,
@@ -308,3 +309,13 @@ def test_live_lost_halves_and_gaps_counted_exactly(live: tuple) -> None:
     lost_rows = np.isnan(block.gyro).all(axis=1)
     assert np.all(block.counter[lost_rows] % 50 == 7)
     assert (block.duplicates, block.late) == (0, 0)
+
+
+def test_design_layout_is_the_mapping_of_design_and_of_the_simulated_node(
+    make_sim_node: Callable[..., SimulatedImuNode], client_network: canopen.Network
+) -> None:
+    assert design_layout(NODE) == layout_from_mapping(COB_IDS, INT16_MAPPING)
+    make_sim_node()
+    client = ImuClient(client_network, NODE)
+    client.find_node(2.0)
+    assert client.pdo_mapping() == design_layout(NODE)
