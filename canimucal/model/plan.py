@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+import scipy.linalg
 from numpy.typing import NDArray
 
 from canimucal.errors import ModelError
@@ -95,6 +96,7 @@ def analyse_information(fisher: Array, names: Sequence[str], scales: Array) -> S
     lmax = float(lam[-1]) if lam.size and lam[-1] > 0 else 1.0
     ratio = lam / lmax
     null = ratio < NOT_IDENTIFIABLE_RATIO
+    vec[:, null] = canonical_basis(vec[:, null])
     cov_n = (vec[:, ~null] / lam[~null]) @ vec[:, ~null].T
     null_weight = np.sum(vec[:, null] ** 2, axis=1)
     undetermined_mask = null_weight > _NULL_WEIGHT
@@ -110,6 +112,26 @@ def analyse_information(fisher: Array, names: Sequence[str], scales: Array) -> S
         for j in np.flatnonzero(undetermined_mask)
     }
     return Separability(names, tuple(findings), undetermined, ratio, vec, cov, corr)
+
+
+def canonical_basis(basis: Array) -> Array:
+    """Return a sparse basis of the span of ``basis``'s columns.
+
+    An eigenspace with several (near-)zero eigenvalues has no preferred eigenvectors: LAPACK
+    may return any rotation of them, and naming the parameters each one carries would then
+    depend on the build. The reduced row-echelon form from a column-pivoted QR is fixed by the
+    subspace alone: each vector has one pivot parameter at 1 and the other pivots at 0, so a
+    pure trade-off such as bias z against beta0 comes out as its own vector. Columns are
+    normalised to unit length.
+    """
+    m = basis.shape[1]
+    if m < 2:
+        return basis
+    _, r, perm = scipy.linalg.qr(basis.T, pivoting=True)
+    echelon = np.linalg.solve(r[:, :m], r)
+    out = np.zeros_like(basis.T)
+    out[:, perm] = echelon
+    return np.asarray((out / np.linalg.norm(out, axis=1, keepdims=True)).T)
 
 
 def _carriers(names: Sequence[str], v: Array) -> tuple[str, ...]:
