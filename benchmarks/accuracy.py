@@ -28,9 +28,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.errors import ModelError
-from canimucal.model.closed_form_accel import fourier_accel, two_position_accel
 from canimucal.model.joint import solve_joint
 from canimucal.model.layout import JointSpec, ModelParams, TiltSpec
+from canimucal.model.paper.accel import fourier_accel, two_position_accel
 from canimucal.model.plan import FIVE, RECOMMENDED, TWO, cramer_rao, nominal_params
 from canimucal.model.positions import Plan, PlannedPosition, PositionAverage
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, AccelParams

@@ -24,11 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from canimucal.model.discrepancy import analyse_discrepancy, effect_sigmas
+from canimucal.analysis.discrepancy import analyse_discrepancy, effect_sigmas
+from canimucal.analysis.report import analyse_recording
+from canimucal.analysis.session import simulate_session
+from canimucal.analysis.simulated import simulate_plan_recording
 from canimucal.model.plan import RECOMMENDED
-from canimucal.procedure.analysis import analyse_recording
-from canimucal.procedure.analysis_session import simulate_session
-from canimucal.procedure.offline import simulate_plan_recording
 from canimucal.sim.effects import HIDDEN_EFFECTS, hide_effect, warm_up_profile
 from canimucal.sim.truth import Truth
 
@@ -120,9 +120,9 @@ def _two_position_errors(
     second_error_deg: tuple[float, float] = (0.0, 0.0),
 ) -> np.ndarray:
     """Estimate minus truth of the two-position method (eq. 11-14), noise-free; k per axis."""
-    from canimucal.model.closed_form_accel import two_position_accel
     from canimucal.model.dcm_stack import dcm_stack
     from canimucal.model.layout import ModelContext
+    from canimucal.model.paper.accel import two_position_accel
 
     f_level = ModelContext.build(G_PAPER).f_level
     second = [45.0 + second_error_deg[0], 5.0 + second_error_deg[1], 0.0]

@@ -33,10 +33,10 @@ import numpy as np
 
 from canimucal.device.client import ImuClient
 from canimucal.device.pdo_layout import design_layout
-from canimucal.device.sim_node import SimulatedImuNode
 from canimucal.device.stream import SampleBlock, SamplePairer
 from canimucal.device.transaction import write_calibration_transaction
 from canimucal.sim.truth import Truth
+from canimucal.simnode.node import SimulatedImuNode
 
 NODE = 0x10
 T1, T2 = 0x180 + NODE, 0x280 + NODE

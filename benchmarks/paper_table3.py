@@ -23,14 +23,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from discrepancy import G_PAPER, TABLE2, _fit_axes  # noqa: E402
 
-from canimucal.model.closed_form import (  # noqa: E402
+from canimucal.model.dcm_stack import dcm_stack  # noqa: E402
+from canimucal.model.layout import ModelContext  # noqa: E402
+from canimucal.model.paper.accel import fourier_accel  # noqa: E402
+from canimucal.model.paper.common import (  # noqa: E402
     ACCEL_BIAS_NAMES,
     ACCEL_SCALE_NAMES,
     TILT_CHANNEL_NAMES,
 )
-from canimucal.model.closed_form_accel import fourier_accel  # noqa: E402
-from canimucal.model.dcm_stack import dcm_stack  # noqa: E402
-from canimucal.model.layout import ModelContext  # noqa: E402
 from canimucal.model.positions import Pose, PositionAverage  # noqa: E402
 
 SECONDS = np.array([5.0, 15.0, 30.0, 45.0, 60.0])

@@ -6,7 +6,7 @@ Run: ``.venv/bin/python benchmarks/soak.py [--sim-seconds 3600] [--time-scale 8]
 The simulated node follows a pose schedule (six positions, ``sim_seconds / 6`` each, 1 s
 moves) at 1000 Hz and drops each TPDO frame with probability ``loss`` (fault injection,
 fixed seed). The tool's side is the real chain: :class:`ImuClient` (pairing, loss counts)
-→ the procedure's :class:`~canimucal.procedure.recorder.Recorder` (schedule labelling) →
+→ the procedure's :class:`~canimucal.runtime.recorder.Recorder` (schedule labelling) →
 :class:`~canimucal.io.recording_writer.RecordingWriter` (CSV on disk). Checks, printed at the end:
 
 1. resident memory (``VmRSS`` of ``/proc/self/status``) grows < 5 % between simulated
@@ -38,12 +38,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.device.client import ImuClient
-from canimucal.device.sim_bus import LoopbackBus, loopback_pair
-from canimucal.device.sim_node import POSE_TRANSIENT_S, SimulatedImuNode
 from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.positions import Plan, PlannedPosition
-from canimucal.procedure.recorder import Recorder
+from canimucal.runtime.recorder import Recorder
 from canimucal.sim.truth import Truth
+from canimucal.simnode.node import POSE_TRANSIENT_S, SimulatedImuNode
+from tests.support.buses import LoopbackBus, loopback_pair
 
 NODE = 0x10
 T1, T2 = 0x180 + NODE, 0x280 + NODE

@@ -10,9 +10,9 @@ import pytest
 
 from canimucal.cli import demo_cmd
 from canimucal.cli.main import main
-from canimucal.procedure import session as session_mod
-from canimucal.procedure.automatic_operator import run_automatic
-from canimucal.procedure.resume import ResumeState
+from canimucal.runtime import session as session_mod
+from canimucal.runtime.operator import run_automatic
+from canimucal.runtime.resume import ResumeState
 
 
 def interrupt_after(monkeypatch: pytest.MonkeyPatch, positions: int) -> None:

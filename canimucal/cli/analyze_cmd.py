@@ -8,6 +8,15 @@ from typing import Any
 
 import numpy as np
 
+from canimucal.analysis.reference import Reference, reference_for
+from canimucal.analysis.replay import ReplayRow, replay
+from canimucal.analysis.report import (
+    Analysis,
+    analyse_recording,
+    analysis_document,
+    extended_truth,
+    observed_poses,
+)
 from canimucal.cli.analyze_plots import check_plot_targets, write_plots
 from canimucal.cli.conditions import recording_conditions
 from canimucal.cli.output import add_json_option, check_outputs, emit
@@ -15,17 +24,8 @@ from canimucal.errors import InputError
 from canimucal.io.atomic import refuse_existing
 from canimucal.io.importers import FORMATS, load_any
 from canimucal.io.plans import plan_from_document, plan_to_dict, write_plan
-from canimucal.io.truth_file import write_truth
+from canimucal.io.truth import write_truth
 from canimucal.model.positions import Plan
-from canimucal.procedure.analysis import (
-    Analysis,
-    analyse_recording,
-    analysis_document,
-    extended_truth,
-    observed_poses,
-)
-from canimucal.procedure.analysis_reference import Reference, reference_for
-from canimucal.procedure.analysis_replay import ReplayRow, replay
 
 
 def add_subparser(subparsers: Any) -> None:

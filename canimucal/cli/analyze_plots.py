@@ -16,9 +16,9 @@ import io
 from pathlib import Path
 from typing import Any
 
+from canimucal.analysis.report import Analysis
 from canimucal.errors import InputError
 from canimucal.io.atomic import refuse_existing, write_bytes_atomic
-from canimucal.procedure.analysis import Analysis
 
 PLOT_FILES = ("residuals.png", "allan.png")
 AXES = ("x", "y", "z")

@@ -23,7 +23,7 @@ from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
 from canimucal.errors import InputError
-from canimucal.io.truth_file import load_truth
+from canimucal.io.truth import load_truth
 from canimucal.sim.truth import Truth
 
 if TYPE_CHECKING:  # the CAN stack loads only when a device command runs (fast --help)
@@ -32,7 +32,7 @@ if TYPE_CHECKING:  # the CAN stack loads only when a device command runs (fast -
 
     from canimucal.device.bus import BusSettings
     from canimucal.device.client import ImuClient
-    from canimucal.device.sim_node import SimulatedImuNode
+    from canimucal.simnode.node import SimulatedImuNode
 
 log = logging.getLogger(__name__)
 
@@ -208,7 +208,7 @@ class DeviceSession:
         """Start the simulated nodes on a private virtual bus; return the client's bus."""
         import can
 
-        from canimucal.device.sim_node import SimulatedImuNode
+        from canimucal.simnode.node import SimulatedImuNode
 
         channel = f"canimucal-sim-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         self.truth = load_sim_truth(args)

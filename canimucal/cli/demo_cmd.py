@@ -31,16 +31,16 @@ import numpy as np
 from canimucal.cli.output import add_json_option, check_outputs, dumps, emit
 from canimucal.io.atomic import write_text_atomic
 from canimucal.io.plans import resolve_plan
-from canimucal.io.truth_file import load_truth
+from canimucal.io.truth import load_truth
 from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
 from canimucal.procedure import events as ev
-from canimucal.procedure.automatic_operator import run_automatic
 from canimucal.procedure.averaging import AveragingPolicy
-from canimucal.procedure.demo_rig import DemoRig, comparison_table, readback_deviations
-from canimucal.procedure.resume import load_resume_state
-from canimucal.procedure.session import Session
-from canimucal.procedure.session_files import output_name
+from canimucal.runtime.demo_rig import DemoRig, comparison_table, readback_deviations
+from canimucal.runtime.operator import run_automatic
+from canimucal.runtime.resume import load_resume_state
+from canimucal.runtime.session import Session
+from canimucal.runtime.session_files import output_name
 from canimucal.sim.truth import Truth
 
 log = logging.getLogger(__name__)

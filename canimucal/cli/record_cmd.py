@@ -30,7 +30,7 @@ from canimucal.sim.truth import Truth
 
 if TYPE_CHECKING:
     from canimucal.device.client import ImuClient
-    from canimucal.procedure.recorder import NodeTally, Recorder
+    from canimucal.runtime.recorder import NodeTally, Recorder
 
 POSE_TRANSIENT_S = 1.0
 """Default move time between scheduled poses, as ``sim_node.POSE_TRANSIENT_S``."""
@@ -155,7 +155,7 @@ def header_for(
 def run(args: argparse.Namespace) -> int:
     """Record and report."""
     from canimucal.device.bus import default_sdo_timeout_s
-    from canimucal.procedure.recorder import Recorder
+    from canimucal.runtime.recorder import Recorder
 
     plan = check_args(args)
     with DeviceSession(args) as session, contextlib.ExitStack() as files:

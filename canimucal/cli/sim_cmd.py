@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     import canopen
 
     from canimucal.device.bus import describe, open_bus
-    from canimucal.device.sim_node import SimulatedImuNode
+    from canimucal.simnode.node import SimulatedImuNode
 
     truth = load_sim_truth(args)
     plan: Plan | None = read_plan(args.poses) if args.poses else None

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from canimucal.analysis.calibrate import SiteConditions, Solution, solve_positions, solve_scalar
 from canimucal.cli.conditions import recording_conditions
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.cli.spec_options import add_model_options, spec_from_args
@@ -18,7 +19,6 @@ from canimucal.io.grouping import has_angles, position_averages
 from canimucal.io.recording import Recording, read_recording
 from canimucal.model.positions import Pose, PositionAverage, average_position
 from canimucal.model.static import detect_static_intervals
-from canimucal.procedure.solution import SiteConditions, Solution, solve_positions, solve_scalar
 
 
 def add_subparser(subparsers: Any) -> None:

@@ -55,7 +55,7 @@ def add_subparser(subparsers: Any) -> None:
 
 
 def _site(args: argparse.Namespace) -> Any:
-    from canimucal.procedure.solution import SiteConditions
+    from canimucal.analysis.calibrate import SiteConditions
 
     latitude = None if args.latitude_deg is None else float(np.deg2rad(args.latitude_deg))
     if args.g is not None:
@@ -84,7 +84,7 @@ def _where(args: argparse.Namespace) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Open the TUI on the bus the flags name."""
-    from canimucal.procedure.resume import load_resume_state
+    from canimucal.runtime.resume import load_resume_state
     from canimucal.tui.app import make_app
     from canimucal.tui.source import BusSource
 

@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from canimucal import schema as cs
 from canimucal.errors import InputError
-from canimucal.io import strict_json as cs
 from canimucal.io.atomic import write_text_atomic
 
 SCHEMA = "canimucal.calibration/1"

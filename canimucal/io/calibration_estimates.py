@@ -14,8 +14,8 @@ from datetime import UTC, datetime
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from canimucal import schema as cs
 from canimucal.errors import ModelError
-from canimucal.io import strict_json as cs
 from canimucal.io.calibration import (
     AccelBlock,
     BaseTilt,

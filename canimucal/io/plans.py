@@ -22,8 +22,8 @@ import numpy as np
 
 from canimucal.errors import InputError
 from canimucal.io.atomic import write_text_atomic
-from canimucal.io.strict_json import SchemaError, as_number, parse_json, read_text
 from canimucal.model.positions import DEFAULT_SECONDS, Plan, PlannedPosition
+from canimucal.schema import SchemaError, as_number, parse_json, read_text
 
 BUILTIN_PLANS = ("two", "five", "recommended")
 """Plan names resolved by the model, not read from a file."""

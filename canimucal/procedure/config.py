@@ -5,16 +5,26 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
+from pathlib import Path
 
+from canimucal.analysis.acceptance import AcceptanceLimits
+from canimucal.analysis.calibrate import SiteConditions
 from canimucal.io.calibration import Device
 from canimucal.model.layout import JointSpec
-from canimucal.model.positions import Plan, PlannedPosition
-from canimucal.procedure.acceptance import AcceptanceLimits
+from canimucal.model.positions import Plan, PlannedPosition, PositionAverage
 from canimucal.procedure.averaging import AveragingPolicy
-from canimucal.procedure.resume import ResumeState
-from canimucal.procedure.solution import SiteConditions
 
 LEVEL = PlannedPosition(0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class ResumeState:
+    """What an interrupted session measured: accepted averages per node, in plan order."""
+
+    averages: dict[int, dict[int, PositionAverage]]
+    next_index: int
+    recordings: dict[int, Path] = field(default_factory=dict)
+    """The file read per node (the ``.partial`` when one was left over)."""
 
 
 class Phase(StrEnum):

@@ -17,8 +17,8 @@ from numpy.typing import NDArray
 from canimucal.model.positions import PlannedPosition, PositionAverage
 
 if TYPE_CHECKING:
-    from canimucal.procedure.acceptance import AcceptanceReport
-    from canimucal.procedure.solution import Solution
+    from canimucal.analysis.acceptance import AcceptanceReport
+    from canimucal.analysis.calibrate import Solution
 
 Array = NDArray[np.float64]
 

@@ -11,12 +11,12 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from canimucal.analysis.calibrate import SiteConditions
 from canimucal.device.calibration_map import block_from_record
 from canimucal.io.calibration import CalibrationRecord
 from canimucal.model.frames import gravity_direction_angles
 from canimucal.model.positions import PositionAverage
 from canimucal.procedure.events import LevelChecked
-from canimucal.procedure.solution import SiteConditions
 
 Array = NDArray[np.float64]
 

@@ -17,6 +17,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from canimucal.analysis.calibrate import Solution
 from canimucal.device.stream import SampleBlock
 from canimucal.model.positions import PlannedPosition, PositionAverage
 from canimucal.procedure import events as ev
@@ -30,7 +31,6 @@ from canimucal.procedure.machine_nodes import (
     solve_nodes,
 )
 from canimucal.procedure.posecheck import describe_pose
-from canimucal.procedure.solution import Solution
 from canimucal.procedure.tracks import Attempt, LabelledRows, NodeTrack, live_readout
 from canimucal.procedure.warmup import WarmupTracker, progress_event
 

@@ -11,12 +11,12 @@ from dataclasses import replace
 
 import numpy as np
 
+from canimucal.analysis.acceptance import AcceptanceReport, check_acceptance
+from canimucal.analysis.calibrate import Solution, solve_positions
 from canimucal.io.calibration import Device
 from canimucal.model.positions import Pose, PositionAverage, average_position
-from canimucal.procedure.acceptance import AcceptanceReport, check_acceptance
 from canimucal.procedure.config import ProcedureConfig
 from canimucal.procedure.posecheck import PoseCheck, check_pose, measured_force, predicted_force
-from canimucal.procedure.solution import Solution, solve_positions
 from canimucal.procedure.tracks import NodeTrack
 
 

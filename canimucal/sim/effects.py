@@ -3,7 +3,7 @@
 :func:`hide_effect` returns a truth JSON document carrying one effect (DESIGN §5
 vocabulary) on a random axis or entry, of a size drawn uniformly between ``low`` and
 ``high`` times the σ of that entry's own estimate (``sigmas``, from
-:func:`canimucal.model.discrepancy.effect_sigmas` on a clean session of the same plan and
+:func:`canimucal.analysis.discrepancy.effect_sigmas` on a clean session of the same plan and
 noise). ``bias_drift`` is sized by the within-position slope it causes: a Wiener bias of
 intensity q gives slopes of rms ``√(6 q²/(5 T))`` over T seconds, set to ``k`` times the
 white-noise standard error of a slope. ``axis_sign`` inverts one accelerometer axis.

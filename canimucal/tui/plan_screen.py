@@ -13,7 +13,7 @@ from textual.screen import Screen
 from textual.widgets import DataTable, Footer, Static
 
 from canimucal.model.plan import BoundTable, cramer_rao
-from canimucal.procedure.demo_rig import spec_for_plan
+from canimucal.runtime.demo_rig import spec_for_plan
 from canimucal.tui.source import NodeStatus
 from canimucal.tui.text import bound_rows, findings_text
 from canimucal.tui.widgets import passive_table

@@ -13,8 +13,8 @@ from textual.containers import VerticalScroll
 from textual.screen import Screen
 from textual.widgets import DataTable, Footer, Static
 
+from canimucal.analysis.calibrate import Solution
 from canimucal.procedure import events as ev
-from canimucal.procedure.solution import Solution
 from canimucal.tui.modals import ConfirmWrite
 from canimucal.tui.source import NodeStatus
 from canimucal.tui.text import device_values

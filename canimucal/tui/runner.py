@@ -20,7 +20,7 @@ from typing import Any
 from canimucal.errors import CanimucalError
 from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase
-from canimucal.procedure.session import Session
+from canimucal.runtime.session import Session
 
 logger = logging.getLogger(__name__)
 

@@ -2,7 +2,7 @@
 
 A source connects (blocking: SDO reads, run on a worker thread), reports each node's
 identity, current calibration and heartbeat for the connection screen, and opens the
-:class:`~canimucal.procedure.session.Session` of the chosen plan. The TUI never imports the
+:class:`~canimucal.runtime.session.Session` of the chosen plan. The TUI never imports the
 CLI: a real bus is opened by a callable the CLI passes in (``canimucal tui`` gives
 ``DeviceSession(args)``, which has ``clients``, ``where`` and ``close()``).
 """
@@ -16,16 +16,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 
+from canimucal.analysis.calibrate import SiteConditions
 from canimucal.device.busload import BusLoad
 from canimucal.device.client import CalibrationReadout, Identity, ImuClient
 from canimucal.model.positions import Plan
 from canimucal.procedure.averaging import AveragingPolicy
-from canimucal.procedure.demo_rig import DemoRig, spec_for_plan
 from canimucal.procedure.machine import Procedure, ProcedureConfig
-from canimucal.procedure.records import device_of, recording_header
-from canimucal.procedure.resume import load_resume_state
-from canimucal.procedure.session import Session
-from canimucal.procedure.solution import SiteConditions
+from canimucal.runtime.demo_rig import DemoRig, spec_for_plan
+from canimucal.runtime.records import device_of, recording_header
+from canimucal.runtime.resume import load_resume_state
+from canimucal.runtime.session import Session
 from canimucal.sim.truth import Truth
 
 logger = logging.getLogger(__name__)
@@ -165,7 +165,7 @@ class BusSource:
     warmup: bool = True
     description: str = "CAN bus"
     resume: bool = False
-    """Go on with the interrupted session in ``out_dir`` (:mod:`canimucal.procedure.resume`)."""
+    """Go on with the interrupted session in ``out_dir`` (:mod:`canimucal.runtime.resume`)."""
     opened: ClientSet | None = field(default=None, init=False)
     statuses: dict[int, NodeStatus] = field(default_factory=dict, init=False)
 

@@ -1,6 +1,6 @@
 """Shared fixtures of the CLI tests: simulated recordings on disk and an in-process runner.
 
-Recordings come from :func:`canimucal.procedure.offline.simulate_plan_recording` (the
+Recordings come from :func:`canimucal.analysis.simulated.simulate_plan_recording` (the
 simulator with the operator's 0.1° angle-setting errors) and are written once per session.
 """
 
@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from canimucal.analysis.simulated import simulate_plan_recording
 from canimucal.cli.main import main
 from canimucal.io.recording_writer import write_recording
 from canimucal.model.plan import builtin_plan
-from canimucal.procedure.offline import simulate_plan_recording
 from canimucal.sim.truth import Truth
 
 TRUTH_SEED = 20261121

@@ -11,12 +11,12 @@ from typing import Any
 import numpy as np
 import pytest
 
+from canimucal.analysis.simulated import simulate_plan_recording
 from canimucal.cli.main import main
 from canimucal.io.plans import read_plan
 from canimucal.io.recording_writer import write_recording
-from canimucal.io.truth_file import load_truth
+from canimucal.io.truth import load_truth
 from canimucal.model.plan import RECOMMENDED
-from canimucal.procedure.offline import simulate_plan_recording
 from canimucal.sim.effects import warm_up_profile
 from canimucal.sim.truth import Truth
 

@@ -17,10 +17,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+from canimucal.analysis.discrepancy import effect_sigmas
+from canimucal.analysis.session import simulate_session
 from canimucal.cli.main import main
-from canimucal.model.discrepancy import effect_sigmas
 from canimucal.model.plan import RECOMMENDED
-from canimucal.procedure.analysis_session import simulate_session
 from canimucal.sim.effects import hide_effect, warm_up_profile
 from canimucal.sim.truth import Truth
 

@@ -11,7 +11,7 @@ from typing import Any
 from canimucal.io.calibration import read_calibration
 from canimucal.io.grouping import position_averages
 from canimucal.io.recording import read_recording
-from canimucal.io.truth_file import load_truth
+from canimucal.io.truth import load_truth
 
 Cli = Callable[[Sequence[Any]], Any]  # conftest.cli: argv -> CliRun(code, out, err)
 

@@ -26,7 +26,7 @@ from canimucal.device import od
 from canimucal.device.calibration_map import block_from_record, readback_dict
 from canimucal.io.calibration import read_calibration
 from canimucal.io.recording import read_recording
-from canimucal.io.truth_file import write_truth
+from canimucal.io.truth import write_truth
 from canimucal.sim.truth import Truth
 
 Cli = Callable[[list[Any]], Any]  # the ``cli`` fixture of tests/cli/conftest.py
@@ -245,8 +245,8 @@ def test_several_nodes_one_output_each(cli: Cli, tmp_path: Path, truth_file: Pat
 
 def test_record_defaults_match_the_simulated_node() -> None:
     from canimucal.cli import record_cmd
-    from canimucal.device.sim_node import POSE_TRANSIENT_S
-    from canimucal.procedure.recorder import DEFAULT_GUARD_S
+    from canimucal.runtime.recorder import DEFAULT_GUARD_S
+    from canimucal.simnode.node import POSE_TRANSIENT_S
 
     assert record_cmd.POSE_TRANSIENT_S == POSE_TRANSIENT_S
     assert record_cmd.GUARD_S == DEFAULT_GUARD_S
@@ -267,10 +267,10 @@ def test_recorder_prompted_plan_follows_the_operator(tmp_path: Path) -> None:
     import can
 
     from canimucal.device.client import ImuClient
-    from canimucal.device.sim_node import SimulatedImuNode
     from canimucal.io.recording_writer import RecordingWriter
     from canimucal.model.plan import builtin_plan
-    from canimucal.procedure.recorder import Recorder
+    from canimucal.runtime.recorder import Recorder
+    from canimucal.simnode.node import SimulatedImuNode
 
     channel = f"canimucal-prompt-{os.getpid()}"
     node_bus, client_bus = (can.Bus(interface="virtual", channel=channel) for _ in range(2))

@@ -11,10 +11,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+from canimucal.analysis.simulated import simulate_plan_recording
 from canimucal.io.recording_writer import write_recording
 from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, STANDARD_GRAVITY
-from canimucal.procedure.offline import simulate_plan_recording
 from canimucal.sim.truth import Truth
 
 Cli = Callable[[Sequence[Any]], Any]  # conftest.cli: argv -> CliRun(code, out, err)

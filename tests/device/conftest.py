@@ -29,7 +29,7 @@ import canopen
 import pytest
 
 from canimucal.device.od import eds_path
-from canimucal.device.sim_node import SimulatedImuNode
+from canimucal.simnode.node import SimulatedImuNode
 
 NODE_ID = 0x10
 _channel_numbers = itertools.count()

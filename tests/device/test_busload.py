@@ -17,7 +17,7 @@ from canimucal.device.busload import (
     frame_bits,
 )
 from canimucal.device.client import ImuClient
-from canimucal.device.sim_node import SimulatedImuNode
+from canimucal.simnode.node import SimulatedImuNode
 
 NODE_ID = 0x10
 

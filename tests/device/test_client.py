@@ -24,9 +24,9 @@ from canimucal.device.bus import (
     open_bus,
 )
 from canimucal.device.client import ImuClient
-from canimucal.device.sim_node import SimulatedImuNode
 from canimucal.errors import InputError, NoDeviceError
 from canimucal.sim.truth import Truth
+from canimucal.simnode.node import SimulatedImuNode
 
 NODE_ID = 0x10
 SERIAL = 4242

@@ -29,12 +29,12 @@ from canimucal.device.events import (
     NodeRebooted,
     SerialChanged,
 )
-from canimucal.device.sim_bus import FaultyBus
-from canimucal.device.sim_faults import FaultInjector, parse_faults
-from canimucal.device.sim_node import SimulatedImuNode
 from canimucal.device.stream import SampleBlock, concat_blocks
 from canimucal.errors import DeviceError, InputError
 from canimucal.sim.truth import Truth
+from canimucal.simnode.faults import FaultInjector, parse_faults
+from canimucal.simnode.node import SimulatedImuNode
+from tests.support.buses import FaultyBus
 
 NODE_ID = 0x10
 T1, T2, T3 = 0x180 + NODE_ID, 0x280 + NODE_ID, 0x380 + NODE_ID

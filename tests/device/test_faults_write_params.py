@@ -19,9 +19,9 @@ from canimucal.cli.bus_options import DeviceSession
 from canimucal.cli.main import COMMANDS, main
 from canimucal.device import od
 from canimucal.device.bus import SdoChannel
-from canimucal.device.sim_node import SimulatedImuNode
-from canimucal.device.sim_store import factory_values
 from canimucal.sim.truth import Truth
+from canimucal.simnode.node import SimulatedImuNode
+from canimucal.simnode.store import factory_values
 
 pytestmark = pytest.mark.skipif(
     "write-params" not in COMMANDS, reason="the write-params verb is not registered yet"

@@ -21,9 +21,9 @@ import pytest
 
 from canimucal.device import od
 from canimucal.device.client import ImuClient
-from canimucal.device.sim_node import SimulatedImuNode
 from canimucal.device.transaction import write_calibration_transaction
 from canimucal.sim.truth import Truth
+from canimucal.simnode.node import SimulatedImuNode
 
 NODE_ID = 0x10
 SERIAL = 31337

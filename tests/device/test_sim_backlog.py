@@ -17,8 +17,8 @@ import canopen
 import numpy as np
 
 from canimucal.device import od
-from canimucal.device.sim_backlog import STALLED_AFTER_S
-from canimucal.device.sim_node import SimulatedImuNode
+from canimucal.simnode.backlog import STALLED_AFTER_S
+from canimucal.simnode.node import SimulatedImuNode
 from tests.device.conftest import NODE_ID, FrameRecorder
 
 TPDO1 = 0x180 + NODE_ID

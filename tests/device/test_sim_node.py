@@ -19,12 +19,12 @@ import numpy as np
 import pytest
 
 from canimucal.device import od, od_ranges
-from canimucal.device.sim_node import SimulatedImuNode
 from canimucal.errors import InputError, NoDeviceError
 from canimucal.model.frames import earth_rate_level, position_dcm, specific_force_level
 from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
 from canimucal.sim.truth import Truth
+from canimucal.simnode.node import SimulatedImuNode
 
 if TYPE_CHECKING:
     from conftest import Frame, FrameRecorder

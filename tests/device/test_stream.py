@@ -15,7 +15,6 @@ import pytest
 
 from canimucal.device.client import ImuClient
 from canimucal.device.pdo_layout import design_layout
-from canimucal.device.sim_node import SimulatedImuNode
 from canimucal.device.stream import (
     PdoLayout,
     SampleBlock,
@@ -23,6 +22,7 @@ from canimucal.device.stream import (
     concat_blocks,
     layout_from_mapping,
 )
+from canimucal.simnode.node import SimulatedImuNode
 
 NODE = 0x10
 T1, T2, T3 = 0x180 + NODE, 0x280 + NODE, 0x380 + NODE

@@ -30,7 +30,6 @@ from canimucal.device.calibration_map import (
     record_from_readout,
 )
 from canimucal.device.client import ImuClient
-from canimucal.device.sim_node import SimulatedImuNode
 from canimucal.device.transaction import (
     RollbackIncompleteError,
     default_backup_dir,
@@ -40,6 +39,7 @@ from canimucal.device.transaction import (
 from canimucal.errors import DeviceError, InputError
 from canimucal.io.calibration import read_calibration
 from canimucal.sim.truth import Truth
+from canimucal.simnode.node import SimulatedImuNode
 
 NODE_ID = 0x10
 SERIAL = 777

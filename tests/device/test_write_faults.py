@@ -25,12 +25,12 @@ import pytest
 
 from canimucal.device import od
 from canimucal.device.client import ImuClient
-from canimucal.device.sim_bus import FaultyBus, LoopbackBus, loopback_pair
-from canimucal.device.sim_faults import FaultStats
-from canimucal.device.sim_node import SimulatedImuNode
 from canimucal.device.transaction import RollbackIncompleteError, write_calibration_transaction
 from canimucal.errors import DeviceError
 from canimucal.sim.truth import Truth
+from canimucal.simnode.faults import FaultStats
+from canimucal.simnode.node import SimulatedImuNode
+from tests.support.buses import FaultyBus, LoopbackBus, loopback_pair
 
 NODE_ID = 0x10
 SERIAL = 4242

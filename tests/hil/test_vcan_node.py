@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from canimucal.device.client import ImuClient
-from canimucal.io.truth_file import write_truth
+from canimucal.io.truth import write_truth
 from canimucal.sim.truth import Truth
 
 pytestmark = pytest.mark.vcan

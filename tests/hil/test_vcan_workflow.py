@@ -21,7 +21,7 @@ from canimucal.device.od import CalibrationBlock
 from canimucal.io.calibration import read_calibration
 from canimucal.io.plans import write_plan
 from canimucal.io.recording import read_recording
-from canimucal.io.truth_file import write_truth
+from canimucal.io.truth import write_truth
 from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
 from canimucal.sim.truth import Truth

@@ -13,13 +13,13 @@ from typing import Any
 
 import numpy as np
 
+from canimucal.analysis.calibrate import SiteConditions
 from canimucal.device.stream import SampleBlock
 from canimucal.model.layout import JointSpec
 from canimucal.model.positions import Plan, Pose
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.procedure.machine import Phase, Procedure, ProcedureConfig
-from canimucal.procedure.solution import SiteConditions
 from canimucal.sim.imu import ImuSimulator
 from canimucal.sim.truth import Truth
 

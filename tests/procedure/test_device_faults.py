@@ -20,10 +20,10 @@ from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.plan import builtin_plan
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
-from canimucal.procedure.demo_rig import DemoRig
 from canimucal.procedure.machine import Phase
-from canimucal.procedure.recorder import Recorder
-from canimucal.procedure.session import Session
+from canimucal.runtime.demo_rig import DemoRig
+from canimucal.runtime.recorder import Recorder
+from canimucal.runtime.session import Session
 from canimucal.sim.truth import Truth
 
 NODE = 0x10

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from canimucal.analysis.acceptance import AcceptanceLimits, check_acceptance
 from canimucal.model.positions import Pose
-from canimucal.procedure.acceptance import AcceptanceLimits, check_acceptance
 from canimucal.procedure.posecheck import check_pose, describe_pose, predicted_force
 from canimucal.procedure.stillness import StillnessDetector
 from canimucal.procedure.warmup import WarmupTracker

@@ -12,10 +12,10 @@ from canimucal.io.calibration import read_calibration
 from canimucal.io.recording import read_recording
 from canimucal.model.plan import builtin_plan
 from canimucal.procedure import events as ev
-from canimucal.procedure.automatic_operator import run_automatic
 from canimucal.procedure.averaging import AveragingPolicy
-from canimucal.procedure.demo_rig import DemoRig
 from canimucal.procedure.machine import Phase
+from canimucal.runtime.demo_rig import DemoRig
+from canimucal.runtime.operator import run_automatic
 from canimucal.sim.truth import Truth
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from canimucal.procedure.demo_rig import readback_deviations
+from canimucal.runtime.demo_rig import readback_deviations
 from canimucal.sim.truth import Truth
 from canimucal.tui.app import make_app
 from canimucal.tui.position import PositionScreen

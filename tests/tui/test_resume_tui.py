@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from canimucal.model.plan import builtin_plan
-from canimucal.procedure.demo_rig import readback_deviations
-from canimucal.procedure.resume import load_resume_state
+from canimucal.runtime.demo_rig import readback_deviations
+from canimucal.runtime.resume import load_resume_state
 from canimucal.sim.truth import Truth
 from canimucal.tui.app import make_app
 from canimucal.tui.position import PositionScreen

@@ -10,6 +10,8 @@ import numpy as np
 from rich.console import Console
 from textual.app import App
 
+from canimucal.analysis.acceptance import AcceptanceLimits, check_acceptance
+from canimucal.analysis.calibrate import SiteConditions, solve_positions
 from canimucal.device.client import CalibrationReadout, Identity
 from canimucal.device.od import factory_block
 from canimucal.errors import InputError, NoDeviceError
@@ -17,11 +19,9 @@ from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
 from canimucal.procedure import events as ev
-from canimucal.procedure.acceptance import AcceptanceLimits, check_acceptance
-from canimucal.procedure.demo_rig import spec_for_plan
-from canimucal.procedure.records import device_of
-from canimucal.procedure.session import Session
-from canimucal.procedure.solution import SiteConditions, solve_positions
+from canimucal.runtime.demo_rig import spec_for_plan
+from canimucal.runtime.records import device_of
+from canimucal.runtime.session import Session
 from canimucal.sim.averages import simulate_averages
 from canimucal.sim.truth import Truth
 from canimucal.tui.source import Heartbeat, NodeStatus

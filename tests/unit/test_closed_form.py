@@ -29,7 +29,13 @@ from numpy.typing import NDArray
 from scipy.stats import chi2
 
 from canimucal.errors import InputError, ModelError
-from canimucal.model.closed_form import (
+from canimucal.model.frames import EARTH_RATE_RAD_S
+from canimucal.model.paper.accel import (
+    FourierAccelResult,
+    fourier_accel,
+    two_position_accel,
+)
+from canimucal.model.paper.common import (
     ACCEL_BIAS_NAMES,
     ACCEL_SCALE_NAMES,
     GYRO_BIAS_NAMES,
@@ -38,13 +44,7 @@ from canimucal.model.closed_form import (
     TILT_NAMES,
     ClosedFormResult,
 )
-from canimucal.model.closed_form_accel import (
-    FourierAccelResult,
-    fourier_accel,
-    two_position_accel,
-)
-from canimucal.model.closed_form_gyro import mems_gyro_bias, nav_gyro_two_position
-from canimucal.model.frames import EARTH_RATE_RAD_S
+from canimucal.model.paper.gyro import mems_gyro_bias, nav_gyro_two_position
 from canimucal.model.positions import PlannedPosition, Pose, PositionAverage
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, AccelParams, GyroParams
 from canimucal.sim.averages import simulate_averages

@@ -6,9 +6,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from canimucal.errors import ModelError
-from canimucal.model.discrepancy_drift import drift_test, random_walk_covariance
-from canimucal.model.discrepancy_tests import (
+from canimucal.analysis.drift import drift_test, random_walk_covariance
+from canimucal.analysis.significance import (
     LinearProblem,
     fit_terms,
     forward_select,
@@ -16,6 +15,7 @@ from canimucal.model.discrepancy_tests import (
     loo_residuals,
     nested_test,
 )
+from canimucal.errors import ModelError
 
 
 def _problem(rng: np.random.Generator, n_blocks: int = 10, m: int = 2) -> LinearProblem:
@@ -131,8 +131,8 @@ def test_chi2_reference_values() -> None:
 
 
 def test_analyse_rejects_mismatched_inputs() -> None:
-    from canimucal.model.discrepancy import analyse_discrepancy
-    from canimucal.model.discrepancy_data import SessionData
+    from canimucal.analysis.data import SessionData
+    from canimucal.analysis.discrepancy import analyse_discrepancy
 
     with pytest.raises(ModelError):
         analyse_discrepancy(SessionData((), (object(),), g=9.8))  # type: ignore[arg-type]

@@ -7,13 +7,13 @@ from typing import Any
 import numpy as np
 import pytest
 
+from canimucal.analysis.discrepancy import analyse_discrepancy, effect_sigmas
+from canimucal.analysis.report import analyse_recording, extended_truth, observed_poses
+from canimucal.analysis.session import simulate_session
+from canimucal.analysis.simulated import simulate_plan_recording
 from canimucal.io.recording import recording_from_columns
-from canimucal.model.discrepancy import analyse_discrepancy, effect_sigmas
 from canimucal.model.plan import RECOMMENDED
 from canimucal.model.positions import Plan, PlannedPosition
-from canimucal.procedure.analysis import analyse_recording, extended_truth, observed_poses
-from canimucal.procedure.analysis_session import simulate_session
-from canimucal.procedure.offline import simulate_plan_recording
 from canimucal.sim.effects import hide_effect, slope_random_walk, warm_up_profile
 from canimucal.sim.truth import Truth
 

@@ -14,14 +14,14 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from canimucal.model.closed_form_accel import fourier_accel, two_position_accel
-from canimucal.model.closed_form_gyro import nav_gyro_two_position
 from canimucal.model.frames import (
     EARTH_RATE_RAD_S,
     earth_rate_level,
     position_dcm,
     specific_force_level,
 )
+from canimucal.model.paper.accel import fourier_accel, two_position_accel
+from canimucal.model.paper.gyro import nav_gyro_two_position
 from canimucal.model.positions import Pose, PositionAverage
 
 Array = NDArray[np.float64]

@@ -26,13 +26,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from canimucal.analysis.simulated import simulate_plan_recording
 from canimucal.cli import demo_cmd
 from canimucal.cli.main import COMMANDS, main
-from canimucal.device.sim_node import SimulatedImuNode
 from canimucal.io.recording_writer import write_recording
 from canimucal.model.plan import builtin_plan
-from canimucal.procedure.offline import simulate_plan_recording
 from canimucal.sim.truth import Truth
+from canimucal.simnode.node import SimulatedImuNode
 from tests.fuzzing import byte_mutations
 
 

@@ -28,10 +28,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from canimucal.model.discrepancy import analyse_discrepancy, effect_sigmas
+from canimucal.analysis.discrepancy import analyse_discrepancy, effect_sigmas
+from canimucal.analysis.session import session_from_recording, simulate_session
+from canimucal.analysis.simulated import simulate_plan_recording
 from canimucal.model.plan import RECOMMENDED
-from canimucal.procedure.analysis_session import session_from_recording, simulate_session
-from canimucal.procedure.offline import simulate_plan_recording
 from canimucal.sim.effects import HIDDEN_EFFECTS, hide_effect, warm_up_profile
 from canimucal.sim.truth import Truth
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from canimucal.errors import InputError
-from canimucal.io.truth_file import load_truth, read_truth, write_truth
+from canimucal.io.truth import load_truth, read_truth, write_truth
 
 
 def _write(tmp_path: Path, text: str) -> Path:

@@ -34,16 +34,15 @@ from canimucal.device.events import (
     NodeRebooted,
     SerialChanged,
 )
-from canimucal.device.sim_node import SimulatedImuNode
 from canimucal.device.transaction import write_calibration_transaction
 from canimucal.errors import CanimucalError, DeviceError
 from canimucal.io.calibration import CalibrationRecord, RecordingRef, sha256_of
 from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.positions import Pose
 from canimucal.procedure import events as ev
-from canimucal.procedure.certificate import certificate_markdown
 from canimucal.procedure.machine import Phase, Procedure
-from canimucal.procedure.session_files import (
+from canimucal.runtime.certificate import certificate_markdown
+from canimucal.runtime.session_files import (
     calibration_ref,
     open_resumed,
     output_name,
@@ -52,6 +51,7 @@ from canimucal.procedure.session_files import (
     write_piece,
     write_text,
 )
+from canimucal.simnode.node import SimulatedImuNode
 
 logger = logging.getLogger(__name__)
 

@@ -3,8 +3,8 @@
 Live values for reads of 0x2000–0x2002 and 0x1001, range checks before a write is stored, and
 the side effects after it: storing on 0x1010, restoring defaults on 0x1011, a new output data
 rate, dropped caches of the TPDO layout and the calibration state. A mixin of
-:class:`~canimucal.device.sim_node.SimulatedImuNode`, as
-:class:`~canimucal.device.sim_hooks.FaultHooks` is for the faults.
+:class:`~canimucal.simnode.node.SimulatedImuNode`, as
+:class:`~canimucal.simnode.fault_hooks.FaultHooks` is for the faults.
 """
 
 from __future__ import annotations
@@ -20,11 +20,11 @@ from canopen.objectdictionary import ODVariable
 from canopen.objectdictionary.datatypes import SIGNED_TYPES
 
 from canimucal.device import od
-from canimucal.device.sim_checks import check_subindex_exists, check_write
-from canimucal.device.sim_pdo import TpdoLayout, read_layout
-from canimucal.device.sim_producer import SampleProducer
-from canimucal.device.sim_store import NonVolatileStore, group_of
 from canimucal.sim.truth import Truth
+from canimucal.simnode.checks import check_subindex_exists, check_write
+from canimucal.simnode.pdo import TpdoLayout, read_layout
+from canimucal.simnode.producer import SampleProducer
+from canimucal.simnode.store import NonVolatileStore, group_of
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """The files a session writes: their names, the calibration record's JSON, recording rows.
 
-Kept apart from :mod:`canimucal.procedure.session` (which drives the clients and the
+Kept apart from :mod:`canimucal.runtime.session` (which drives the clients and the
 machine): how each output is named, rewritten and appended to.
 """
 
@@ -21,8 +21,8 @@ from canimucal.io.calibration import (
     read_calibration,
 )
 from canimucal.io.recording_writer import RecordingWriter
-from canimucal.procedure.resume import partial_path
 from canimucal.procedure.tracks import LabelledRows
+from canimucal.runtime.resume import partial_path
 
 
 def output_name(out_dir: Path, stem: str, node_id: int, several: bool, suffix: str) -> Path:

@@ -6,9 +6,9 @@ from typing import Any
 
 import numpy as np
 
+from canimucal.analysis.calibrate import SiteConditions
 from canimucal.device.client import Identity
 from canimucal.io.calibration import Device
-from canimucal.procedure.solution import SiteConditions
 
 
 def device_of(node_id: int, identity: Identity) -> Device:

@@ -12,7 +12,7 @@ still applies after a power cycle) and the session appends to the same recording
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -21,19 +21,10 @@ from canimucal.errors import DeviceError, InputError
 from canimucal.io.grouping import position_averages
 from canimucal.io.recording import Recording, read_recording
 from canimucal.model.positions import Plan, PositionAverage
+from canimucal.procedure.config import ResumeState
 
 ANGLE_MATCH_DEG = 1e-3
 """Recorded angles (written in degrees) must equal the plan's to this many degrees."""
-
-
-@dataclass(frozen=True)
-class ResumeState:
-    """What an interrupted session measured: accepted averages per node, in plan order."""
-
-    averages: dict[int, dict[int, PositionAverage]]
-    next_index: int
-    recordings: dict[int, Path] = field(default_factory=dict)
-    """The file read per node (the ``.partial`` when one was left over)."""
 
 
 def recording_path(out_dir: Path, node_id: int, several: bool) -> Path:

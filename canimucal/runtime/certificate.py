@@ -10,9 +10,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from canimucal.analysis.acceptance import AcceptanceLimits, AcceptanceReport
 from canimucal.device.client import Identity
 from canimucal.io.calibration import CalibrationRecord, calibration_to_dict
-from canimucal.procedure.acceptance import AcceptanceLimits, AcceptanceReport
 from canimucal.procedure.events import LevelChecked
 
 

@@ -15,10 +15,10 @@ from typing import Any
 
 import numpy as np
 
-from canimucal.model.discrepancy_base import fit_known
-from canimucal.procedure.analysis import Analysis, extended_truth, observed_poses
-from canimucal.procedure.analysis_session import session_from_recording
-from canimucal.procedure.offline import simulate_plan_recording
+from canimucal.analysis.base_fit import fit_known
+from canimucal.analysis.report import Analysis, extended_truth, observed_poses
+from canimucal.analysis.session import session_from_recording
+from canimucal.analysis.simulated import simulate_plan_recording
 from canimucal.sim.truth import Truth
 
 

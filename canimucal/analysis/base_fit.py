@@ -15,14 +15,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from canimucal.model.discrepancy_candidates import (
+from canimucal.analysis.candidates import (
     Candidate,
     ScalarState,
     known_position_candidates,
     scalar_candidates,
     scalar_jacobian,
 )
-from canimucal.model.discrepancy_data import SessionData
+from canimucal.analysis.data import SessionData
 from canimucal.model.joint import JointResult, solve_joint
 from canimucal.model.layout import (
     GyroSpec,

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 from canimucal.errors import InputError
 from canimucal.io.atomic import write_text_atomic
-from canimucal.io.strict_json import parse_json, read_text
+from canimucal.schema import parse_json, read_text
 
 if TYPE_CHECKING:
     from canimucal.sim.truth import Truth

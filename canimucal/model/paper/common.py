@@ -1,7 +1,7 @@
 """Shared parts of the paper's closed-form estimators: the result type and σ propagation.
 
 The estimators (Avrutov & Pozniak 2023, physics corrected) live in
-:mod:`canimucal.model.closed_form_accel` (eq. 11-34) and :mod:`canimucal.model.closed_form_gyro`
+:mod:`canimucal.model.paper.accel` (eq. 11-34) and :mod:`canimucal.model.paper.gyro`
 (eq. 36-48). Each takes :class:`~canimucal.model.positions.PositionAverage` objects and returns a
 frozen :class:`ClosedFormResult`: the estimates *and* their covariance, propagated linearly from
 the covariances of the means (counts²). Parameter names follow the calibration JSON

@@ -1,6 +1,6 @@
-"""The automatic operator: drives a :class:`~canimucal.procedure.session.Session` to the end.
+"""The automatic operator: drives a :class:`~canimucal.runtime.session.Session` to the end.
 
-Kept apart from :mod:`canimucal.procedure.session` (the runner itself): this is the headless
+Kept apart from :mod:`canimucal.runtime.session` (the runner itself): this is the headless
 demo's stand-in for the person at the TUI, reacting to the procedure's phase.
 """
 
@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from canimucal.errors import DeviceError
 from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase
-from canimucal.procedure.session import Session
+from canimucal.runtime.session import Session
 
 MAX_REFUSALS = 3
 

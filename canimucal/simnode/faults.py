@@ -33,7 +33,7 @@ key                        meaning
 
 Control API: ``node.faults.set(**keys)`` merges keys (same schema and checks), ``clear()``
 removes every fault, ``stats`` counts what was injected. Client-side bus faults (a bus that
-raises on send) are modelled by :class:`canimucal.device.sim_bus.FaultyBus`.
+raises on send) are modelled by :class:`tests.support.buses.FaultyBus`.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from canimucal.device.sim_fault_schema import (
+from canimucal.simnode.fault_config import (
     DEFAULT_ABORT_CODE,
     AbortRule,
     Emergency,

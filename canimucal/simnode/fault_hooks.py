@@ -1,7 +1,7 @@
-"""Fault hooks of :class:`~canimucal.device.sim_node.SimulatedImuNode` (issue 6).
+"""Fault hooks of :class:`~canimucal.simnode.node.SimulatedImuNode` (issue 6).
 
 The node routes SDO requests and responses, TPDO frames and its simulated clock through
-its :class:`~canimucal.device.sim_faults.FaultInjector` (``node.faults``); this mixin holds
+its :class:`~canimucal.simnode.faults.FaultInjector` (``node.faults``); this mixin holds
 the glue: serve / ignore / mute / abort / reboot an SDO request, run timed faults (reboot,
 EMCY, error frames, heartbeat loss) from the producer thread.
 """
@@ -17,8 +17,8 @@ import can
 import canopen
 
 from canimucal.device import od
-from canimucal.device.sim_faults import EMCY_BASE, Emergency, FaultInjector, emcy_frame
-from canimucal.device.sim_producer import SampleProducer
+from canimucal.simnode.faults import EMCY_BASE, Emergency, FaultInjector, emcy_frame
+from canimucal.simnode.producer import SampleProducer
 
 log = logging.getLogger(__name__)
 

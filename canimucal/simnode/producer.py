@@ -5,7 +5,7 @@ seconds pass per wall second. The thread wakes every millisecond or so and produ
 samples that are due, in small batches, so a fast time scale paces frames onto the bus
 instead of flooding it in one burst. After a stall it catches up at most
 :data:`MAX_LAG_WALL_S` of wall time; beyond that, and while the listeners of a virtual bus
-lag (``backlog()`` above :data:`~canimucal.device.sim_backlog.BACKLOG_LIMIT_FRAMES`), the
+lag (``backlog()`` above :data:`~canimucal.simnode.backlog.BACKLOG_LIMIT_FRAMES`), the
 simulated clock slips instead: ``time_scale`` is an upper bound, never a reason to bury the
 bus under frames the host cannot dispatch (the slip is counted in ``clock_slip_s``). Samples
 are never skipped: the counter and the simulated time run on, only slower.
@@ -26,9 +26,9 @@ from typing import Any
 import numpy as np
 
 from canimucal.device import od
-from canimucal.device.sim_backlog import BACKLOG_LIMIT_FRAMES
-from canimucal.device.sim_pdo import EventTimer, TpdoLayout
 from canimucal.sim.imu import ImuSimulator, SimBlock
+from canimucal.simnode.backlog import BACKLOG_LIMIT_FRAMES
+from canimucal.simnode.pdo import EventTimer, TpdoLayout
 
 log = logging.getLogger(__name__)
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2 as chi2_distribution
 
-from canimucal.procedure.solution import Solution
+from canimucal.analysis.calibrate import Solution
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,8 @@ import numpy as np
 from scipy.linalg import block_diag
 
 from canimucal.errors import ModelError
-from canimucal.model.closed_form import (
+from canimucal.model.frames import EARTH_RATE_RAD_S, earth_rate_level, position_dcm
+from canimucal.model.paper.common import (
     GYRO_BIAS_NAMES,
     GYRO_SCALE_NAMES,
     MIN_SENSITIVITY,
@@ -23,7 +24,6 @@ from canimucal.model.closed_form import (
     FloatArray,
     pose_label,
 )
-from canimucal.model.frames import EARTH_RATE_RAD_S, earth_rate_level, position_dcm
 from canimucal.model.positions import PositionAverage
 
 logger = logging.getLogger(__name__)

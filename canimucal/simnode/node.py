@@ -4,7 +4,7 @@ What canopen's ``LocalNode`` lacks and this class adds (STYLE.md, DESIGN §4): T
 event timer or on SYNC, only while OPERATIONAL; storing on 0x1010 and restoring defaults on
 0x1011 (effective at the next reset); NMT reset node / reset communication with a new
 boot-up; range checks on writes; live values for SDO reads of 0x2000–0x2002 (the SDO
-read/write side: :mod:`canimucal.device.sim_od_access`). Calibration objects stay raw on the
+read/write side: :mod:`canimucal.simnode.od_access`). Calibration objects stay raw on the
 bus: the firmware semantics are exposed as :meth:`corrected_sample`.
 """
 
@@ -24,17 +24,17 @@ from canopen.objectdictionary import ODVariable
 from numpy.typing import NDArray
 
 from canimucal.device import od
-from canimucal.device.sim_backlog import VirtualBusBacklog
-from canimucal.device.sim_faults import FaultInjector
-from canimucal.device.sim_hooks import FaultHooks
-from canimucal.device.sim_od_access import ImuLocalNode, ObjectAccessHooks
-from canimucal.device.sim_pdo import TpdoLayout
-from canimucal.device.sim_producer import SampleProducer
-from canimucal.device.sim_store import COMM_PARAMETERS, NonVolatileStore, factory_values
 from canimucal.errors import InputError, NoDeviceError
 from canimucal.model.positions import Plan
 from canimucal.sim.imu import ImuSimulator
 from canimucal.sim.truth import Truth
+from canimucal.simnode.backlog import VirtualBusBacklog
+from canimucal.simnode.fault_hooks import FaultHooks
+from canimucal.simnode.faults import FaultInjector
+from canimucal.simnode.od_access import ImuLocalNode, ObjectAccessHooks
+from canimucal.simnode.pdo import TpdoLayout
+from canimucal.simnode.producer import SampleProducer
+from canimucal.simnode.store import COMM_PARAMETERS, NonVolatileStore, factory_values
 
 log = logging.getLogger(__name__)
 

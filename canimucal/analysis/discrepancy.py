@@ -25,16 +25,15 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats
 
-from canimucal.errors import ModelError
-from canimucal.model.discrepancy_base import (
+from canimucal.analysis.base_fit import (
     PreparedBase,
     fit_known,
     fit_scalar_base,
     named_values,
     temperature_status,
 )
-from canimucal.model.discrepancy_candidates import SCALAR_UNITS, UNITS, Candidate
-from canimucal.model.discrepancy_data import (
+from canimucal.analysis.candidates import SCALAR_UNITS, UNITS, Candidate
+from canimucal.analysis.data import (
     AXIS_SIGN_SIGMAS,
     FAMILY_ALPHA,
     DiscrepancyResult,
@@ -44,8 +43,8 @@ from canimucal.model.discrepancy_data import (
     SessionData,
     TestRecord,
 )
-from canimucal.model.discrepancy_drift import DriftTest, drift_test, random_walk_covariance
-from canimucal.model.discrepancy_tests import (
+from canimucal.analysis.drift import DriftTest, drift_test, random_walk_covariance
+from canimucal.analysis.significance import (
     LinearProblem,
     TermFit,
     confirm_by_cv,
@@ -57,6 +56,7 @@ from canimucal.model.discrepancy_tests import (
     score_model,
     significant_columns,
 )
+from canimucal.errors import ModelError
 
 log = logging.getLogger(__name__)
 

@@ -12,10 +12,10 @@ import logging
 import numpy as np
 from numpy.typing import NDArray
 
+from canimucal.analysis.data import SessionData, Window
 from canimucal.errors import InputError
 from canimucal.io.grouping import has_angles
 from canimucal.io.recording import Recording
-from canimucal.model.discrepancy_data import SessionData, Window
 from canimucal.model.positions import Plan, Pose, PositionAverage, average_position
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
 from canimucal.model.static import detect_static_intervals

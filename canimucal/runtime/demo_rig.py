@@ -1,7 +1,7 @@
 """The demo's test rig: simulated IMU node(s) and their clients on a private virtual bus.
 
 ``canimucal demo`` (headless or TUI) and the tests build a :class:`DemoRig`, then a
-:class:`~canimucal.procedure.session.Session` from it with :meth:`DemoRig.session`. Each
+:class:`~canimucal.runtime.session.Session` from it with :meth:`DemoRig.session`. Each
 node gets its own truth (its own serial and errors); all sit on one rigid body, so the
 session moves them together. Closing the rig stops nodes and clients and shuts the buses.
 """
@@ -20,16 +20,16 @@ import can
 import canopen
 import numpy as np
 
+from canimucal.analysis.calibrate import SiteConditions
 from canimucal.device.client import Identity, ImuClient
-from canimucal.device.sim_node import SimulatedImuNode
 from canimucal.model.layout import JointSpec
 from canimucal.model.positions import Plan
 from canimucal.procedure.machine import Procedure, ProcedureConfig
-from canimucal.procedure.records import device_of, recording_header
-from canimucal.procedure.resume import load_resume_state
-from canimucal.procedure.session import Session
-from canimucal.procedure.solution import SiteConditions
+from canimucal.runtime.records import device_of, recording_header
+from canimucal.runtime.resume import load_resume_state
+from canimucal.runtime.session import Session
 from canimucal.sim.truth import Truth
+from canimucal.simnode.node import SimulatedImuNode
 
 logger = logging.getLogger(__name__)
 
@@ -103,7 +103,7 @@ class DemoRig:
         """Build a session over every node, with the site taken from the first truth.
 
         ``resume``: go on with the interrupted session in ``out_dir``, if its recordings came
-        from these very units (:func:`~canimucal.procedure.resume.load_resume_state`).
+        from these very units (:func:`~canimucal.runtime.resume.load_resume_state`).
         """
         identities = self.identities()
         if resume:

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.linalg import block_diag
 
 from canimucal.errors import ModelError
-from canimucal.model.closed_form import (
+from canimucal.model.paper.common import (
     ACCEL_BIAS_NAMES,
     ACCEL_SCALE_NAMES,
     ANGLE_TOL_RAD,

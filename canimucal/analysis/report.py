@@ -4,7 +4,7 @@ load (``io.importers``) → group into positions (``analysis_session``) → base
 tests, extension (``model.discrepancy``) → noise against the simulator's white noise (Allan
 deviation) → the analysis JSON (DESIGN §5), a truth JSON of the extended model and the
 observed poses as a pose schedule, and a replay of the session through the simulator
-(:mod:`canimucal.procedure.analysis_replay`).
+(:mod:`canimucal.analysis.replay`).
 """
 
 from __future__ import annotations
@@ -17,12 +17,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from canimucal.analysis.data import EFFECTS, DiscrepancyResult, SessionData
+from canimucal.analysis.discrepancy import analyse_discrepancy
+from canimucal.analysis.session import position_rows, session_from_recording
 from canimucal.io.recording import Recording
-from canimucal.model.discrepancy import analyse_discrepancy
-from canimucal.model.discrepancy_data import EFFECTS, DiscrepancyResult, SessionData
 from canimucal.model.noise import allan_deviation, best_averaging_time_s, fit_noise
 from canimucal.model.positions import Plan, PlannedPosition
-from canimucal.procedure.analysis_session import position_rows, session_from_recording
 from canimucal.sim.truth_sensors import SAMPLE_RATES_HZ
 
 log = logging.getLogger(__name__)
