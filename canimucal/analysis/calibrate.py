@@ -22,8 +22,9 @@ from canimucal.io.calibration import (
     Device,
     Fit,
     RecordingRef,
+    record_from_estimates,
+    summarize_position,
 )
-from canimucal.io.calibration_estimates import record_from_estimates, summarize_position
 from canimucal.model.joint import JointResult, solve_joint
 from canimucal.model.layout import JointSpec
 from canimucal.model.plan import builtin_plan, cramer_rao

@@ -23,7 +23,7 @@ from canimucal.analysis.session import position_rows, session_from_recording
 from canimucal.io.recording import Recording
 from canimucal.model.noise import allan_deviation, best_averaging_time_s, fit_noise
 from canimucal.model.positions import Plan, PlannedPosition
-from canimucal.sim.truth_sensors import SAMPLE_RATES_HZ
+from canimucal.sim.truth import SAMPLE_RATES_HZ
 
 log = logging.getLogger(__name__)
 

@@ -39,8 +39,7 @@ from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.runtime.demo_rig import DemoRig, comparison_table, readback_deviations
 from canimucal.runtime.operator import run_automatic
 from canimucal.runtime.resume import load_resume_state
-from canimucal.runtime.session import Session
-from canimucal.runtime.session_files import output_name
+from canimucal.runtime.session import Session, output_name
 from canimucal.sim.truth import Truth
 
 log = logging.getLogger(__name__)

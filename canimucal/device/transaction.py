@@ -19,7 +19,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from canimucal.device import od, od_ranges
+from canimucal.device import od
 from canimucal.device.bus import NodeRebootedError, SdoAbort
 from canimucal.device.calibration_map import (
     backup_objects,
@@ -157,7 +157,7 @@ def write_calibration_transaction(
     forced = _check_serial(identity, record, force)
     accel_lsb, gyro_lsb = client.nominal_lsb()  # step 2
     block, values, crc, final_valid, restore = _target(record, accel_lsb, gyro_lsb)
-    problems = od_ranges.block_range_problems(block, accel_lsb, gyro_lsb)
+    problems = od.block_range_problems(block, accel_lsb, gyro_lsb)
     if problems:
         more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
         raise InputError(f"calibration outside the device's ranges: {problems[0]}{more}")

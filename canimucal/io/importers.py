@@ -29,8 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.errors import InputError
-from canimucal.io.recording import Recording, read_recording, recording_from_columns
-from canimucal.io.recording_format import HeaderValue
+from canimucal.io.recording import HeaderValue, Recording, read_recording, recording_from_columns
 
 log = logging.getLogger(__name__)
 

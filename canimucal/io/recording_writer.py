@@ -23,17 +23,19 @@ from numpy.typing import ArrayLike
 
 from canimucal.errors import InputError
 from canimucal.io.atomic import move_into_place, refuse_existing, write_text_atomic
-from canimucal.io.recording import Recording, block_table, read_recording
-from canimucal.io.recording_format import (
+from canimucal.io.recording import (
     COLUMN_LINE,
     FloatArray,
     HeaderValue,
+    Recording,
     angles_by_position,
+    block_table,
     check_same_origin,
     check_table,
     format_header,
     format_table,
     normalise_header,
+    read_recording,
 )
 
 logger = logging.getLogger(__name__)

@@ -25,9 +25,8 @@ from canimucal.device.client import Identity, ImuClient
 from canimucal.model.layout import JointSpec
 from canimucal.model.positions import Plan
 from canimucal.procedure.machine import Procedure, ProcedureConfig
-from canimucal.runtime.records import device_of, recording_header
 from canimucal.runtime.resume import load_resume_state
-from canimucal.runtime.session import Session
+from canimucal.runtime.session import Session, device_of, recording_header
 from canimucal.sim.truth import Truth
 from canimucal.simnode.node import SimulatedImuNode
 

@@ -14,7 +14,9 @@ worker and posts the events to its screen.
 
 from __future__ import annotations
 
+import json
 import logging
+import os
 import queue
 import time
 from collections.abc import Mapping
@@ -24,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from canimucal.analysis.calibrate import SiteConditions
 from canimucal.device.calibration_map import readback_dict
 from canimucal.device.client import Identity, ImuClient
 from canimucal.device.events import (
@@ -36,21 +39,21 @@ from canimucal.device.events import (
 )
 from canimucal.device.transaction import write_calibration_transaction
 from canimucal.errors import CanimucalError, DeviceError
-from canimucal.io.calibration import CalibrationRecord, RecordingRef, sha256_of
+from canimucal.io.calibration import (
+    CalibrationRecord,
+    Device,
+    RecordingRef,
+    calibration_to_dict,
+    read_calibration,
+    sha256_of,
+)
 from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.positions import Pose
 from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase, Procedure
+from canimucal.procedure.tracks import LabelledRows
 from canimucal.runtime.certificate import certificate_markdown
-from canimucal.runtime.session_files import (
-    calibration_ref,
-    open_resumed,
-    output_name,
-    record_json,
-    record_with,
-    write_piece,
-    write_text,
-)
+from canimucal.runtime.resume import partial_path
 from canimucal.simnode.node import SimulatedImuNode
 
 logger = logging.getLogger(__name__)
@@ -352,3 +355,93 @@ class Session:
 
     def _name(self, stem: str, node_id: int, suffix: str) -> Path:
         return output_name(self.out_dir, stem, node_id, self.several, suffix)
+
+
+def output_name(out_dir: Path, stem: str, node_id: int, several: bool, suffix: str) -> Path:
+    """``stem.suffix``, or ``stem.node<ID>.suffix`` when several nodes (DESIGN §7)."""
+    return out_dir / (f"{stem}.node{node_id}{suffix}" if several else f"{stem}{suffix}")
+
+
+def calibration_ref(ref: RecordingRef) -> dict[str, Any]:
+    """Return the ``recording`` block as a dict."""
+    return {"file": ref.file, "sha256": ref.sha256}
+
+
+def record_with(record: CalibrationRecord, **blocks: Any) -> CalibrationRecord:
+    """Return the record with top-level blocks replaced (through the strict reader)."""
+    d = calibration_to_dict(record)
+    d.update(blocks)
+    return read_calibration(json.dumps(d, allow_nan=False))
+
+
+def record_json(record: CalibrationRecord) -> str:
+    """Return the record's JSON text (indent 2, final newline)."""
+    return json.dumps(calibration_to_dict(record), indent=2, allow_nan=False) + "\n"
+
+
+def write_text(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically, replacing what is there."""
+    from canimucal.io.atomic import write_text_atomic
+
+    write_text_atomic(path, text, overwrite=True)
+
+
+def open_resumed(path: Path, header: Mapping[str, Any]) -> RecordingWriter:
+    """Append to the recording of an interrupted session (its ``.partial`` is the newer copy)."""
+    partial = partial_path(path)
+    if partial.exists():
+        os.replace(partial, path)
+    return RecordingWriter.open(path, header, append=True)
+
+
+def write_piece(writer: RecordingWriter, piece: LabelledRows) -> None:
+    """Append one labelled piece of rows to the recording (no angles: NaN)."""
+    block = piece.block
+    n = block.n
+    if n == 0:
+        return
+    angles = np.full((n, 3), np.nan)
+    if piece.angles_deg is not None:
+        angles[:] = piece.angles_deg
+    writer.write_rows(
+        t=block.t,
+        accel=block.accel,
+        gyro=block.gyro,
+        counter=block.counter,
+        position=np.full(n, piece.position),
+        alpha_deg=angles[:, 0],
+        beta_deg=angles[:, 1],
+        psi_deg=angles[:, 2],
+        temp_c=np.full(n, block.temp_c),
+    )
+
+
+def device_of(node_id: int, identity: Identity) -> Device:
+    """Return the calibration record's ``device`` block of a node."""
+    return Device(
+        node_id=node_id,
+        vendor_id=identity.vendor_id,
+        product_code=identity.product_code,
+        revision=identity.revision,
+        serial=identity.serial,
+    )
+
+
+def recording_header(
+    rate_hz: float, site: SiteConditions, identity: Identity, node_id: int
+) -> dict[str, Any]:
+    """Return the header of a node's recording CSV (DESIGN §5)."""
+    header: dict[str, Any] = {
+        "sample_rate_hz": rate_hz,
+        "node_id": node_id,
+        "device_serial": identity.serial,
+        "g": site.g,
+        "heading_deg": float(np.rad2deg(site.heading)),
+        "accel_lsb": site.accel_lsb,
+        "gyro_lsb": site.gyro_lsb,
+    }
+    if site.latitude is not None:
+        header["latitude_deg"] = float(np.rad2deg(site.latitude))
+    if site.height_m is not None:
+        header["height_m"] = site.height_m
+    return header

@@ -29,8 +29,7 @@ from canimucal.errors import InputError
 from canimucal.model.frames import earth_rate_level, position_dcm, specific_force_level
 from canimucal.model.positions import Plan, Pose
 from canimucal.sim.schedule import PoseTrajectory
-from canimucal.sim.truth import Truth
-from canimucal.sim.truth_sensors import SAMPLE_RATES_HZ
+from canimucal.sim.truth import SAMPLE_RATES_HZ, Truth
 
 log = logging.getLogger(__name__)
 

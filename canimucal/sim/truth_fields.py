@@ -1,6 +1,6 @@
 """Readers of the truth JSON's values: each checks one value and names the bad key.
 
-Shared by :mod:`canimucal.sim.truth` and :mod:`canimucal.sim.truth_sensors`, so both refuse
+Shared by :mod:`canimucal.sim.truth` and :mod:`canimucal.sim.truth`, so both refuse
 a bad value with the same one-line :class:`InputError` (``truth: accel.bias must be …``).
 """
 

@@ -14,7 +14,7 @@ from collections.abc import Callable
 from canopen import LocalNode, SdoAbortedError
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable
 
-from canimucal.device import od, od_ranges
+from canimucal.device import od
 
 log = logging.getLogger(__name__)
 
@@ -57,7 +57,7 @@ def check_write(
         _check_calibration(index, sub, data, read_raw, accel_lsb, gyro_lsb)
     elif index == od.NOMINAL and sub == 3:
         rate = struct.unpack("<H", data)[0]
-        _refuse_if(od_ranges.range_problems(index, sub, rate, accel_lsb, gyro_lsb))
+        _refuse_if(od.range_problems(index, sub, rate, accel_lsb, gyro_lsb))
     elif index == od.STORE and struct.unpack("<I", data)[0] != od.SAVE_SIGNATURE:
         raise SdoAbortedError(od.ABORT_CANNOT_STORE)
     elif index == od.RESTORE and struct.unpack("<I", data)[0] != od.LOAD_SIGNATURE:
@@ -79,9 +79,9 @@ def _check_calibration(
 ) -> None:
     value = od.decode(od.OBJECT_CODES[(index, sub)], data)
     row_diagonal = None
-    if index in (od.ACCEL_CORRECTION, od.GYRO_CORRECTION) and not od_ranges.is_diagonal_sub(sub):
-        row_diagonal = od.decode("f32", read_raw(index, od_ranges.row_diagonal_sub(sub)))
-    _refuse_if(od_ranges.range_problems(index, sub, value, accel_lsb, gyro_lsb, row_diagonal))
+    if index in (od.ACCEL_CORRECTION, od.GYRO_CORRECTION) and not od.is_diagonal_sub(sub):
+        row_diagonal = od.decode("f32", read_raw(index, od.row_diagonal_sub(sub)))
+    _refuse_if(od.range_problems(index, sub, value, accel_lsb, gyro_lsb, row_diagonal))
 
 
 def _check_tpdo_comm(sub: int, data: bytes) -> None:

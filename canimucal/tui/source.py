@@ -23,9 +23,8 @@ from canimucal.model.positions import Plan
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.procedure.machine import Procedure, ProcedureConfig
 from canimucal.runtime.demo_rig import DemoRig, spec_for_plan
-from canimucal.runtime.records import device_of, recording_header
 from canimucal.runtime.resume import load_resume_state
-from canimucal.runtime.session import Session
+from canimucal.runtime.session import Session, device_of, recording_header
 from canimucal.sim.truth import Truth
 
 logger = logging.getLogger(__name__)

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from canimucal.device import od, od_ranges
+from canimucal.device import od
 from canimucal.errors import InputError
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
 
@@ -133,9 +133,9 @@ def test_block_objects_round_trip(values: list[float], time_s: int, plan: int) -
 
 
 def test_factory_block_is_in_range() -> None:
-    assert od_ranges.block_range_problems(od.factory_block(A_LSB, G_LSB), A_LSB, G_LSB) == []
+    assert od.block_range_problems(od.factory_block(A_LSB, G_LSB), A_LSB, G_LSB) == []
     inverted = od.factory_block(-A_LSB, G_LSB)  # an inverted axis is allowed
-    assert od_ranges.block_range_problems(inverted, -A_LSB, G_LSB) == []
+    assert od.block_range_problems(inverted, -A_LSB, G_LSB) == []
 
 
 @pytest.mark.parametrize(
@@ -170,7 +170,7 @@ def test_factory_block_is_in_range() -> None:
     ],
 )
 def test_range_problems(index: int, sub: int, value: float, ok: bool) -> None:
-    problem = od_ranges.range_problems(index, sub, value, A_LSB, G_LSB)
+    problem = od.range_problems(index, sub, value, A_LSB, G_LSB)
     assert (problem is None) == ok, problem
     if problem is not None:
         assert f"0x{index:04X}:{sub:02X}" in problem and "\n" not in problem
@@ -178,11 +178,11 @@ def test_range_problems(index: int, sub: int, value: float, ok: bool) -> None:
 
 def test_off_diagonal_is_relative_to_row_diagonal() -> None:
     diagonal = 1.4 * A_LSB
-    assert od_ranges.range_problems(0x2101, 4, 0.27 * A_LSB, A_LSB, G_LSB, diagonal) is None
-    assert od_ranges.range_problems(0x2101, 4, 0.29 * A_LSB, A_LSB, G_LSB, diagonal) is not None
-    assert od_ranges.range_problems(0x2101, 4, 0.11 * A_LSB, A_LSB, G_LSB, 0.5 * A_LSB) is not None
-    assert od_ranges.row_diagonal_sub(4) == 5 and od_ranges.row_diagonal_sub(3) == 1
-    assert od_ranges.row_diagonal_sub(8) == 9
+    assert od.range_problems(0x2101, 4, 0.27 * A_LSB, A_LSB, G_LSB, diagonal) is None
+    assert od.range_problems(0x2101, 4, 0.29 * A_LSB, A_LSB, G_LSB, diagonal) is not None
+    assert od.range_problems(0x2101, 4, 0.11 * A_LSB, A_LSB, G_LSB, 0.5 * A_LSB) is not None
+    assert od.row_diagonal_sub(4) == 5 and od.row_diagonal_sub(3) == 1
+    assert od.row_diagonal_sub(8) == 9
 
 
 def test_block_range_problems_lists_each() -> None:
@@ -195,7 +195,7 @@ def test_block_range_problems_lists_each() -> None:
         gyro_g=block.gyro_g,
         base_tilt_rad=np.array([0.0, 0.5]),
     )
-    problems = od_ranges.block_range_problems(bad, A_LSB, G_LSB)
+    problems = od.block_range_problems(bad, A_LSB, G_LSB)
     assert len(problems) == 3
     assert any("0x2100:02" in p for p in problems)
     assert any("0x2101:02" in p for p in problems)

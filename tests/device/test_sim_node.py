@@ -18,7 +18,7 @@ import canopen
 import numpy as np
 import pytest
 
-from canimucal.device import od, od_ranges
+from canimucal.device import od
 from canimucal.errors import InputError, NoDeviceError
 from canimucal.model.frames import earth_rate_level, position_dcm, specific_force_level
 from canimucal.model.positions import Plan, PlannedPosition
@@ -417,7 +417,7 @@ def test_crc_and_firmware_semantics(
         temp_c=25.0,
         rms_ms2=0.01,
     )
-    assert od_ranges.block_range_problems(block, A_LSB, DEFAULT_GYRO_LSB) == []
+    assert od.block_range_problems(block, A_LSB, DEFAULT_GYRO_LSB) == []
     objects = block.to_objects()
     for (index, sub), value in objects.items():
         remote.sdo.download(index, sub, od.encode(od.OBJECT_CODES[(index, sub)], value))

@@ -20,8 +20,7 @@ from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
 from canimucal.procedure import events as ev
 from canimucal.runtime.demo_rig import spec_for_plan
-from canimucal.runtime.records import device_of
-from canimucal.runtime.session import Session
+from canimucal.runtime.session import Session, device_of
 from canimucal.sim.averages import simulate_averages
 from canimucal.sim.truth import Truth
 from canimucal.tui.source import Heartbeat, NodeStatus

@@ -21,14 +21,12 @@ from canimucal.io.calibration import (
     as_array,
     calibration_to_dict,
     calibration_to_json,
-    read_calibration,
-    sha256_of,
-    write_calibration,
-)
-from canimucal.io.calibration_estimates import (
     covariance_si,
+    read_calibration,
     record_from_estimates,
+    sha256_of,
     summarize_position,
+    write_calibration,
 )
 from canimucal.model.positions import PlannedPosition
 from canimucal.model.sensor import AccelParams

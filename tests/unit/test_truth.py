@@ -14,8 +14,13 @@ from hypothesis import strategies as st
 from canimucal.errors import InputError
 from canimucal.model.gravity import normal_gravity
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
-from canimucal.sim.truth import SCHEMA, TemperatureProfile, Truth
-from canimucal.sim.truth_sensors import DEFAULT_ACCEL_NOISE_DENSITY, DEFAULT_GYRO_NOISE_DENSITY
+from canimucal.sim.truth import (
+    DEFAULT_ACCEL_NOISE_DENSITY,
+    DEFAULT_GYRO_NOISE_DENSITY,
+    SCHEMA,
+    TemperatureProfile,
+    Truth,
+)
 
 
 def _close(a: Any, b: Any, rel: float = 1e-13) -> bool:
