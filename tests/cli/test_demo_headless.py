@@ -84,7 +84,7 @@ def test_headless_demo_with_two_nodes_gives_one_result_per_node(
     out = tmp_path / "demo-out"
     # two nodes double the frames on the in-process virtual bus; on a loaded machine the
     # nodes slow their clocks rather than queue the write's SDO answers behind TPDOs
-    # (tests/device/test_sim_backlog.py); this failed CI once before they did
+    # (tests/simnode/test_backlog.py); this failed CI once before they did
     argv = ["demo", "--headless", "--seconds", "4", "--time-scale", "10", "--plan", "five"]
     result = cli([*argv, "--nodes", "2", "--out", out, "--json", "-"])
     assert result.code == 0, result.err

@@ -11,7 +11,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from procedure_bench import Bench, of
 
 from canimucal.device.stream import SampleBlock
 from canimucal.model.plan import builtin_plan
@@ -19,6 +18,7 @@ from canimucal.model.positions import Plan, PlannedPosition, Pose
 from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase
 from canimucal.sim.truth import Truth
+from tests.support.procedure_bench import Bench, of
 
 FIVE = builtin_plan("five")
 

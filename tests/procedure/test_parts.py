@@ -79,10 +79,9 @@ def test_warmup_slope_and_threshold() -> None:
 
 
 def test_acceptance_limits_name_what_failed(diag_truth: object) -> None:
-    from procedure_bench import Bench, of
-
     from canimucal.model.plan import builtin_plan
     from canimucal.procedure import events as ev
+    from tests.support.procedure_bench import Bench, of
 
     bench = Bench([diag_truth], builtin_plan("five"))  # type: ignore[list-item]
     bench.whole_plan()

@@ -6,12 +6,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from tui_bench import FakeSource, screen_text
 
 from canimucal.device.busload import BusLoad
 from canimucal.tui.app import make_app
 from canimucal.tui.connection import ConnectionScreen
 from canimucal.tui.source import Heartbeat
+from tests.support.tui_fakes import FakeSource, screen_text
 
 pytestmark = pytest.mark.asyncio
 

@@ -1,7 +1,7 @@
 """Real time: the TUI drives a five-position calibration of the simulated node over CAN.
 
 Random truth (fixed seed), 10 s per position, the simulated clock 20× the wall clock. The
-operator's keys go through Pilot (``tests/tui/pilot_steps.py``); the values read back from
+operator's keys go through Pilot (``tests/support/pilot_steps.py``); the values read back from
 the device after the write must agree with the truth within 4σ each. With about 11 values
 and Gaussian errors, the chance that any exceeds 4σ is 11 × 6.3e-5 ≈ 7e-4, and the seed is
 fixed.
@@ -20,7 +20,7 @@ from canimucal.sim.truth import Truth
 from canimucal.tui.app import make_app
 from canimucal.tui.position import PositionScreen
 from canimucal.tui.source import DemoSource
-from tests.tui.pilot_steps import measure_positions, press, until, write_and_verify
+from tests.support.pilot_steps import measure_positions, press, until, write_and_verify
 
 SEED = 20261121
 pytestmark = pytest.mark.asyncio

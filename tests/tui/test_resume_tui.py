@@ -22,8 +22,8 @@ from canimucal.sim.truth import Truth
 from canimucal.tui.app import make_app
 from canimucal.tui.position import PositionScreen
 from canimucal.tui.source import DemoSource
-from tests.interrupt import assert_kept, run_interrupted
-from tests.tui.pilot_steps import measure_positions, press, until, write_and_verify
+from tests.support.interrupt import assert_kept, run_interrupted
+from tests.support.pilot_steps import measure_positions, press, until, write_and_verify
 
 SEED = 1
 """Seed 20261122 was tried first and failed at 4.2σ on alpha0: that truth gives 1.7σ rms even

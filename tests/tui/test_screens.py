@@ -6,7 +6,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tui_bench import FakeSource, live, node_status, screen_text, solved_event
 
 from canimucal.model.positions import PlannedPosition
 from canimucal.procedure import events as ev
@@ -18,6 +17,7 @@ from canimucal.tui.plan_screen import PlanScreen
 from canimucal.tui.position import PositionScreen
 from canimucal.tui.results import ResultsScreen
 from canimucal.tui.verification import VerificationScreen
+from tests.support.tui_fakes import FakeSource, live, node_status, screen_text, solved_event
 
 SIZE = (80, 24)
 pytestmark = pytest.mark.asyncio

@@ -11,7 +11,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tui_bench import FakeSource, live, node_status, solved_event
 
 from canimucal.model.positions import PlannedPosition
 from canimucal.procedure import events as ev
@@ -22,6 +21,7 @@ from canimucal.tui.modals import ConfirmWrite, ErrorModal
 from canimucal.tui.plan_screen import PlanScreen
 from canimucal.tui.position import PositionScreen
 from canimucal.tui.results import ResultsScreen
+from tests.support.tui_fakes import FakeSource, live, node_status, solved_event
 
 SIZE = (80, 24)
 

@@ -20,7 +20,7 @@ from canimucal.errors import InputError
 from canimucal.io.calibration import read_calibration
 from canimucal.io.plans import read_plan
 from canimucal.io.recording import read_recording
-from tests.fuzzing import byte_mutations
+from tests.support.fuzzing import byte_mutations
 
 RECORDING = (
     b"# schema: canimucal.recording/1\n# sample_rate_hz: 200\n# device_serial: 42\n"

@@ -20,7 +20,7 @@ from canimucal.model.plan import builtin_plan
 from canimucal.runtime.demo_rig import readback_deviations
 from canimucal.runtime.resume import load_resume_state
 from canimucal.sim.truth import Truth
-from tests.interrupt import assert_kept, run_interrupted
+from tests.support.interrupt import assert_kept, run_interrupted
 
 FAST = ["demo", "--headless", "--plan", "five", "--seconds", "3", "--time-scale", "30"]
 SEED = ["--seed", "2031"]

@@ -19,7 +19,7 @@ import numpy as np
 from canimucal.device import od
 from canimucal.simnode.backlog import STALLED_AFTER_S
 from canimucal.simnode.node import SimulatedImuNode
-from tests.device.conftest import NODE_ID, FrameRecorder
+from tests.support.canbus import NODE_ID, FrameRecorder
 
 TPDO1 = 0x180 + NODE_ID
 DISPATCH_COST_S = 2e-4

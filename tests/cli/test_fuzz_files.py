@@ -33,7 +33,7 @@ from canimucal.io.recording_writer import write_recording
 from canimucal.model.plan import builtin_plan
 from canimucal.sim.truth import Truth
 from canimucal.simnode.node import SimulatedImuNode
-from tests.fuzzing import byte_mutations
+from tests.support.fuzzing import byte_mutations
 
 
 def _recording() -> bytes:

@@ -1,6 +1,6 @@
 """Shared hypothesis strategies of the fuzz tests: byte-level edits with nasty tokens.
 
-Used by ``tests/unit/test_io_fuzz.py`` (the readers) and ``tests/unit/test_fuzz_cli.py``
+Used by ``tests/io/test_fuzz.py`` (the readers) and ``tests/cli/test_fuzz_files.py``
 (the commands). Tokens are what breaks parsers of CSV, JSON and TOML: non-finite and huge
 numbers, separators, line ends, invalid UTF-8, brackets, a future schema line.
 """

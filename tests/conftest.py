@@ -1,0 +1,3 @@
+"""Fixtures shared by every test directory: simulated nodes and clients on a virtual bus."""
+
+pytest_plugins = ["tests.support.canbus"]
