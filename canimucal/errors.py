@@ -1,10 +1,18 @@
-"""One exception root, a subclass per layer; each error knows its CLI exit status.
+"""Every error the tool raises on purpose: one root, a branch per exit status (DESIGN §7).
 
-Exit statuses are the contract of DESIGN §7: 1 internal error, 2 bad input or usage,
-3 device refused / verification failed / rollback incomplete, 4 no device or no bus.
+Exit statuses: 1 internal error, 2 bad input or usage, 3 device refused / verification
+failed / rollback incomplete, 4 no device or no bus. The tree::
+
+    CanimucalError
+    ├── InputError (2)        ModelError, SchemaError
+    ├── DeviceError (3)       SdoAbort, DeviceSilentError, NodeRebootedError,
+    │                         RollbackIncompleteError
+    └── NoDeviceError (4)
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 
 class CanimucalError(Exception):
@@ -31,11 +39,44 @@ class ModelError(InputError):
     title = "Cannot solve"
 
 
+class SchemaError(InputError):
+    """A value in a JSON document does not fit its schema; the message names the key path."""
+
+
 class DeviceError(CanimucalError):
     """The device refused, verification failed, or a rollback was incomplete (exit 3)."""
 
     exit_code = 3
     title = "Device error"
+
+
+class SdoAbort(DeviceError):
+    """The node refused an SDO transfer (abort code in ``code``); never retried."""
+
+    def __init__(self, message: str, code: int) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+class DeviceSilentError(DeviceError):
+    """An SDO transfer timed out after every retry."""
+
+
+class NodeRebootedError(DeviceError):
+    """The node booted during an SDO transfer: its unsaved values are gone (never retried)."""
+
+
+class RollbackIncompleteError(DeviceError):
+    """The backup could not be written back; the device is left invalid (exit 3)."""
+
+    title = "Rollback incomplete"
+
+    def __init__(self, backup_path: Path) -> None:
+        super().__init__(
+            f"rollback incomplete; device invalidated; restore with canimucal write-params "
+            f"{backup_path}"
+        )
+        self.backup_path = backup_path
 
 
 class NoDeviceError(CanimucalError):

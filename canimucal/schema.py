@@ -1,9 +1,12 @@
-"""Strict JSON for the tool's files: parsing with located errors, and dataclass schemas.
+"""Strict JSON for every file the tool reads: parsing, value readers, dataclass schemas.
 
 ``parse_json`` refuses ``NaN``/``Infinity`` literals and duplicate keys and reports syntax
-errors as ``FILE:LINE:COLUMN``. A schema is a frozen dataclass whose fields carry a checker
-in their metadata (``field(metadata=number(...))``); :func:`build` turns a parsed object into
-it, refusing unknown keys and naming the key path of every problem.
+errors as ``FILE:LINE:COLUMN``. The readers (``read_number``, ``read_array``, ...) check one
+value found at a key path and raise :class:`~canimucal.errors.SchemaError` as
+``key.path: problem``; documents with free-form structure (the simulator's truth, its fault
+block) call them directly. A schema is a frozen dataclass whose fields carry a checker in
+their metadata (``field(metadata=number(...))``); :func:`build` turns a parsed object into it
+with the same readers, refusing unknown keys.
 """
 
 from __future__ import annotations
@@ -13,13 +16,16 @@ import json
 import math
 import os
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import MISSING, fields, is_dataclass
 from datetime import datetime
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, NoReturn, TypeVar
 
-from canimucal.errors import InputError
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from canimucal.errors import InputError, SchemaError
 
 T = TypeVar("T")
 Checker = Callable[[Any, str], Any]
@@ -33,10 +39,6 @@ PARAMETER_NAME = re.compile(
 
 OBJECT_KEY = re.compile(r"0x[0-9A-Fa-f]{4}:[0-9A-Fa-f]{2}")
 """Keys of a backup's ``objects`` map, e.g. ``0x2100:01``."""
-
-
-class SchemaError(Exception):
-    """A value that does not fit its schema; the message starts with the key path."""
 
 
 class _NotFinite(ValueError):
@@ -106,20 +108,130 @@ def sha256_of(path: str | os.PathLike[str]) -> str:
     return digest.hexdigest()
 
 
+# ----------------------------------------------------------------------------- readers
+
+
+def fail(path: str, problem: str) -> NoReturn:
+    """Raise the :class:`SchemaError` ``path: problem`` (``top level`` for the document)."""
+    raise SchemaError(f"{path or 'top level'}: {problem}")
+
+
+def key_path(path: str, key: str) -> str:
+    """Return the dotted path of ``key`` inside the object at ``path``."""
+    return f"{path}.{key}" if path else key
+
+
+def read_object(value: Any, path: str, allowed: Collection[str]) -> Mapping[str, Any]:
+    """Check a JSON object whose keys are all in ``allowed``."""
+    if not isinstance(value, Mapping) or not all(isinstance(k, str) for k in value):
+        fail(path, "must be a JSON object")
+    for key in value:
+        if key not in allowed:
+            fail(key_path(path, key), "unknown key")
+    return value
+
+
+def read_list(value: Any, path: str) -> list[Any]:
+    """Check a JSON array."""
+    if not isinstance(value, list):
+        fail(path, "must be a JSON array")
+    return value
+
+
+def _is_number(value: Any) -> bool:
+    return not isinstance(value, bool) and isinstance(value, int | float | np.integer | np.floating)
+
+
+def read_number(
+    value: Any,
+    path: str,
+    low: float | None = None,
+    high: float | None = None,
+    *,
+    open_low: bool = False,
+) -> float:
+    """Check a finite number (bools and strings refused) within ``[low, high]``."""
+    if not _is_number(value):
+        fail(path, f"must be a finite number, got {type(value).__name__}")
+    try:
+        x = float(value)
+    except OverflowError:
+        fail(path, "number out of range")
+    if not math.isfinite(x):
+        fail(path, "must be a finite number")
+    too_low = low is not None and (x < low or (open_low and x == low))
+    too_high = high is not None and x > high
+    if (too_low or too_high) and low is not None and high is not None:
+        left = "(" if open_low else "["
+        fail(path, f"must be within {left}{low:g}, {high:g}], got {x:g}")
+    if too_low:
+        fail(path, f"must be {'>' if open_low else '≥'} {low:g}, got {x:g}")
+    if too_high:
+        fail(path, f"must be ≤ {high:g}, got {x:g}")
+    return x
+
+
+def read_integer(value: Any, path: str, low: int | None = None, high: int | None = None) -> int:
+    """Check an integer (not a bool, not a float) within ``[low, high]``."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        fail(path, f"must be an integer, got {type(value).__name__}")
+    n = int(value)
+    if (low is not None and n < low) or (high is not None and n > high):
+        if low is not None and high is not None:
+            fail(path, f"must be {low}..{high}, got {n}")
+        fail(path, f"must be ≥ {low}, got {n}" if low is not None else f"must be ≤ {high}, got {n}")
+    return n
+
+
+def read_choice(value: Any, path: str, choices: Collection[str]) -> str:
+    """Check a string that is one of ``choices``."""
+    if not isinstance(value, str) or value not in choices:
+        shown = value[:40] if isinstance(value, str) else value
+        fail(path, f"must be one of {', '.join(map(repr, choices))}, got {shown!r}")
+    return value
+
+
+def is_numeric_tree(value: Any) -> bool:
+    """Tell whether ``value`` is a number or a (nested) list of numbers (bools refused)."""
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind in "iuf"
+    if isinstance(value, list | tuple):
+        return all(is_numeric_tree(v) for v in value)
+    return _is_number(value)
+
+
+def read_array(value: Any, path: str, shape: tuple[int, ...]) -> NDArray[np.float64]:
+    """Check a finite float array of exactly ``shape``; return it read-only."""
+    arr = None
+    if isinstance(value, list | tuple | np.ndarray) and is_numeric_tree(value):
+        try:
+            arr = np.array(value, dtype=float)
+        except (ValueError, OverflowError):  # ragged nesting, or a huge integer
+            arr = None
+    if arr is None or arr.shape != shape or not np.all(np.isfinite(arr)):
+        what = f"an array of {shape[0]}" if len(shape) == 1 else "a " + "x".join(map(str, shape))
+        fail(path, f"must be {what}{'' if len(shape) == 1 else ' array of'} finite numbers")
+    arr.setflags(write=False)
+    return arr
+
+
+def frozen_array(value: ArrayLike) -> NDArray[np.float64]:
+    """Return ``value`` as a read-only float array."""
+    arr = np.array(value, dtype=float)
+    arr.setflags(write=False)
+    return arr
+
+
 # ----------------------------------------------------------------------------- schemas
 
 
 def build(cls: type[T], obj: Any, path: str) -> T:
     """Instantiate the schema dataclass ``cls`` from the parsed object ``obj``."""
-    if not isinstance(obj, dict):
-        raise SchemaError(f"{path or 'top level'}: must be an object")
     known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]
-    for key in obj:
-        if key not in known:
-            raise SchemaError(f"unknown key {_join(path, key)!r}")
+    read_object(obj, path, known)
     kwargs = {}
     for name, spec in known.items():
-        sub = _join(path, name)
+        sub = key_path(path, name)
         value = obj.get(name)
         if value is None:
             if spec.default is MISSING and spec.default_factory is MISSING:
@@ -144,55 +256,20 @@ def to_plain(value: Any) -> Any:
     return value
 
 
-def _join(path: str, key: str) -> str:
-    return f"{path}.{key}" if path else key
-
-
 def _meta(check: Checker) -> dict[str, Checker]:
     return {"check": check}
-
-
-def as_number(value: Any, path: str) -> float:
-    """Check a finite JSON number (bools refused) and return it as float."""
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise SchemaError(f"{path}: must be a number, got {type(value).__name__}")
-    try:
-        number = float(value)
-    except OverflowError:
-        raise SchemaError(f"{path}: number out of range") from None
-    if not math.isfinite(number):
-        raise SchemaError(f"{path}: must be finite")
-    return number
 
 
 def number(
     low: float | None = None, high: float | None = None, *, open_low: bool = False
 ) -> dict[str, Checker]:
     """Field metadata: a finite number within ``[low, high]`` (``(low`` with ``open_low``)."""
-
-    def check(value: Any, path: str) -> float:
-        x = as_number(value, path)
-        if low is not None and (x < low or (open_low and x == low)):
-            raise SchemaError(f"{path}: must be {'>' if open_low else '≥'} {low:g}, got {x:g}")
-        if high is not None and x > high:
-            raise SchemaError(f"{path}: must be ≤ {high:g}, got {x:g}")
-        return x
-
-    return _meta(check)
+    return _meta(lambda value, path: read_number(value, path, low, high, open_low=open_low))
 
 
 def integer(low: int, high: int | None) -> dict[str, Checker]:
     """Field metadata: an integer (not a bool, not a float) within ``[low, high]``."""
-
-    def check(value: Any, path: str) -> int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise SchemaError(f"{path}: must be an integer, got {type(value).__name__}")
-        if value < low or (high is not None and value > high):
-            bound = f"{low}..{high}" if high is not None else f"≥ {low}"
-            raise SchemaError(f"{path}: must be {bound}, got {value}")
-        return value
-
-    return _meta(check)
+    return _meta(lambda value, path: read_integer(value, path, low, high))
 
 
 def text(choices: tuple[str, ...] | None = None, pattern: str | None = None) -> dict[str, Checker]:
@@ -200,11 +277,11 @@ def text(choices: tuple[str, ...] | None = None, pattern: str | None = None) -> 
 
     def check(value: Any, path: str) -> str:
         if not isinstance(value, str):
-            raise SchemaError(f"{path}: must be a string, got {type(value).__name__}")
+            fail(path, f"must be a string, got {type(value).__name__}")
         if choices is not None and value not in choices:
-            raise SchemaError(f"{path}: must be one of {', '.join(choices)}, got {value!r}")
+            fail(path, f"must be one of {', '.join(choices)}, got {value!r}")
         if pattern is not None and not re.fullmatch(pattern, value):
-            raise SchemaError(f"{path}: malformed value {value[:40]!r}")
+            fail(path, f"malformed value {value[:40]!r}")
         return value
 
     return _meta(check)
@@ -215,7 +292,7 @@ def boolean() -> dict[str, Checker]:
 
     def check(value: Any, path: str) -> bool:
         if not isinstance(value, bool):
-            raise SchemaError(f"{path}: must be true or false")
+            fail(path, "must be true or false")
         return value
 
     return _meta(check)
@@ -226,11 +303,11 @@ def timestamp() -> dict[str, Checker]:
 
     def check(value: Any, path: str) -> str:
         if not isinstance(value, str):
-            raise SchemaError(f"{path}: must be an ISO 8601 time string")
+            fail(path, "must be an ISO 8601 time string")
         try:
             datetime.fromisoformat(value)
         except ValueError:
-            raise SchemaError(f"{path}: not an ISO 8601 time: {value[:40]!r}") from None
+            fail(path, f"not an ISO 8601 time: {value[:40]!r}")
         return value
 
     return _meta(check)
@@ -242,10 +319,10 @@ def array(shape: tuple[int, ...]) -> dict[str, Checker]:
     def check(value: Any, path: str, depth: int = 0) -> tuple[Any, ...]:
         dims = "x".join(map(str, shape[depth:]))
         if not isinstance(value, list) or len(value) != shape[depth]:
-            raise SchemaError(f"{path}: must be a {dims} array")
+            fail(path, f"must be a {dims} array")
         if depth == len(shape) - 1:
             return tuple(
-                None if v is None else as_number(v, f"{path}[{i}]") for i, v in enumerate(value)
+                None if v is None else read_number(v, f"{path}[{i}]") for i, v in enumerate(value)
             )
         return tuple(check(v, f"{path}[{i}]", depth + 1) for i, v in enumerate(value))
 
@@ -262,7 +339,7 @@ def block_list(cls: type) -> dict[str, Checker]:
 
     def check(value: Any, path: str) -> tuple[Any, ...]:
         if not isinstance(value, list):
-            raise SchemaError(f"{path}: must be a list")
+            fail(path, "must be a list")
         return tuple(build(cls, item, f"{path}[{i}]") for i, item in enumerate(value))
 
     return _meta(check)
@@ -273,12 +350,12 @@ def names() -> dict[str, Checker]:
 
     def check(value: Any, path: str) -> tuple[str, ...]:
         if not isinstance(value, list):
-            raise SchemaError(f"{path}: must be a list of parameter names")
+            fail(path, "must be a list of parameter names")
         for i, name in enumerate(value):
             if not isinstance(name, str) or not PARAMETER_NAME.fullmatch(name):
                 raise SchemaError(f"{path}[{i}]: unknown parameter name {str(name)[:40]!r}")
         if len(set(value)) != len(value):
-            raise SchemaError(f"{path}: repeated parameter name")
+            fail(path, "repeated parameter name")
         return tuple(value)
 
     return _meta(check)
@@ -289,12 +366,12 @@ def square() -> dict[str, Checker]:
 
     def check(value: Any, path: str) -> tuple[tuple[float, ...], ...]:
         if not isinstance(value, list):
-            raise SchemaError(f"{path}: must be a square matrix")
+            fail(path, "must be a square matrix")
         rows = []
         for i, row in enumerate(value):
             if not isinstance(row, list) or len(row) != len(value):
-                raise SchemaError(f"{path}: must be a square matrix (row {i})")
-            rows.append(tuple(as_number(v, f"{path}[{i}][{j}]") for j, v in enumerate(row)))
+                fail(path, f"must be a square matrix (row {i})")
+            rows.append(tuple(read_number(v, f"{path}[{i}][{j}]") for j, v in enumerate(row)))
         return tuple(rows)
 
     return _meta(check)
@@ -305,12 +382,12 @@ def objects() -> dict[str, Checker]:
 
     def check(value: Any, path: str) -> dict[str, int | float]:
         if not isinstance(value, dict):
-            raise SchemaError(f"{path}: must be an object")
+            fail(path, "must be an object")
         out: dict[str, int | float] = {}
         for key, raw in value.items():
             if not OBJECT_KEY.fullmatch(key):
-                raise SchemaError(f"{path}: malformed object key {key[:40]!r} (want 0x2100:01)")
-            as_number(raw, f"{path}.{key}")
+                fail(path, f"malformed object key {key[:40]!r} (want 0x2100:01)")
+            read_number(raw, f"{path}.{key}")
             out[key] = raw
         return out
 

@@ -24,7 +24,13 @@ import canopen
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from canimucal.device import od
-from canimucal.errors import DeviceError, InputError, NoDeviceError
+from canimucal.errors import (
+    DeviceSilentError,
+    InputError,
+    NodeRebootedError,
+    NoDeviceError,
+    SdoAbort,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -134,22 +140,6 @@ def open_bus(settings: BusSettings) -> can.BusABC:
         raise NoDeviceError(f"cannot open CAN bus {where}: {reason}") from exc
     logger.info("opened CAN bus %s", where)
     return bus
-
-
-class SdoAbort(DeviceError):
-    """The node refused an SDO transfer (abort code in ``code``); never retried."""
-
-    def __init__(self, message: str, code: int) -> None:
-        super().__init__(message)
-        self.code = code
-
-
-class DeviceSilentError(DeviceError):
-    """An SDO transfer timed out after every retry."""
-
-
-class NodeRebootedError(DeviceError):
-    """The node booted during an SDO transfer: its unsaved values are gone (never retried)."""
 
 
 class SdoChannel:

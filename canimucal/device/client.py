@@ -21,13 +21,7 @@ import can
 import canopen
 
 from canimucal.device import od
-from canimucal.device.bus import (
-    BACKOFF_START_S,
-    DeviceSilentError,
-    SdoAbort,
-    SdoChannel,
-    default_sdo_timeout_s,
-)
+from canimucal.device.bus import BACKOFF_START_S, SdoChannel, default_sdo_timeout_s
 from canimucal.device.busload import BusLoad, BusLoadMeter
 from canimucal.device.events import (
     EMCY_BASE,
@@ -44,7 +38,7 @@ from canimucal.device.stream import (
     layout_from_mapping,
 )
 from canimucal.device.stream_consumer import StreamConsumer
-from canimucal.errors import DeviceError, NoDeviceError
+from canimucal.errors import DeviceError, DeviceSilentError, NoDeviceError, SdoAbort
 
 logger = logging.getLogger(__name__)
 

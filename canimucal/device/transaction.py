@@ -20,7 +20,6 @@ from pathlib import Path
 from typing import Any
 
 from canimucal.device import od
-from canimucal.device.bus import NodeRebootedError, SdoAbort
 from canimucal.device.calibration_map import (
     backup_objects,
     block_from_record,
@@ -28,7 +27,13 @@ from canimucal.device.calibration_map import (
     record_from_readout,
 )
 from canimucal.device.client import CalibrationReadout, Identity, ImuClient
-from canimucal.errors import DeviceError, InputError
+from canimucal.errors import (
+    DeviceError,
+    InputError,
+    NodeRebootedError,
+    RollbackIncompleteError,
+    SdoAbort,
+)
 from canimucal.io.atomic import unique_path, write_text_atomic
 from canimucal.io.calibration import calibration_to_json
 
@@ -39,19 +44,6 @@ VALID_KEY: ObjectKey = (od.CAL_INFO, od.CAL_VALID_SUB)
 CRC_KEY: ObjectKey = (od.CAL_INFO, od.CAL_CRC_SUB)
 STORE_KEY: ObjectKey = (od.STORE, od.STORE_CALIBRATION_SUB)
 _BACKUP_ATTEMPTS = 20
-
-
-class RollbackIncompleteError(DeviceError):
-    """The backup could not be written back; the device is left invalid (exit 3)."""
-
-    title = "Rollback incomplete"
-
-    def __init__(self, backup_path: Path) -> None:
-        super().__init__(
-            f"rollback incomplete; device invalidated; restore with canimucal write-params "
-            f"{backup_path}"
-        )
-        self.backup_path = backup_path
 
 
 @dataclass(frozen=True)

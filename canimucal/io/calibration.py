@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from canimucal import schema as cs
-from canimucal.errors import InputError, ModelError
+from canimucal.errors import InputError, ModelError, SchemaError
 from canimucal.io.atomic import write_text_atomic
 from canimucal.model.positions import PositionAverage
 
@@ -198,7 +198,7 @@ def read_calibration(path_or_text: str | os.PathLike[str]) -> CalibrationRecord:
         raise InputError(f"{source}: schema must be {SCHEMA!r}, got {found!r}")
     try:
         record = cs.build(CalibrationRecord, document, "")
-    except cs.SchemaError as exc:
+    except SchemaError as exc:
         raise InputError(f"{source}: {exc}") from None
     _check_covariance(record, source)
     return record

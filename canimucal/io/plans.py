@@ -20,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from canimucal.errors import InputError
+from canimucal.errors import InputError, SchemaError
 from canimucal.io.atomic import write_text_atomic
 from canimucal.model.positions import DEFAULT_SECONDS, Plan, PlannedPosition
-from canimucal.schema import SchemaError, as_number, parse_json, read_text
+from canimucal.schema import parse_json, read_number, read_text
 
 BUILTIN_PLANS = ("two", "five", "recommended")
 """Plan names resolved by the model, not read from a file."""
@@ -97,7 +97,7 @@ def _position(entry: Any, number: int, source: str) -> PlannedPosition:
 
 def _number(entry: dict[str, Any], key: str, where: str) -> float:
     try:
-        return as_number(entry[key], key)
+        return read_number(entry[key], key)
     except SchemaError as exc:
         raise InputError(f"{where}: {exc}") from None
 

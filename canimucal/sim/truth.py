@@ -23,24 +23,25 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
+from canimucal.errors import SchemaError
 from canimucal.model.frames import TiltModel
 from canimucal.model.gravity import normal_gravity
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, AccelParams, GyroParams
-from canimucal.sim.truth_fields import (
-    Vector,
+from canimucal.schema import (
     fail,
-    float_array,
     frozen_array,
     is_numeric_tree,
-    json_object,
     key_path,
-    nonneg,
-    number,
+    read_array,
+    read_number,
+    read_object,
 )
 
 log = logging.getLogger(__name__)
+
+Vector = NDArray[np.float64]
 
 SCHEMA = "canimucal.truth/1"
 DEFAULT_LATITUDE_DEG = 50.45
@@ -67,9 +68,9 @@ class TemperatureProfile:
     @classmethod
     def from_dict(cls, obj: Any, path: str = "temperature") -> TemperatureProfile:
         """Validate and read the ``temperature`` object of the truth JSON."""
-        obj = json_object(obj, path, ("start_c", "rate_c_per_s", "profile"))
-        start = number(obj.get("start_c", 25.0), key_path(path, "start_c"))
-        rate = number(obj.get("rate_c_per_s", 0.0), key_path(path, "rate_c_per_s"))
+        obj = read_object(obj, path, ("start_c", "rate_c_per_s", "profile"))
+        start = read_number(obj.get("start_c", 25.0), key_path(path, "start_c"))
+        rate = read_number(obj.get("rate_c_per_s", 0.0), key_path(path, "rate_c_per_s"))
         profile = None
         if "profile" in obj:
             p_path = key_path(path, "profile")
@@ -119,19 +120,29 @@ class Truth:
 
     @classmethod
     def from_dict(cls, d: Any) -> Truth:
-        """Validate a truth JSON document; raise :class:`InputError` naming the bad key."""
-        d = json_object(d, "", _TOP_KEYS)
+        """Validate a truth JSON document; :class:`SchemaError` names the bad key.
+
+        Messages read ``truth: key.path: problem``.
+        """
+        try:
+            return cls._parse(d)
+        except SchemaError as exc:
+            raise SchemaError(f"truth: {exc}") from None
+
+    @classmethod
+    def _parse(cls, d: Any) -> Truth:
+        d = read_object(d, "", _TOP_KEYS)
         if d.get("schema", SCHEMA) != SCHEMA:
             fail("schema", f"must be {SCHEMA!r}")
-        rate = number(d.get("sample_rate_hz", 200), "sample_rate_hz")
+        rate = read_number(d.get("sample_rate_hz", 200), "sample_rate_hz")
         if rate not in SAMPLE_RATES_HZ:
             fail("sample_rate_hz", f"must be one of {', '.join(map(str, SAMPLE_RATES_HZ))}")
-        lat_deg = number(d.get("latitude_deg", DEFAULT_LATITUDE_DEG), "latitude_deg")
+        lat_deg = read_number(d.get("latitude_deg", DEFAULT_LATITUDE_DEG), "latitude_deg")
         if abs(lat_deg) > 90.0:
             fail("latitude_deg", "must be within [-90, 90]")
-        height = number(d.get("height_m", 0.0), "height_m")
+        height = read_number(d.get("height_m", 0.0), "height_m")
         if "g" in d:
-            g = number(d["g"], "g")
+            g = read_number(d["g"], "g")
             if g <= 0.0:
                 fail("g", "must be positive")
         else:
@@ -139,7 +150,7 @@ class Truth:
             log.info(
                 "truth: g = %.6f m/s² from latitude %.4f° and height %.1f m", g, lat_deg, height
             )
-        tilt = json_object(d.get("base_tilt_deg", {}), "base_tilt_deg", ("alpha0", "beta0"))
+        tilt = read_object(d.get("base_tilt_deg", {}), "base_tilt_deg", ("alpha0", "beta0"))
         faults = d.get("faults", {})
         if not isinstance(faults, Mapping) or not all(isinstance(k, str) for k in faults):
             fail("faults", "must be a JSON object")
@@ -148,7 +159,7 @@ class Truth:
             g=g,
             latitude=float(np.deg2rad(lat_deg)),
             height_m=height,
-            heading=float(np.deg2rad(number(d.get("heading_deg", 0.0), "heading_deg"))),
+            heading=float(np.deg2rad(read_number(d.get("heading_deg", 0.0), "heading_deg"))),
             serial=_serial(d.get("serial", 0)),
             tilt_model=_tilt_model(d.get("tilt_model", "rigid")),
             alpha0=float(np.deg2rad(_tilt_angle(tilt, "alpha0"))),
@@ -242,7 +253,7 @@ def _tilt_model(value: Any) -> TiltModel:
 
 def _tilt_angle(tilt: Mapping[str, Any], key: str) -> float:
     path = f"base_tilt_deg.{key}"
-    angle = number(tilt.get(key, 0.0), path)
+    angle = read_number(tilt.get(key, 0.0), path)
     if abs(angle) >= 90.0:
         fail(path, "must be within (-90, 90) degrees")
     return angle
@@ -268,14 +279,14 @@ _COMMON_KEYS = tuple(
 def _common(obj: Mapping[str, Any], path: str, lsb0: float, noise0: float) -> dict[str, Any]:
     """Read the keys accelerometer and gyro share; absent keys get their defaults."""
     out: dict[str, Any] = {}
-    lsb = number(obj.get("nominal_lsb", lsb0), key_path(path, "nominal_lsb"))
+    lsb = read_number(obj.get("nominal_lsb", lsb0), key_path(path, "nominal_lsb"))
     if lsb == 0.0:
         fail(key_path(path, "nominal_lsb"), "must be non-zero")
     out["nominal_lsb"] = lsb
-    out["quantization"] = number(
-        obj.get("quantization", 1.0), key_path(path, "quantization"), minimum=0.0
+    out["quantization"] = read_number(
+        obj.get("quantization", 1.0), key_path(path, "quantization"), 0.0
     )
-    out["bias"] = float_array(obj.get("bias", [0.0] * 3), key_path(path, "bias"), (3,))
+    out["bias"] = read_array(obj.get("bias", [0.0] * 3), key_path(path, "bias"), (3,))
     defaults = {
         "noise_density": [noise0] * 3,
         "temp_coeff": [0.0] * 3,
@@ -284,9 +295,9 @@ def _common(obj: Mapping[str, Any], path: str, lsb0: float, noise0: float) -> di
         "correlation_time_s": [DEFAULT_CORRELATION_TIME_S] * 3,
     }
     for key, default in defaults.items():
-        arr = float_array(obj.get(key, default), key_path(path, key), (3,))
+        arr = read_array(obj.get(key, default), key_path(path, key), (3,))
         if key != "temp_coeff":
-            arr = nonneg(arr, key_path(path, key))
+            arr = _nonneg(arr, key_path(path, key))
         out[key] = arr
     if np.any(out["correlation_time_s"] <= 0.0):
         fail(key_path(path, "correlation_time_s"), "must be positive")
@@ -341,15 +352,15 @@ class AccelTruth(_SensorTruth):
     @classmethod
     def from_dict(cls, obj: Any, path: str = "accel") -> AccelTruth:
         """Validate and read the ``accel`` object of the truth JSON."""
-        obj = json_object(obj, path, (*_COMMON_KEYS, "K", "quadratic"))
+        obj = read_object(obj, path, (*_COMMON_KEYS, "K", "quadratic"))
         common = _common(obj, path, DEFAULT_ACCEL_LSB, DEFAULT_ACCEL_NOISE_DENSITY)
         k_default = np.eye(3) / common["nominal_lsb"]
-        K = float_array(obj.get("K", k_default), key_path(path, "K"), (3, 3))
+        K = read_array(obj.get("K", k_default), key_path(path, "K"), (3, 3))
         _check_noise(common, K, path)
         return cls(
             **common,
             K=K,
-            quadratic=float_array(
+            quadratic=read_array(
                 obj.get("quadratic", [0.0] * 3), key_path(path, "quadratic"), (3,)
             ),
         )
@@ -376,15 +387,15 @@ class GyroTruth(_SensorTruth):
     @classmethod
     def from_dict(cls, obj: Any, path: str = "gyro") -> GyroTruth:
         """Validate and read the ``gyro`` object of the truth JSON."""
-        obj = json_object(obj, path, (*_COMMON_KEYS, "S", "G"))
+        obj = read_object(obj, path, (*_COMMON_KEYS, "S", "G"))
         common = _common(obj, path, DEFAULT_GYRO_LSB, DEFAULT_GYRO_NOISE_DENSITY)
         s_default = np.eye(3) / common["nominal_lsb"]
-        S = float_array(obj.get("S", s_default), key_path(path, "S"), (3, 3))
+        S = read_array(obj.get("S", s_default), key_path(path, "S"), (3, 3))
         _check_noise(common, S, path)
         return cls(
             **common,
             S=S,
-            G=float_array(obj.get("G", np.zeros((3, 3))), key_path(path, "G"), (3, 3)),
+            G=read_array(obj.get("G", np.zeros((3, 3))), key_path(path, "G"), (3, 3)),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -397,3 +408,10 @@ class GyroTruth(_SensorTruth):
     def params(self) -> GyroParams:
         """Return the model's bias, S and G (no drifts, no noise)."""
         return GyroParams(np.array(self.bias), np.array(self.S), np.array(self.G))
+
+
+def _nonneg(arr: Vector, path: str) -> Vector:
+    """Return ``arr`` after checking that no entry is negative."""
+    if np.any(arr < 0):
+        fail(path, "must be non-negative")
+    return arr

@@ -1,18 +1,18 @@
-"""Schema of the truth JSON's ``faults`` block (the table is in :mod:`.sim_faults`).
+"""Schema of the truth JSON's ``faults`` block (the table is in :mod:`.faults`).
 
-Each bad key raises one :class:`InputError` naming it (``faults.sdo_aborts[0].object: ...``),
-so ``demo --truth FILE`` exits 2 with one line.
+Each bad key raises one :class:`~canimucal.errors.SchemaError` naming it
+(``truth: faults.sdo_aborts[0].object: ...``), so ``demo --truth FILE`` exits 2 with one line.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 from canimucal.device import od
-from canimucal.errors import InputError
+from canimucal.errors import InputError, SchemaError
+from canimucal.schema import fail, read_integer, read_list, read_number, read_object
 
 DEFAULT_ABORT_CODE = 0x08000020  # data cannot be transferred or stored
 _FRACTIONS = (
@@ -33,42 +33,14 @@ _KEYS |= {"heartbeat_loss", "error_frames_at_s", *_FRACTIONS, *_COUNTS}
 _ABORT_KEYS = {"object", "code", "access", "after_writes", "at_access"}
 
 
-def _fail(key: str, problem: str) -> InputError:
-    return InputError(f"faults.{key}: {problem}" if key else f"faults: {problem}")
-
-
-def _number(value: Any, key: str, low: float = 0.0, high: float = math.inf) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise _fail(key, f"must be a finite number, got {value!r}")
-    if not low <= value <= high:
-        raise _fail(key, f"must be within [{low:g}, {high:g}], got {value!r}")
-    return float(value)
-
-
 def _integer(value: Any, key: str, low: int = 0) -> int:
+    """Read an integer ≥ ``low``; a string such as ``"0x08000020"`` in its own base."""
     if isinstance(value, str):
         try:
             value = int(value, 0)
         except ValueError:
-            raise _fail(key, f"must be an integer, got {value!r}") from None
-    if isinstance(value, bool) or not isinstance(value, int) or value < low:
-        raise _fail(key, f"must be an integer ≥ {low}, got {value!r}")
-    return int(value)
-
-
-def _mapping(value: Any, key: str, allowed: set[str]) -> Mapping[str, Any]:
-    if not isinstance(value, Mapping):
-        raise _fail(key, "must be a JSON object")
-    unknown = sorted(str(k) for k in value if k not in allowed)
-    if unknown:
-        raise _fail(f"{key}.{unknown[0]}" if key else unknown[0], "unknown key")
-    return value
-
-
-def _list(value: Any, key: str) -> list[Any]:
-    if not isinstance(value, list):
-        raise _fail(key, "must be a JSON array")
-    return value
+            fail(key, f"must be an integer, got {value[:40]!r}")
+    return read_integer(value, key, low)
 
 
 @dataclass(frozen=True)
@@ -85,16 +57,16 @@ class AbortRule:
     @classmethod
     def parse(cls, value: Any, key: str) -> AbortRule:
         """Validate one ``sdo_aborts`` entry."""
-        d = _mapping(value, key, _ABORT_KEYS)
+        d = read_object(value, key, _ABORT_KEYS)
         if "object" not in d:
-            raise _fail(f"{key}.object", "is required")
+            fail(f"{key}.object", "is required")
         try:
             index, sub = od.parse_key(str(d["object"]))
         except (ValueError, InputError):
-            raise _fail(f"{key}.object", f"must look like 0x2101:05, got {d['object']!r}") from None
+            fail(f"{key}.object", f"must look like 0x2101:05, got {d['object']!r}")
         access = d.get("access", "write")
         if access not in ("write", "read", "any"):
-            raise _fail(f"{key}.access", f"must be write, read or any, got {access!r}")
+            fail(f"{key}.access", f"must be write, read or any, got {access!r}")
         at = d.get("at_access")
         return cls(
             index,
@@ -117,12 +89,12 @@ class Emergency:
     @classmethod
     def parse(cls, value: Any, key: str) -> Emergency:
         """Validate one ``emergency`` entry."""
-        d = _mapping(value, key, {"at_s", "code", "register"})
+        d = read_object(value, key, {"at_s", "code", "register"})
         code = _integer(d.get("code", 0x1000), f"{key}.code")
         register = _integer(d.get("register", 0x01), f"{key}.register")
         if code > 0xFFFF or register > 0xFF:
-            raise _fail(key, "code must fit 16 bits and register 8 bits")
-        return cls(_number(d.get("at_s", 0.0), f"{key}.at_s"), code, register)
+            fail(key, "code must fit 16 bits and register 8 bits")
+        return cls(read_number(d.get("at_s", 0.0), f"{key}.at_s", 0.0), code, register)
 
 
 @dataclass(frozen=True)
@@ -158,39 +130,50 @@ class FaultConfig:
 
 
 def parse_faults(doc: Any) -> FaultConfig:
-    """Validate a ``faults`` block; :class:`InputError` names the first bad key."""
-    d = _mapping({} if doc is None else doc, "", _KEYS)
+    """Validate a ``faults`` block; :class:`SchemaError` names the first bad key."""
+    try:
+        return _parse({} if doc is None else doc)
+    except SchemaError as exc:
+        problem = str(exc)
+        where = "faults" if problem.startswith("top level:") else "faults."
+        raise SchemaError(f"truth: {where}{problem.removeprefix('top level')}") from None
+
+
+def _parse(doc: Any) -> FaultConfig:
+    d = read_object(doc, "", _KEYS)
     kw: dict[str, Any] = {}
     for key in _FRACTIONS:
         if key in d:
-            kw[key] = _number(d[key], key, 0.0, 1.0)
+            kw[key] = read_number(d[key], key, 0.0, 1.0)
     for key in _COUNTS:
         if d.get(key) is not None:
             kw[key] = _integer(d[key], key, 1 if key != "sdo_silent_after" else 0)
     if "seed" in d:
         kw["seed"] = _integer(d["seed"], "seed")
     if "burst_loss" in d:
-        b = _mapping(d["burst_loss"], "burst_loss", {"probability", "frames"})
-        kw["burst_probability"] = _number(b.get("probability", 0.0), "burst_loss.probability", 0, 1)
+        b = read_object(d["burst_loss"], "burst_loss", {"probability", "frames"})
+        kw["burst_probability"] = read_number(
+            b.get("probability", 0.0), "burst_loss.probability", 0.0, 1.0
+        )
         kw["burst_frames"] = _integer(b.get("frames", 1), "burst_loss.frames", 1)
     mode = d.get("sdo_silent_mode", "request")
     if mode not in ("request", "response"):
-        raise _fail("sdo_silent_mode", f"must be request or response, got {mode!r}")
+        fail("sdo_silent_mode", f"must be request or response, got {mode!r}")
     kw["sdo_silent_mode"] = mode
-    rules = _list(d.get("sdo_aborts", []), "sdo_aborts")
+    rules = read_list(d.get("sdo_aborts", []), "sdo_aborts")
     kw["sdo_aborts"] = tuple(AbortRule.parse(r, f"sdo_aborts[{i}]") for i, r in enumerate(rules))
     if d.get("reboot_at_s") is not None:
-        kw["reboot_at_s"] = _number(d["reboot_at_s"], "reboot_at_s")
-    emcy = _list(d.get("emergency", []), "emergency")
+        kw["reboot_at_s"] = read_number(d["reboot_at_s"], "reboot_at_s", 0.0)
+    emcy = read_list(d.get("emergency", []), "emergency")
     kw["emergency"] = tuple(Emergency.parse(e, f"emergency[{i}]") for i, e in enumerate(emcy))
     if d.get("heartbeat_loss") is not None:
-        h = _mapping(d["heartbeat_loss"], "heartbeat_loss", {"from_s", "until_s"})
-        start = _number(h.get("from_s", 0.0), "heartbeat_loss.from_s")
+        h = read_object(d["heartbeat_loss"], "heartbeat_loss", {"from_s", "until_s"})
+        start = read_number(h.get("from_s", 0.0), "heartbeat_loss.from_s", 0.0)
         until = h.get("until_s")
-        end = math.inf if until is None else _number(until, "heartbeat_loss.until_s", start)
+        end = math.inf if until is None else read_number(until, "heartbeat_loss.until_s", start)
         kw["heartbeat_loss"] = (start, end)
-    times = _list(d.get("error_frames_at_s", []), "error_frames_at_s")
+    times = read_list(d.get("error_frames_at_s", []), "error_frames_at_s")
     kw["error_frames_at_s"] = tuple(
-        _number(t, f"error_frames_at_s[{i}]") for i, t in enumerate(times)
+        read_number(t, f"error_frames_at_s[{i}]", 0.0) for i, t in enumerate(times)
     )
     return FaultConfig(**kw)

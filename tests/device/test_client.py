@@ -18,13 +18,11 @@ from canimucal.device.bus import (
     DEFAULT_SDO_TIMEOUT_S,
     VM_SDO_TIMEOUT_S,
     BusSettings,
-    DeviceSilentError,
-    SdoAbort,
     default_sdo_timeout_s,
     open_bus,
 )
 from canimucal.device.client import ImuClient
-from canimucal.errors import InputError, NoDeviceError
+from canimucal.errors import DeviceSilentError, InputError, NoDeviceError, SdoAbort
 from canimucal.sim.truth import Truth
 from canimucal.simnode.node import SimulatedImuNode
 

@@ -18,7 +18,7 @@ import canopen
 import pytest
 
 from canimucal.device import od
-from canimucal.device.bus import DeviceSilentError, SdoAbort, SdoChannel
+from canimucal.device.bus import SdoChannel
 from canimucal.device.client import ImuClient
 from canimucal.device.events import (
     BusErrorReceived,
@@ -30,7 +30,7 @@ from canimucal.device.events import (
     SerialChanged,
 )
 from canimucal.device.stream import SampleBlock, concat_blocks
-from canimucal.errors import DeviceError, InputError
+from canimucal.errors import DeviceError, DeviceSilentError, InputError, SdoAbort
 from canimucal.sim.truth import Truth
 from canimucal.simnode.faults import FaultInjector, parse_faults
 from canimucal.simnode.node import SimulatedImuNode
@@ -122,7 +122,7 @@ def _events(client: ImuClient, kind: type, timeout_s: float = 5.0) -> list[Devic
 def test_bad_faults_block_names_the_key(doc: Any, named: str) -> None:
     with pytest.raises(InputError) as info:
         parse_faults(doc)
-    assert str(info.value).startswith(named) and "\n" not in str(info.value)
+    assert str(info.value).startswith("truth: " + named) and "\n" not in str(info.value)
     with pytest.raises(InputError):  # the node refuses such a truth at construction
         FaultInjector(doc)
 

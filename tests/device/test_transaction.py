@@ -31,12 +31,11 @@ from canimucal.device.calibration_map import (
 )
 from canimucal.device.client import ImuClient
 from canimucal.device.transaction import (
-    RollbackIncompleteError,
     default_backup_dir,
     save_backup,
     write_calibration_transaction,
 )
-from canimucal.errors import DeviceError, InputError
+from canimucal.errors import DeviceError, InputError, RollbackIncompleteError
 from canimucal.io.calibration import read_calibration
 from canimucal.sim.truth import Truth
 from canimucal.simnode.node import SimulatedImuNode

@@ -25,8 +25,8 @@ import pytest
 
 from canimucal.device import od
 from canimucal.device.client import ImuClient
-from canimucal.device.transaction import RollbackIncompleteError, write_calibration_transaction
-from canimucal.errors import DeviceError
+from canimucal.device.transaction import write_calibration_transaction
+from canimucal.errors import DeviceError, RollbackIncompleteError
 from canimucal.sim.truth import Truth
 from canimucal.simnode.faults import FaultStats
 from canimucal.simnode.node import SimulatedImuNode
