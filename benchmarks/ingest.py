@@ -33,8 +33,10 @@ import numpy as np
 
 from canimucal.device.client import ImuClient
 from canimucal.device.pdo_layout import design_layout
-from canimucal.device.stream import SampleBlock, SamplePairer
+from canimucal.device.stream import SamplePairer
 from canimucal.device.transaction import write_calibration_transaction
+from canimucal.io.calibration import Calibration
+from canimucal.model.samples import SampleBlock
 from canimucal.sim.truth import Truth
 from canimucal.simnode.node import SimulatedImuNode
 
@@ -171,7 +173,9 @@ def transaction_time_s(repeats: int = 3) -> float:
         }
         for _ in range(repeats):
             t0 = time.perf_counter()
-            write_calibration_transaction(client, record, backup_dir=Path(tmp) / "backups")
+            write_calibration_transaction(
+                client, Calibration.from_dict(record), backup_dir=Path(tmp) / "backups"
+            )
             times.append(time.perf_counter() - t0)
         client.close()
         node.stop()

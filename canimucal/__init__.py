@@ -1,3 +1,5 @@
 """canimucal: field calibration of a CANopen IMU from small rotations."""
 
-__version__ = "0.1.0"
+from canimucal.version import __version__
+
+__all__ = ["__version__"]

@@ -392,3 +392,19 @@ def objects() -> dict[str, Checker]:
         return out
 
     return _meta(check)
+
+
+def number_map() -> dict[str, Checker]:
+    """Field metadata: an object of ``name: number`` pairs (names are identifiers)."""
+
+    def check(value: Any, path: str) -> dict[str, float]:
+        if not isinstance(value, dict):
+            fail(path, "must be an object")
+        out: dict[str, float] = {}
+        for key, raw in value.items():
+            if not re.fullmatch(r"[a-z][a-z0-9_]{0,63}", key):
+                fail(path, f"malformed name {key[:40]!r}")
+            out[key] = read_number(raw, key_path(path, key))
+        return out
+
+    return _meta(check)

@@ -17,7 +17,7 @@ from scipy.stats import chi2 as chi2_distribution
 
 from canimucal.errors import ModelError
 from canimucal.io.calibration import (
-    CalibrationRecord,
+    Calibration,
     Conditions,
     Device,
     Fit,
@@ -64,7 +64,7 @@ class SiteConditions:
 class Solution:
     """A solved calibration: the record to save/write, the fit behind it, and its warnings."""
 
-    record: CalibrationRecord
+    record: Calibration
     joint: JointResult | None = None
     scalar: ScalarFit | None = None
     undetermined: dict[str, str] = field(default_factory=dict)

@@ -13,8 +13,8 @@ import sys
 import traceback
 from collections.abc import Sequence
 
-from canimucal import __version__
 from canimucal.errors import CanimucalError
+from canimucal.version import __version__
 
 # verb -> (module under canimucal.cli providing `add_subparser` and `run`, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {

@@ -61,15 +61,16 @@ def run(args: argparse.Namespace) -> int:
 
 def read_document(client: ImuClient) -> dict[str, Any]:
     """Everything ``read-params`` reports about one node, as a JSON-ready dict."""
-    from canimucal.device.calibration_map import readback_dict, record_dict_from_block
+    from canimucal.device.calibration_map import readback_of, record_from_block
+    from canimucal.schema import to_plain
 
     identity = client.identity()
     accel_lsb, gyro_lsb = client.nominal_lsb()
     odr = client.output_data_rate()
     readout = client.read_calibration_block()
-    calibration = record_dict_from_block(
+    calibration = record_from_block(
         readout.block, identity, node_id=client.node_id, objects=readout.objects
-    )
+    ).to_dict()
     return {
         "schema": SCHEMA,
         "device": {
@@ -81,7 +82,7 @@ def read_document(client: ImuClient) -> dict[str, Any]:
             "device_name": identity.device_name,
         },
         "nominal": {"accel_lsb": accel_lsb, "gyro_lsb": gyro_lsb, "output_data_rate_hz": odr},
-        "readback": readback_dict(readout.block, readout.valid, readout.crc_ok),
+        "readback": to_plain(readback_of(readout.block, readout.valid, readout.crc_ok)),
         "crc_stored": readout.crc_stored,
         "calibration": calibration,
         "bus_load": client.bus_load(full_window=True).as_dict(),

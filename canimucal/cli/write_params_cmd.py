@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 from canimucal.cli.bus_options import DeviceSession, add_bus_options
 from canimucal.errors import InputError
-from canimucal.io.calibration import CalibrationRecord, read_calibration
+from canimucal.io.calibration import Calibration, read_calibration
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
 
 if TYPE_CHECKING:
@@ -39,7 +39,7 @@ def add_subparser(subparsers: Any) -> None:
     p.set_defaults(run=run)
 
 
-def check_file(path: str) -> CalibrationRecord:
+def check_file(path: str) -> Calibration:
     """Read and check the calibration before connecting (InputError, exit 2)."""
     from canimucal.device.calibration_map import backup_objects, block_from_record
 

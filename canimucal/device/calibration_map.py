@@ -1,4 +1,4 @@
-"""Calibration JSON record (DESIGN §5) ⇄ device calibration block (DESIGN §4).
+"""Calibration record (DESIGN §5) ⇄ device calibration block (DESIGN §4), on typed records.
 
 The file holds the sensor models (K counts per m/s², S counts per rad/s, G, biases, tilt in
 degrees); the device holds their inverses M = K⁻¹ and N = S⁻¹ (m/s² and rad/s per count),
@@ -9,48 +9,32 @@ map of the raw device values, written back verbatim for a bit-exact restore.
 
 from __future__ import annotations
 
-import json
-import logging
 import math
 from collections.abc import Mapping
 from datetime import UTC, datetime
-from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
-from canimucal import __version__
 from canimucal.device import od
+from canimucal.device.client import CalibrationReadout, Identity
 from canimucal.errors import InputError
-from canimucal.io.calibration import calibration_to_dict, read_calibration
+from canimucal.io.calibration import (
+    AccelBlock,
+    BaseTilt,
+    Calibration,
+    Conditions,
+    Device,
+    Fit,
+    GyroBlock,
+    Matrix,
+    Readback,
+    Tool,
+    Vector,
+)
+from canimucal.version import __version__
 
-logger = logging.getLogger(__name__)
-
-SCHEMA = "canimucal.calibration/1"
 PLAN_NAMES = {code: name for name, code in od.PLAN_CODES.items()}
-
-
-def record_dict(record: Any) -> dict[str, Any]:
-    """Return the JSON form of a ``CalibrationRecord`` (a mapping is taken as it is)."""
-    if isinstance(record, Mapping):
-        return dict(record)
-    return dict(calibration_to_dict(record))
-
-
-def _vector(value: Any, n: int, nominal: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``n`` floats with ``None`` (whole or per entry) replaced by the nominal entry."""
-    if value is None:
-        return nominal.copy()
-    out = nominal.copy()
-    for i, entry in enumerate(np.asarray(value, dtype=object).reshape(n)):
-        if entry is not None:
-            out[i] = float(entry)
-    return out
-
-
-def _matrix(value: Any, nominal: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Return a 3×3 matrix, ``None`` entries (or a ``None`` matrix) taken as nominal."""
-    return _vector(value, 9, nominal.reshape(9)).reshape(3, 3)
 
 
 def _inverse(matrix: NDArray[np.float64], name: str) -> NDArray[np.float64]:
@@ -62,131 +46,112 @@ def _inverse(matrix: NDArray[np.float64], name: str) -> NDArray[np.float64]:
     return np.asarray(np.linalg.inv(matrix), dtype=float)
 
 
-def _unix_time(created: Any) -> int:
+def _unix_time(created: str | None) -> int:
     """Convert ``created`` (ISO 8601 UTC) to Unix seconds; 0 if absent."""
     if created is None:
         return 0
-    try:
-        moment = datetime.fromisoformat(str(created).replace("Z", "+00:00"))
-    except ValueError as exc:
-        raise InputError(f"created {created!r} is not an ISO 8601 time") from exc
+    moment = datetime.fromisoformat(created.replace("Z", "+00:00"))
     if moment.tzinfo is None:
         moment = moment.replace(tzinfo=UTC)
     return max(int(moment.timestamp()), 0)
 
 
-def _plan_code(plan: Any) -> int:
-    if plan is None:
-        return 0
-    if plan not in od.PLAN_CODES:
-        raise InputError(f"plan {plan!r} is not one of {sorted(od.PLAN_CODES)}")
-    return od.PLAN_CODES[plan]
-
-
-def _number(value: Any, default: float = 0.0) -> float:
-    return default if value is None else float(value)
-
-
-def block_from_record(record: Any, accel_lsb: float, gyro_lsb: float) -> od.CalibrationBlock:
-    """Build the device block of a calibration: M = K⁻¹, N = S⁻¹, nulls nominal, tilt in radians."""
-    d = record_dict(record)
-    accel, gyro = d.get("accel") or {}, d.get("gyro") or {}
-    tilt = d.get("base_tilt_deg") or {}
-    k = _matrix(accel.get("K"), np.eye(3) / accel_lsb)
-    s = _matrix(gyro.get("S"), np.eye(3) / gyro_lsb)
+def block_from_record(
+    record: Calibration, accel_lsb: float, gyro_lsb: float
+) -> od.CalibrationBlock:
+    """Build the device block of a calibration: M = K⁻¹, N = S⁻¹, nulls nominal, tilt radians."""
+    gyro = record.gyro or GyroBlock()
+    tilt = record.base_tilt_deg or BaseTilt()
     return od.CalibrationBlock(
-        accel_bias=_vector(accel.get("bias"), 3, np.zeros(3)),
-        accel_correction=_inverse(k, "accel.K"),
-        gyro_bias=_vector(gyro.get("bias"), 3, np.zeros(3)),
-        gyro_correction=_inverse(s, "gyro.S"),
-        gyro_g=_matrix(gyro.get("G"), np.zeros((3, 3))),
-        base_tilt_rad=np.deg2rad([_number(tilt.get("alpha0")), _number(tilt.get("beta0"))]),
-        time_unix_s=_unix_time(d.get("created")),
-        plan_code=_plan_code(d.get("plan")),
-        temp_c=_number((d.get("conditions") or {}).get("temp_c")),
-        rms_ms2=_number((d.get("fit") or {}).get("rms")),
+        accel_bias=record.accel.bias_counts(),
+        accel_correction=_inverse(record.accel.K_matrix(accel_lsb), "accel.K"),
+        gyro_bias=gyro.bias_counts(),
+        gyro_correction=_inverse(gyro.S_matrix(gyro_lsb), "gyro.S"),
+        gyro_g=gyro.G_matrix(),
+        base_tilt_rad=np.deg2rad([tilt.alpha0 or 0.0, tilt.beta0 or 0.0]),
+        time_unix_s=_unix_time(record.created),
+        plan_code=od.PLAN_CODES[record.plan] if record.plan is not None else 0,
+        temp_c=_or_zero(record.conditions.temp_c if record.conditions else None),
+        rms_ms2=_or_zero(record.fit.rms if record.fit else None),
     )
 
 
-def backup_objects(record: Any) -> dict[tuple[int, int], float | int] | None:
-    """Return a backup's ``objects`` map keyed ``(index, sub)``, or None when the record has none.
+def _or_zero(value: float | None) -> float:
+    return 0.0 if value is None else float(value)
+
+
+def backup_objects(record: Calibration) -> dict[tuple[int, int], float | int] | None:
+    """Return a backup's ``objects`` map keyed ``(index, sub)``, or None when it has none.
 
     Every calibration object (valid flag and CRC included) must be present.
     """
-    raw = record_dict(record).get("objects")
-    if raw is None:
+    if record.objects is None:
         return None
-    objects = {od.parse_key(key): value for key, value in raw.items()}
+    objects = {od.parse_key(key): value for key, value in record.objects.items()}
     missing = [od.format_key(i, s) for i, s, _ in od.CALIBRATION_OBJECTS if (i, s) not in objects]
     if missing:
         raise InputError(f"backup objects missing: {', '.join(missing)}")
-    out: dict[tuple[int, int], float | int] = {}
-    for index, sub, code in od.CALIBRATION_OBJECTS:
-        value = objects[(index, sub)]
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise InputError(f"backup object {od.format_key(index, sub)} is not a number")
-        out[(index, sub)] = float(value) if code == "f32" else int(value)
-    return out
+    return {
+        (index, sub): float(objects[(index, sub)]) if code == "f32" else int(objects[(index, sub)])
+        for index, sub, code in od.CALIBRATION_OBJECTS
+    }
 
 
-def _json_list(array: NDArray[np.float64]) -> Any:
-    """Nested lists of floats, ``None`` for non-finite entries (JSON has no NaN)."""
-    if array.ndim == 0:
-        value = float(array)
-        return value if math.isfinite(value) else None
-    return [_json_list(row) for row in array]
+def _finite(value: float) -> float | None:
+    """``value``, or ``None`` (JSON ``null``) when it is not finite."""
+    return float(value) if math.isfinite(value) else None
 
 
-def _model_matrix(correction: NDArray[np.float64]) -> Any:
+def _vector(values: ArrayLike) -> Vector:
+    return tuple(_finite(v) for v in np.asarray(values, float).ravel())
+
+
+def _matrix(values: ArrayLike) -> Matrix:
+    return tuple(_vector(row) for row in np.asarray(values, float).reshape(3, 3))
+
+
+def _model_matrix(correction: ArrayLike) -> Matrix:
     """K = M⁻¹ (or S = N⁻¹); all ``None`` when M cannot be inverted (nominal)."""
     try:
-        return _json_list(_inverse(np.asarray(correction, float), "correction"))
+        return _matrix(_inverse(np.asarray(correction, float), "correction"))
     except InputError:
-        return [[None] * 3 for _ in range(3)]
+        return ((None,) * 3,) * 3
 
 
-def record_dict_from_block(
+def record_from_block(
     block: od.CalibrationBlock,
-    identity: Any,
+    identity: Identity,
     *,
     node_id: int | None = None,
     objects: Mapping[tuple[int, int], float | int] | None = None,
-) -> dict[str, Any]:
-    """Build a calibration JSON dict for ``block`` (a backup when ``objects`` is given)."""
-    d: dict[str, Any] = {"schema": SCHEMA}
+) -> Calibration:
+    """Build the calibration record of a device block; with ``objects`` a restorable backup."""
+    created = None
     if block.time_unix_s > 0:
-        moment = datetime.fromtimestamp(block.time_unix_s, UTC)
-        d["created"] = moment.strftime("%Y-%m-%dT%H:%M:%SZ")
-    if block.plan_code in PLAN_NAMES:
-        d["plan"] = PLAN_NAMES[block.plan_code]
-    d["tool"] = {"name": "canimucal", "version": __version__}
-    device = {"node_id": node_id} if node_id is not None else {}
-    device |= {
-        "vendor_id": int(identity.vendor_id),
-        "product_code": int(identity.product_code),
-        "revision": int(identity.revision),
-        "serial": int(identity.serial),
-    }
-    d["device"] = device
-    d["conditions"] = {"temp_c": _json_list(np.asarray(block.temp_c, float))}
-    d["accel"] = {
-        "bias": _json_list(np.asarray(block.accel_bias, float)),
-        "K": _model_matrix(block.accel_correction),
-    }
-    d["gyro"] = {
-        "bias": _json_list(np.asarray(block.gyro_bias, float)),
-        "S": _model_matrix(block.gyro_correction),
-        "G": _json_list(np.asarray(block.gyro_g, float)),
-    }
+        created = datetime.fromtimestamp(block.time_unix_s, UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
     alpha0, beta0 = np.rad2deg(np.asarray(block.base_tilt_rad, float))
-    d["base_tilt_deg"] = {
-        "alpha0": _json_list(np.asarray(alpha0)),
-        "beta0": _json_list(np.asarray(beta0)),
-    }
-    d["fit"] = {"rms": _json_list(np.asarray(block.rms_ms2, float))}
-    if objects is not None:
-        d["objects"] = objects_json(objects)
-    return d
+    return Calibration(
+        created=created,
+        plan=PLAN_NAMES.get(block.plan_code),
+        tool=Tool(name="canimucal", version=__version__),
+        device=Device(
+            node_id=node_id,
+            vendor_id=int(identity.vendor_id),
+            product_code=int(identity.product_code),
+            revision=int(identity.revision),
+            serial=int(identity.serial),
+        ),
+        conditions=Conditions(temp_c=_finite(block.temp_c)),
+        accel=AccelBlock(bias=_vector(block.accel_bias), K=_model_matrix(block.accel_correction)),
+        gyro=GyroBlock(
+            bias=_vector(block.gyro_bias),
+            S=_model_matrix(block.gyro_correction),
+            G=_matrix(block.gyro_g),
+        ),
+        base_tilt_deg=BaseTilt(alpha0=_finite(alpha0), beta0=_finite(beta0)),
+        fit=Fit(rms=_finite(block.rms_ms2)),
+        objects=None if objects is None else objects_json(objects),
+    )
 
 
 def objects_json(objects: Mapping[tuple[int, int], float | int]) -> dict[str, float | int]:
@@ -202,36 +167,22 @@ def objects_json(objects: Mapping[tuple[int, int], float | int]) -> dict[str, fl
     return out
 
 
-def _parse(d: Mapping[str, Any]) -> Any:
-    """Parse a ``CalibrationRecord`` from its JSON dict, through the strict reader."""
-    return read_calibration(json.dumps(d, allow_nan=False))
-
-
-def record_from_block(
-    block: od.CalibrationBlock,
-    identity: Any,
-    *,
-    node_id: int | None = None,
-    objects: Mapping[tuple[int, int], float | int] | None = None,
-) -> Any:
-    """Build a ``CalibrationRecord`` for ``block``; with ``objects`` a restorable backup."""
-    return _parse(record_dict_from_block(block, identity, node_id=node_id, objects=objects))
-
-
-def record_from_readout(readout: Any, identity: Any, node_id: int | None = None) -> Any:
+def record_from_readout(
+    readout: CalibrationReadout, identity: Identity, node_id: int | None = None
+) -> Calibration:
     """Build the backup record of a :class:`~canimucal.device.client.CalibrationReadout`."""
     return record_from_block(readout.block, identity, node_id=node_id, objects=readout.objects)
 
 
-def readback_dict(block: od.CalibrationBlock, valid: int, crc_ok: bool) -> dict[str, Any]:
+def readback_of(block: od.CalibrationBlock, valid: int, crc_ok: bool) -> Readback:
     """DESIGN §5 ``readback``: the device's values as read (tilt in radians), valid, CRC ok."""
-    return {
-        "accel_bias": _json_list(np.asarray(block.accel_bias, float)),
-        "accel_correction": _json_list(np.asarray(block.accel_correction, float)),
-        "gyro_bias": _json_list(np.asarray(block.gyro_bias, float)),
-        "gyro_correction": _json_list(np.asarray(block.gyro_correction, float)),
-        "gyro_g": _json_list(np.asarray(block.gyro_g, float)),
-        "base_tilt_rad": _json_list(np.asarray(block.base_tilt_rad, float)),
-        "valid": int(valid),
-        "crc_ok": bool(crc_ok),
-    }
+    return Readback(
+        accel_bias=_vector(block.accel_bias),
+        accel_correction=_matrix(block.accel_correction),
+        gyro_bias=_vector(block.gyro_bias),
+        gyro_correction=_matrix(block.gyro_correction),
+        gyro_g=_matrix(block.gyro_g),
+        base_tilt_rad=_vector(block.base_tilt_rad),
+        valid=int(valid),
+        crc_ok=bool(crc_ok),
+    )

@@ -30,15 +30,10 @@ from canimucal.device.events import (
     NodeMonitor,
     SerialChanged,
 )
-from canimucal.device.stream import (
-    SampleBlock,
-    SampleLayout,
-    SamplePairer,
-    concat_blocks,
-    layout_from_mapping,
-)
+from canimucal.device.stream import SampleLayout, SamplePairer, layout_from_mapping
 from canimucal.device.stream_consumer import StreamConsumer
 from canimucal.errors import DeviceError, DeviceSilentError, NoDeviceError, SdoAbort
+from canimucal.model.samples import SampleBlock, concat_blocks
 
 logger = logging.getLogger(__name__)
 

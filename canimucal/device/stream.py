@@ -23,7 +23,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from canimucal.device.pdo_layout import (
     ACCEL_RAW,
@@ -35,14 +34,13 @@ from canimucal.device.pdo_layout import (
     SampleLayout,
     layout_from_mapping,
 )
+from canimucal.model.samples import SampleBlock
 
 __all__ = [
     "MappedField",
     "PdoLayout",
-    "SampleBlock",
     "SampleLayout",
     "SamplePairer",
-    "concat_blocks",
     "layout_from_mapping",
 ]
 
@@ -57,42 +55,6 @@ on a loaded 2-core host gave up 22 halves whose partners were only delayed (coun
 late, nothing hidden, but lost). While frames flow, the counter rule decides, not this."""
 RECENT_WINDOW = 1024
 """How many finalized counters are remembered to tell duplicates from late halves."""
-
-
-@dataclass(frozen=True)
-class SampleBlock:
-    """Paired samples in counter order, with the stream's losses over the same span.
-
-    ``t`` is the CAN timestamp of TPDO2 (TPDO1's when TPDO2 was lost); ``accel``/``gyro`` are
-    raw counts with NaN rows for a lost half. The counts cover what was finalized into this
-    block: ``lost_samples`` counter gaps (both halves missing), ``duplicates`` and ``late``
-    halves dropped, ``malformed`` frames (wrong length) dropped.
-    """
-
-    t: NDArray[np.float64]
-    counter: NDArray[np.int64]
-    accel: NDArray[np.float64]
-    gyro: NDArray[np.float64]
-    temp_c: float
-    status: int | None
-    lost_accel: int
-    lost_gyro: int
-    lost_samples: int
-    duplicates: int
-    late: int
-    malformed: int = 0
-
-    @property
-    def suspect(self) -> bool:
-        """Whether anything was lost, repeated, late or malformed over this block's span."""
-        return bool(
-            self.lost_accel + self.lost_gyro + self.lost_samples + self.duplicates + self.late
-        ) or bool(self.malformed)
-
-    @property
-    def n(self) -> int:
-        """Number of samples (rows)."""
-        return int(self.t.shape[0])
 
 
 @dataclass
@@ -320,24 +282,4 @@ def _block(
         tally.duplicates,
         tally.late,
         tally.malformed,
-    )
-
-
-def concat_blocks(blocks: Sequence[SampleBlock]) -> SampleBlock:
-    """One block holding ``blocks`` in order (counts summed, latest temperature)."""
-    if not blocks:
-        return _block([], _Tally(), float("nan"), None)
-    return SampleBlock(
-        np.concatenate([b.t for b in blocks]),
-        np.concatenate([b.counter for b in blocks]),
-        np.concatenate([b.accel for b in blocks]),
-        np.concatenate([b.gyro for b in blocks]),
-        blocks[-1].temp_c,
-        blocks[-1].status,
-        sum(b.lost_accel for b in blocks),
-        sum(b.lost_gyro for b in blocks),
-        sum(b.lost_samples for b in blocks),
-        sum(b.duplicates for b in blocks),
-        sum(b.late for b in blocks),
-        sum(b.malformed for b in blocks),
     )

@@ -12,7 +12,8 @@ import queue
 import threading
 import time
 
-from canimucal.device.stream import SampleBlock, SamplePairer
+from canimucal.device.stream import SamplePairer
+from canimucal.model.samples import SampleBlock
 
 logger = logging.getLogger(__name__)
 

@@ -17,13 +17,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
 
 from canimucal.device import od
 from canimucal.device.calibration_map import (
     backup_objects,
     block_from_record,
-    record_dict,
     record_from_readout,
 )
 from canimucal.device.client import CalibrationReadout, Identity, ImuClient
@@ -35,7 +33,7 @@ from canimucal.errors import (
     SdoAbort,
 )
 from canimucal.io.atomic import unique_path, write_text_atomic
-from canimucal.io.calibration import calibration_to_json
+from canimucal.io.calibration import Calibration, calibration_to_json
 
 logger = logging.getLogger(__name__)
 
@@ -103,7 +101,7 @@ def plan_writes(
 
 
 def _target(
-    record: Any, accel_lsb: float, gyro_lsb: float
+    record: Calibration, accel_lsb: float, gyro_lsb: float
 ) -> tuple[od.CalibrationBlock, dict[ObjectKey, float | int], int, int, bool]:
     """Block, CRC-set values, CRC, final valid flag; a backup's ``objects`` taken verbatim."""
     objects = backup_objects(record)
@@ -116,9 +114,9 @@ def _target(
     return block, values, int(objects[CRC_KEY]), int(objects[VALID_KEY]), True
 
 
-def _check_serial(identity: Identity, record: Any, force: bool) -> bool:
+def _check_serial(identity: Identity, record: Calibration, force: bool) -> bool:
     """Step 1: refuse another device's calibration unless forced; True if forced over one."""
-    wanted = int(record_dict(record)["device"]["serial"])
+    wanted = record.device.serial
     if identity.serial == wanted:
         return False
     if not force:
@@ -132,7 +130,7 @@ def _check_serial(identity: Identity, record: Any, force: bool) -> bool:
 
 def write_calibration_transaction(
     client: ImuClient,
-    record: Any,
+    record: Calibration,
     *,
     force: bool = False,
     store: bool = True,

@@ -1,6 +1,6 @@
 """The calibration JSON (DESIGN §5): a frozen record, a strict reader, an atomic writer.
 
-:class:`CalibrationRecord` mirrors the file key for key; nothing else is allowed in it (a
+:class:`Calibration` mirrors the file key for key; nothing else is allowed in it (a
 solver's warnings travel beside the record, not inside it). Arrays are tuples whose elements
 may be ``None`` (a ``null``: "not estimated: nominal"). A key that is absent and a key that
 is ``null`` mean the same and both read as ``None``; the writer omits ``None`` fields.
@@ -30,6 +30,7 @@ from canimucal import schema as cs
 from canimucal.errors import InputError, ModelError, SchemaError
 from canimucal.io.atomic import write_text_atomic
 from canimucal.model.positions import PositionAverage
+from canimucal.version import __version__
 
 SCHEMA = "canimucal.calibration/1"
 """The only calibration schema this version reads and writes."""
@@ -80,6 +81,24 @@ class AccelBlock:
     K: Matrix = field(metadata=cs.array((3, 3)))
     K_sigma: Matrix | None = field(default=None, metadata=cs.array((3, 3)))
 
+    def bias_counts(self) -> NDArray[np.float64]:
+        """Return the bias as numpy (counts), ``null`` entries 0 (nominal)."""
+        return with_nominal(self.bias, np.zeros(3))
+
+    def K_matrix(self, nominal_lsb: float | None = None) -> NDArray[np.float64]:
+        """Return K as numpy (counts per m/s²), ``null`` entries nominal (``I / lsb``)."""
+        return with_nominal(self.K, _nominal_scale(self.K, nominal_lsb, "accel.K"))
+
+    def correct(self, counts: ArrayLike, nominal_lsb: float | None = None) -> NDArray[np.float64]:
+        """Specific force (m/s²) from raw outputs: ``K⁻¹ (U − b)`` (as the firmware applies).
+
+        ``counts`` is ``(3,)`` or ``(n, 3)``. ``nominal_lsb`` (m/s² per count) stands in for
+        entries of K the calibration holds ``null``; it is needed only when there are any.
+        """
+        return _apply_inverse(
+            self.K_matrix(nominal_lsb), np.asarray(counts, float) - self.bias_counts(), "accel.K"
+        )
+
 
 @dataclass(frozen=True, kw_only=True)
 class GyroBlock:
@@ -91,6 +110,36 @@ class GyroBlock:
     S_sigma: Matrix | None = field(default=None, metadata=cs.array((3, 3)))
     G: Matrix | None = field(default=None, metadata=cs.array((3, 3)))
     G_sigma: Matrix | None = field(default=None, metadata=cs.array((3, 3)))
+
+    def bias_counts(self) -> NDArray[np.float64]:
+        """Return the bias as numpy (counts), ``null`` entries 0 (nominal)."""
+        return with_nominal(self.bias, np.zeros(3))
+
+    def S_matrix(self, nominal_lsb: float | None = None) -> NDArray[np.float64]:
+        """Return S as numpy (counts per rad/s), ``null`` entries nominal (``I / lsb``)."""
+        return with_nominal(self.S, _nominal_scale(self.S, nominal_lsb, "gyro.S"))
+
+    def G_matrix(self) -> NDArray[np.float64]:
+        """Return G as numpy (counts per m/s²), ``null`` entries 0 (nominal)."""
+        return with_nominal(self.G, np.zeros((3, 3)))
+
+    def correct(
+        self,
+        counts: ArrayLike,
+        specific_force: ArrayLike | None = None,
+        nominal_lsb: float | None = None,
+    ) -> NDArray[np.float64]:
+        """Angular rate (rad/s) from raw outputs: ``S⁻¹ (V − B − G f)`` (the firmware's).
+
+        ``specific_force`` (m/s², e.g. from :meth:`AccelBlock.correct`) is needed when G is
+        estimated; ``nominal_lsb`` (rad/s per count) stands in for ``null`` entries of S.
+        """
+        v = np.asarray(counts, float) - self.bias_counts()
+        if specific_force is not None:
+            v = v - np.asarray(specific_force, float) @ self.G_matrix().T
+        elif np.any(self.G_matrix() != 0.0):
+            raise ModelError("gyro.G is estimated: give the specific force to correct the gyro")
+        return _apply_inverse(self.S_matrix(nominal_lsb), v, "gyro.S")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -158,7 +207,20 @@ class Readback:
 
 
 @dataclass(frozen=True, kw_only=True)
-class CalibrationRecord:
+class Acceptance:
+    """``acceptance``: the limits a calibration is checked against, its values, the verdict.
+
+    ``limits`` and ``values`` share keys (``max_bias_sigma_mg`` is the limit of
+    ``values["max_bias_sigma_mg"]``, the worst bias σ in mg).
+    """
+
+    passed: bool = field(metadata=cs.boolean())
+    limits: dict[str, float] = field(default_factory=dict, metadata=cs.number_map())
+    values: dict[str, float] = field(default_factory=dict, metadata=cs.number_map())
+
+
+@dataclass(frozen=True, kw_only=True)
+class Calibration:
     """The whole calibration JSON (see the module doc for ``None`` and units)."""
 
     schema: str = field(default=SCHEMA, metadata=cs.text(choices=(SCHEMA,)))
@@ -178,33 +240,84 @@ class CalibrationRecord:
     recording: RecordingRef | None = field(default=None, metadata=cs.block(RecordingRef))
     objects: dict[str, int | float] | None = field(default=None, metadata=cs.objects())
     readback: Readback | None = field(default=None, metadata=cs.block(Readback))
+    acceptance: Acceptance | None = field(default=None, metadata=cs.block(Acceptance))
+
+    @classmethod
+    def from_json(cls, path: str | os.PathLike[str]) -> Calibration:
+        """Read and validate a calibration JSON file (:class:`InputError` on any problem)."""
+        return read_calibration(Path(path))
+
+    @classmethod
+    def from_dict(cls, document: Any) -> Calibration:
+        """Validate a calibration JSON object given as Python data (same rules as a file)."""
+        return _record_of(document, "calibration")
+
+    def to_json(self, path: str | os.PathLike[str], *, overwrite: bool = False) -> Path:
+        """Write this calibration atomically; an existing file only with ``overwrite``."""
+        return write_calibration(path, self, overwrite=overwrite)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the JSON object (``None`` fields omitted, tuples as lists)."""
+        return calibration_to_dict(self)
+
+
+def with_nominal(
+    value: Vector | Matrix | None, nominal: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Return ``value`` as numpy with its ``null`` entries (or all, when None) from ``nominal``."""
+    if value is None:
+        return nominal.copy()
+    out = np.array(value, dtype=float).reshape(nominal.shape)  # None entries become NaN
+    return np.where(np.isnan(out), nominal, out)
+
+
+def _nominal_scale(value: Matrix | None, lsb: float | None, name: str) -> NDArray[np.float64]:
+    """``I / lsb``, the nominal K or S; refused when needed for a ``null`` and ``lsb`` is None."""
+    if lsb is None:
+        if value is None or any(v is None for row in value for v in row):
+            raise ModelError(f"{name} has entries held at nominal: give the nominal LSB")
+        return np.zeros((3, 3))
+    return np.eye(3) / lsb
+
+
+def _apply_inverse(
+    matrix: NDArray[np.float64], rhs: NDArray[np.float64], name: str
+) -> NDArray[np.float64]:
+    try:
+        return np.asarray(np.linalg.solve(matrix, rhs.T).T, dtype=np.float64)
+    except np.linalg.LinAlgError:
+        raise ModelError(f"{name} is singular: it cannot correct the outputs") from None
 
 
 # --------------------------------------------------------------------------- read / write
 
 
-def read_calibration(path_or_text: str | os.PathLike[str]) -> CalibrationRecord:
+def read_calibration(path_or_text: str | os.PathLike[str]) -> Calibration:
     """Read and validate a calibration JSON; every problem is an :class:`InputError`.
 
     A :class:`~pathlib.Path` is read as a file; a ``str`` is JSON text when it starts with
     ``{`` (after blanks), a file name otherwise.
     """
     source, text = cs.load_text(path_or_text, "calibration")
-    document = cs.parse_json(text, source)
+    return _record_of(cs.parse_json(text, source), source)
+
+
+def _record_of(document: Any, source: str) -> Calibration:
+    """Build the typed record of a parsed document; errors name ``source``."""
     if not isinstance(document, dict):
         raise InputError(f"{source}: top level is not a JSON object")
     if document.get("schema") != SCHEMA:
         found = document.get("schema")
         raise InputError(f"{source}: schema must be {SCHEMA!r}, got {found!r}")
     try:
-        record = cs.build(CalibrationRecord, document, "")
+        record = cs.build(Calibration, document, "")
     except SchemaError as exc:
         raise InputError(f"{source}: {exc}") from None
     _check_covariance(record, source)
     return record
 
 
-def _check_covariance(record: CalibrationRecord, source: str) -> None:
+def _check_covariance(record: Calibration, source: str) -> None:
     cov = record.covariance
     if cov is None:
         return
@@ -218,18 +331,18 @@ def _check_covariance(record: CalibrationRecord, source: str) -> None:
             raise InputError(f"{source}: covariance.matrix is not a covariance (symmetric, ≥ 0)")
 
 
-def calibration_to_dict(record: CalibrationRecord) -> dict[str, Any]:
+def calibration_to_dict(record: Calibration) -> dict[str, Any]:
     """Return the JSON object of ``record`` (``None`` fields omitted, tuples as lists)."""
     return cs.to_plain(record)
 
 
-def calibration_to_json(record: CalibrationRecord) -> str:
+def calibration_to_json(record: Calibration) -> str:
     """Return the JSON text of ``record``: indent 2, keys in the contract's order, final newline."""
     return json.dumps(calibration_to_dict(record), indent=2, allow_nan=False) + "\n"
 
 
 def write_calibration(
-    path: str | os.PathLike[str], record: CalibrationRecord, *, overwrite: bool
+    path: str | os.PathLike[str], record: Calibration, *, overwrite: bool
 ) -> Path:
     """Validate ``record`` like a reader would, then write it atomically."""
     try:
@@ -274,7 +387,7 @@ def record_from_estimates(
     positions: Sequence[PositionSummary] | None = None,
     fit: Fit | None = None,
     recording: RecordingRef | None = None,
-) -> CalibrationRecord:
+) -> Calibration:
     """Build a record from a solver's named parameter vector and its covariance.
 
     ``names`` follow ``accel.bias[i]``, ``accel.K[i][j]``, ``gyro.bias[i]``, ``gyro.S[i][j]``,
@@ -294,7 +407,7 @@ def record_from_estimates(
     table = {n: (float(v), float(s)) for n, v, s in zip(names, x, sigma, strict=True)}
     everything = [*names, *held]
     accel, gyro = _sensor_blocks(table, held, everything)
-    return CalibrationRecord(
+    return Calibration(
         created=created or _utc_now(),
         plan=plan,
         tool=tool or Tool(name="canimucal", version=_tool_version()),
@@ -401,7 +514,7 @@ def _covariance_deg(names: list[str], cov: NDArray[np.float64]) -> Covariance:
     return Covariance(order=tuple(names), matrix=tuple(tuple(row) for row in matrix.tolist()))
 
 
-def covariance_si(record: CalibrationRecord) -> tuple[list[str], NDArray[np.float64]]:
+def covariance_si(record: Calibration) -> tuple[list[str], NDArray[np.float64]]:
     """Return the record's covariance with tilt rows/columns back in radians (empty when absent)."""
     if record.covariance is None:
         return [], np.zeros((0, 0))
@@ -439,6 +552,5 @@ def _utc_now() -> str:
 
 
 def _tool_version() -> str:
-    from canimucal import __version__
 
     return __version__

@@ -2,7 +2,7 @@
 
 The new accelerometer parameters are applied in software as the firmware would
 (DESIGN §4): ``a = M (U − b)`` with ``M = K⁻¹`` and nominal values where the record holds
-``null`` (:func:`canimucal.device.calibration_map.block_from_record`). The tilt is read from
+``null`` (:meth:`canimucal.io.calibration.AccelBlock.correct`). The tilt is read from
 the direction of ``a`` with :func:`canimucal.model.frames.gravity_direction_angles`.
 """
 
@@ -12,8 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.analysis.calibrate import SiteConditions
-from canimucal.device.calibration_map import block_from_record
-from canimucal.io.calibration import CalibrationRecord
+from canimucal.io.calibration import Calibration
 from canimucal.model.frames import gravity_direction_angles
 from canimucal.model.positions import PositionAverage
 from canimucal.procedure.events import LevelChecked
@@ -26,19 +25,16 @@ def _norm_and_tilt(f: Array, g: float) -> tuple[float, tuple[float, float]]:
     return float(np.linalg.norm(f) - g), (float(np.rad2deg(alpha)), float(np.rad2deg(beta)))
 
 
-def corrected_accel(record: CalibrationRecord, mean_counts: Array, site: SiteConditions) -> Array:
+def corrected_accel(record: Calibration, mean_counts: Array, site: SiteConditions) -> Array:
     """Return ``a = M (U − b)`` (m/s²) with the record's parameters."""
-    block = block_from_record(record, site.accel_lsb, site.gyro_lsb)
-    m = np.asarray(block.accel_correction, dtype=float)
-    b = np.asarray(block.accel_bias, dtype=float)
-    return np.asarray(m @ (np.asarray(mean_counts, dtype=float) - b))
+    return record.accel.correct(mean_counts, site.accel_lsb)
 
 
 def level_check(
     node_id: int,
     stage: str,
     average: PositionAverage,
-    record: CalibrationRecord,
+    record: Calibration,
     site: SiteConditions,
 ) -> LevelChecked:
     """Nominal and calibrated |f| − g and tilt of a level position's mean."""

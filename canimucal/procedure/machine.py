@@ -20,9 +20,9 @@ import numpy as np
 
 from canimucal.analysis.acceptance import AcceptanceReport, check_acceptance
 from canimucal.analysis.calibrate import Solution, solve_positions
-from canimucal.device.stream import SampleBlock
 from canimucal.io.calibration import Device
 from canimucal.model.positions import PlannedPosition, Pose, PositionAverage, average_position
+from canimucal.model.samples import SampleBlock
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import choose_time
 from canimucal.procedure.config import LEVEL, Phase, ProcedureConfig

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from canimucal.device.stream import SampleBlock
 from canimucal.model.positions import Pose
+from canimucal.model.samples import SampleBlock
 from canimucal.model.static import detect_disturbance
 from canimucal.procedure.events import SamplesReceived
 from canimucal.procedure.posecheck import check_pose, measured_force

@@ -12,7 +12,7 @@ from typing import Any
 
 from canimucal.analysis.acceptance import AcceptanceLimits, AcceptanceReport
 from canimucal.device.client import Identity
-from canimucal.io.calibration import CalibrationRecord, calibration_to_dict
+from canimucal.io.calibration import Calibration, calibration_to_dict
 from canimucal.procedure.events import LevelChecked
 
 
@@ -79,7 +79,7 @@ def _level_lines(checks: Sequence[LevelChecked]) -> list[str]:
 
 
 def certificate_markdown(
-    record: CalibrationRecord,
+    record: Calibration,
     identity: Identity,
     acceptance: AcceptanceReport,
     limits: AcceptanceLimits,

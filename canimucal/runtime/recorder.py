@@ -32,10 +32,10 @@ from numpy.typing import NDArray
 
 from canimucal.device.client import ImuClient
 from canimucal.device.events import NodeRebooted
-from canimucal.device.stream import SampleBlock, concat_blocks
 from canimucal.errors import DeviceError, InputError
 from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.positions import Plan, PlannedPosition
+from canimucal.model.samples import SampleBlock, concat_blocks
 from canimucal.sim.schedule import PoseTrajectory
 
 log = logging.getLogger(__name__)

@@ -14,20 +14,19 @@ worker and posts the events to its screen.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import queue
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from canimucal.analysis.calibrate import SiteConditions
-from canimucal.device.calibration_map import readback_dict
+from canimucal.device.calibration_map import readback_of
 from canimucal.device.client import Identity, ImuClient
 from canimucal.device.events import (
     BusErrorReceived,
@@ -40,11 +39,10 @@ from canimucal.device.events import (
 from canimucal.device.transaction import write_calibration_transaction
 from canimucal.errors import CanimucalError, DeviceError
 from canimucal.io.calibration import (
-    CalibrationRecord,
+    Calibration,
     Device,
     RecordingRef,
-    calibration_to_dict,
-    read_calibration,
+    calibration_to_json,
     sha256_of,
 )
 from canimucal.io.recording_writer import RecordingWriter
@@ -75,7 +73,7 @@ class NodeLink:
     header: dict[str, Any] | None = None
     record_path: Path | None = None
     certificate_path: Path | None = None
-    record: CalibrationRecord | None = None
+    record: Calibration | None = None
 
 
 class Session:
@@ -286,9 +284,9 @@ class Session:
             link.writer = RecordingWriter.open(verify_path, link.header or {}, overwrite=True)
             solution = self.procedure.solutions[node_id]
             ref = RecordingRef(file=rec_path.name, sha256=sha256_of(rec_path))
-            link.record = record_with(solution.record, recording=calibration_ref(ref))
+            link.record = replace(solution.record, recording=ref)
             link.record_path = self._name("calibration", node_id, ".json")
-            write_text(link.record_path, record_json(link.record))
+            write_text(link.record_path, calibration_to_json(link.record))
             link.certificate_path = self._name("certificate", node_id, ".md")
             write_text(link.certificate_path, self.certificate(node_id))
             out.append(
@@ -341,9 +339,9 @@ class Session:
         link = self.links[node_id]
         readout = link.client.read_calibration_block()
         assert link.record is not None and link.record_path is not None
-        back = readback_dict(readout.block, readout.valid, readout.crc_ok)
-        link.record = record_with(link.record, readback=back)
-        write_text(link.record_path, record_json(link.record))
+        back = readback_of(readout.block, readout.valid, readout.crc_ok)
+        link.record = replace(link.record, readback=back)
+        write_text(link.record_path, calibration_to_json(link.record))
 
     def finish(self) -> None:
         """Rewrite the certificates with the verification, close what is open (idempotent)."""
@@ -360,23 +358,6 @@ class Session:
 def output_name(out_dir: Path, stem: str, node_id: int, several: bool, suffix: str) -> Path:
     """``stem.suffix``, or ``stem.node<ID>.suffix`` when several nodes (DESIGN §7)."""
     return out_dir / (f"{stem}.node{node_id}{suffix}" if several else f"{stem}{suffix}")
-
-
-def calibration_ref(ref: RecordingRef) -> dict[str, Any]:
-    """Return the ``recording`` block as a dict."""
-    return {"file": ref.file, "sha256": ref.sha256}
-
-
-def record_with(record: CalibrationRecord, **blocks: Any) -> CalibrationRecord:
-    """Return the record with top-level blocks replaced (through the strict reader)."""
-    d = calibration_to_dict(record)
-    d.update(blocks)
-    return read_calibration(json.dumps(d, allow_nan=False))
-
-
-def record_json(record: CalibrationRecord) -> str:
-    """Return the record's JSON text (indent 2, final newline)."""
-    return json.dumps(calibration_to_dict(record), indent=2, allow_nan=False) + "\n"
 
 
 def write_text(path: Path, text: str) -> None:

@@ -23,10 +23,11 @@ import pytest
 
 from canimucal.cli.read_params_cmd import SCHEMA as READ_SCHEMA
 from canimucal.device import od
-from canimucal.device.calibration_map import block_from_record, readback_dict
+from canimucal.device.calibration_map import block_from_record, readback_of
 from canimucal.io.calibration import read_calibration
 from canimucal.io.recording import read_recording
 from canimucal.io.truth import write_truth
+from canimucal.schema import to_plain
 from canimucal.sim.truth import Truth
 
 Cli = Callable[[list[Any]], Any]  # the ``cli`` fixture of tests/cli/conftest.py
@@ -80,7 +81,7 @@ def test_read_params_json(cli: Cli, tmp_path: Path, truth_file: Path) -> None:
     assert doc["device"]["serial"] == SERIAL and doc["device"]["node_id"] == 16
     assert doc["nominal"]["output_data_rate_hz"] == 200
     factory = od.factory_block(doc["nominal"]["accel_lsb"], doc["nominal"]["gyro_lsb"])
-    assert doc["readback"] == readback_dict(factory, 0, True)  # factory: valid 0, CRC ok
+    assert doc["readback"] == to_plain(readback_of(factory, 0, True))  # factory: valid 0, CRC ok
     assert set(doc["calibration"]["objects"]) == {
         od.format_key(i, s) for i, s, _ in od.CALIBRATION_OBJECTS
     }
@@ -99,8 +100,8 @@ def test_write_params_cycle_and_restore(cli: Cli, tmp_path: Path, truth_file: Pa
     after = read_params(cli, flags, tmp_path / "after.json")
     nominal = after["nominal"]
     block = block_from_record(read_calibration(cal), nominal["accel_lsb"], nominal["gyro_lsb"])
-    expected = readback_dict(od.CalibrationBlock.from_objects(block.to_objects()), 1, True)
-    assert after["readback"] == expected
+    expected = readback_of(od.CalibrationBlock.from_objects(block.to_objects()), 1, True)
+    assert after["readback"] == to_plain(expected)
     # the backup restores the factory block bit-exactly
     run = cli(["write-params", backups[0], *flags, "--backup-dir", tmp_path / "bk"])
     assert run.code == 0, run.err

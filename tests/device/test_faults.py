@@ -29,8 +29,8 @@ from canimucal.device.events import (
     NodeRebooted,
     SerialChanged,
 )
-from canimucal.device.stream import SampleBlock, concat_blocks
 from canimucal.errors import DeviceError, DeviceSilentError, InputError, SdoAbort
+from canimucal.model.samples import SampleBlock, concat_blocks
 from canimucal.sim.truth import Truth
 from canimucal.simnode.faults import FaultInjector, parse_faults
 from canimucal.simnode.node import SimulatedImuNode

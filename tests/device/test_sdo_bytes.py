@@ -22,6 +22,7 @@ import pytest
 from canimucal.device import od
 from canimucal.device.client import ImuClient
 from canimucal.device.transaction import write_calibration_transaction
+from canimucal.io.calibration import Calibration
 from canimucal.sim.truth import Truth
 from canimucal.simnode.node import SimulatedImuNode
 
@@ -76,7 +77,9 @@ def test_transactional_write_byte_script(
         "gyro": {"bias": [0.5, 0.0, -0.5], "S": (np.eye(3) / lsb_g).tolist()},
         "plan": "two",
     }
-    report = write_calibration_transaction(client, record, backup_dir=tmp_path / "b")
+    report = write_calibration_transaction(
+        client, Calibration.from_dict(record), backup_dir=tmp_path / "b"
+    )
 
     frames = []
     while (msg := spy.recv(0.05)) is not None:

@@ -17,11 +17,10 @@ from canimucal.device.client import ImuClient
 from canimucal.device.pdo_layout import design_layout
 from canimucal.device.stream import (
     PdoLayout,
-    SampleBlock,
     SamplePairer,
-    concat_blocks,
     layout_from_mapping,
 )
+from canimucal.model.samples import SampleBlock, concat_blocks
 from canimucal.simnode.node import SimulatedImuNode
 
 NODE = 0x10

@@ -25,8 +25,7 @@ from canopen.sdo.exceptions import SdoAbortedError
 from canimucal.device import od, transaction
 from canimucal.device.calibration_map import (
     block_from_record,
-    readback_dict,
-    record_dict,
+    readback_of,
     record_from_readout,
 )
 from canimucal.device.client import ImuClient
@@ -36,7 +35,8 @@ from canimucal.device.transaction import (
     write_calibration_transaction,
 )
 from canimucal.errors import DeviceError, InputError, RollbackIncompleteError
-from canimucal.io.calibration import read_calibration
+from canimucal.io.calibration import Calibration, calibration_to_dict, read_calibration
+from canimucal.schema import to_plain
 from canimucal.sim.truth import Truth
 from canimucal.simnode.node import SimulatedImuNode
 
@@ -124,7 +124,7 @@ def calibration(serial: int = SERIAL, scale: float = 1.01, bias: float = 12.5) -
 
 def test_block_from_record_inverts_and_fills_nominal() -> None:
     d = calibration()
-    block = block_from_record(d, ACCEL_LSB, GYRO_LSB)
+    block = block_from_record(Calibration.from_dict(d), ACCEL_LSB, GYRO_LSB)
     np.testing.assert_allclose(
         block.accel_correction @ np.array(d["accel"]["K"]), np.eye(3), atol=1e-12
     )
@@ -135,16 +135,19 @@ def test_block_from_record_inverts_and_fills_nominal() -> None:
     assert (block.temp_c, block.rms_ms2) == (23.5, 0.0012)
     d["gyro"]["S"] = None
     assert np.allclose(
-        block_from_record(d, ACCEL_LSB, GYRO_LSB).gyro_correction, np.eye(3) * GYRO_LSB
+        block_from_record(Calibration.from_dict(d), ACCEL_LSB, GYRO_LSB).gyro_correction,
+        np.eye(3) * GYRO_LSB,
     )
     d["accel"]["K"] = [[1, 2, 3], [2, 4, 6], [0, 0, 1]]
     with pytest.raises(InputError, match="singular"):
-        block_from_record(d, ACCEL_LSB, GYRO_LSB)
+        block_from_record(Calibration.from_dict(d), ACCEL_LSB, GYRO_LSB)
 
 
 def test_full_write_readback_bit_exact_valid_crc_stored(rig: Rig) -> None:
     before = rig.raw_objects()
-    report = write_calibration_transaction(rig.client, calibration(), backup_dir=rig.backups)
+    report = write_calibration_transaction(
+        rig.client, Calibration.from_dict(calibration()), backup_dir=rig.backups
+    )
     assert report.stored and not report.dry_run and report.backup_path is not None
     readout = rig.client.read_calibration_block()
     assert readout.valid == 1 and readout.crc_ok and readout.crc_stored == report.crc
@@ -154,7 +157,7 @@ def test_full_write_readback_bit_exact_valid_crc_stored(rig: Rig) -> None:
     assert rig.node.calibration_active()
     # the backup holds the device's previous set verbatim, under a never-reused name
     assert BACKUP_NAME.match(report.backup_path.name)
-    backup = record_dict(read_calibration(report.backup_path))
+    backup = calibration_to_dict(read_calibration(report.backup_path))
     for (index, sub), raw in before.items():
         code = od.OBJECT_CODES[(index, sub)]
         assert od.encode(code, backup["objects"][od.format_key(index, sub)]) == raw
@@ -163,14 +166,14 @@ def test_full_write_readback_bit_exact_valid_crc_stored(rig: Rig) -> None:
     rig.node.reboot()
     time.sleep(0.05)
     assert rig.raw_objects() == written
-    rb = readback_dict(readout.block, readout.valid, readout.crc_ok)
+    rb = to_plain(readback_of(readout.block, readout.valid, readout.crc_ok))
     assert rb["valid"] == 1 and rb["crc_ok"] is True and len(rb["accel_correction"]) == 3
 
 
 def test_no_store_is_lost_on_reboot(rig: Rig) -> None:
     before = rig.raw_objects()
     report = write_calibration_transaction(
-        rig.client, calibration(), store=False, backup_dir=rig.backups
+        rig.client, Calibration.from_dict(calibration()), store=False, backup_dir=rig.backups
     )
     assert not report.stored
     assert not any(w.index == od.STORE for w in report.writes)
@@ -183,7 +186,9 @@ def test_serial_mismatch_refused_before_anything_is_written(rig: Rig) -> None:
     before = rig.raw_objects()
     rig.sdo_requests()  # discard what came before
     with pytest.raises(DeviceError, match="serial 777 differs .* 778; nothing written") as info:
-        write_calibration_transaction(rig.client, calibration(serial=778), backup_dir=rig.backups)
+        write_calibration_transaction(
+            rig.client, Calibration.from_dict(calibration(serial=778)), backup_dir=rig.backups
+        )
     assert info.value.exit_code == 3
     assert rig.raw_objects() == before
     downloads = [f for f in rig.sdo_requests() if f[0] & 0xE0 == 0x20]
@@ -192,7 +197,10 @@ def test_serial_mismatch_refused_before_anything_is_written(rig: Rig) -> None:
 
 def test_force_writes_over_a_serial_mismatch(rig: Rig) -> None:
     report = write_calibration_transaction(
-        rig.client, calibration(serial=778), force=True, backup_dir=rig.backups
+        rig.client,
+        Calibration.from_dict(calibration(serial=778)),
+        force=True,
+        backup_dir=rig.backups,
     )
     assert report.serial_forced
     assert rig.client.read_calibration_block().valid == 1
@@ -203,7 +211,9 @@ def test_range_refusal_before_writing(rig: Rig) -> None:
     bad = calibration(scale=3.0)  # M diagonal at 1/3 of nominal: outside ±50 %
     rig.sdo_requests()
     with pytest.raises(InputError, match="outside the device's ranges: 0x2101:01") as info:
-        write_calibration_transaction(rig.client, bad, backup_dir=rig.backups)
+        write_calibration_transaction(
+            rig.client, Calibration.from_dict(bad), backup_dir=rig.backups
+        )
     assert info.value.exit_code == 2
     assert rig.raw_objects() == before
     assert [f for f in rig.sdo_requests() if f[0] & 0xE0 == 0x20] == []
@@ -213,7 +223,7 @@ def test_range_refusal_before_writing(rig: Rig) -> None:
 def test_dry_run_plans_and_writes_nothing(rig: Rig) -> None:
     before = rig.raw_objects()
     report = write_calibration_transaction(
-        rig.client, calibration(), dry_run=True, backup_dir=rig.backups
+        rig.client, Calibration.from_dict(calibration()), dry_run=True, backup_dir=rig.backups
     )
     assert report.dry_run and report.backup_path is None
     assert rig.raw_objects() == before and not rig.backups.exists()
@@ -238,12 +248,16 @@ def install_abort(node: SimulatedImuNode, key: tuple[int, int], code: int) -> li
 
 
 def test_rollback_after_device_abort_restores_old_set(rig: Rig) -> None:
-    write_calibration_transaction(rig.client, calibration(), backup_dir=rig.backups)
+    write_calibration_transaction(
+        rig.client, Calibration.from_dict(calibration()), backup_dir=rig.backups
+    )
     old = rig.raw_objects()
     assert od.decode("u8", old[(od.CAL_INFO, od.CAL_VALID_SUB)]) == 1
     install_abort(rig.node, (od.GYRO_CORRECTION, 5), 0x06090030)
     with pytest.raises(DeviceError) as info:
-        write_calibration_transaction(rig.client, calibration(bias=99.0), backup_dir=rig.backups)
+        write_calibration_transaction(
+            rig.client, Calibration.from_dict(calibration(bias=99.0)), backup_dir=rig.backups
+        )
     message = str(info.value)
     assert not isinstance(info.value, RollbackIncompleteError)
     assert message.startswith("calibration write refused at write block: device refused write")
@@ -277,7 +291,9 @@ def test_rollback_after_readback_mismatch(rig: Rig, monkeypatch: pytest.MonkeyPa
     with pytest.raises(
         DeviceError, match=r"failed at verify block: 0x2100:02 read back .*"
     ) as info:
-        write_calibration_transaction(rig.client, calibration(), backup_dir=rig.backups)
+        write_calibration_transaction(
+            rig.client, Calibration.from_dict(calibration()), backup_dir=rig.backups
+        )
     assert "previous calibration restored from" in str(info.value)
     assert rig.raw_objects() == old
 
@@ -291,7 +307,9 @@ def test_rollback_impossible_when_node_goes_silent(rig: Rig) -> None:
 
     rig.node.local_node.add_write_callback(go_silent)
     with pytest.raises(RollbackIncompleteError) as info:
-        write_calibration_transaction(rig.client, calibration(), backup_dir=rig.backups)
+        write_calibration_transaction(
+            rig.client, Calibration.from_dict(calibration()), backup_dir=rig.backups
+        )
     (backup,) = list(rig.backups.iterdir())
     assert str(info.value) == (
         f"rollback incomplete; device invalidated; restore with canimucal write-params {backup}"
@@ -330,16 +348,18 @@ def test_default_backup_dir() -> None:
 
 
 def test_backup_record_round_trip(rig: Rig, tmp_path: Path) -> None:
-    write_calibration_transaction(rig.client, calibration(), backup_dir=rig.backups)
+    write_calibration_transaction(
+        rig.client, Calibration.from_dict(calibration()), backup_dir=rig.backups
+    )
     readout = rig.client.read_calibration_block()
     record = record_from_readout(readout, rig.client.identity(), NODE_ID)
-    d = record_dict(record)
+    d = calibration_to_dict(record)
     assert (d["device"]["serial"], d["device"]["node_id"]) == (SERIAL, NODE_ID)
     assert d["plan"] == "five" and d["created"] == "2026-03-04T05:06:07Z"
     assert d["objects"]["0x2121:05"] == 1 and len(d["objects"]) == len(od.CALIBRATION_OBJECTS)
     # without its objects map the record still maps back to the same block (M = K⁻¹ again)
     d.pop("objects")
-    again = block_from_record(d, *rig.client.nominal_lsb())
+    again = block_from_record(Calibration.from_dict(d), *rig.client.nominal_lsb())
     np.testing.assert_allclose(again.accel_correction, readout.block.accel_correction, rtol=1e-12)
     np.testing.assert_allclose(again.gyro_g, readout.block.gyro_g)
     assert again.base_tilt_rad == pytest.approx(readout.block.base_tilt_rad, rel=1e-12)

@@ -27,6 +27,7 @@ from canimucal.device import od
 from canimucal.device.client import ImuClient
 from canimucal.device.transaction import write_calibration_transaction
 from canimucal.errors import DeviceError, RollbackIncompleteError
+from canimucal.io.calibration import Calibration
 from canimucal.sim.truth import Truth
 from canimucal.simnode.faults import FaultStats
 from canimucal.simnode.node import SimulatedImuNode
@@ -134,11 +135,15 @@ def _old_and_new(rig: LoopRig) -> tuple[Raw, Raw, int]:
     """Write the old (stored) and the new set once without faults; return both and N requests."""
     rig.node.faults.clear()
     rig.faulty.heal()
-    write_calibration_transaction(rig.client, calibration(1.05, 40.0), backup_dir=rig.backups)
+    write_calibration_transaction(
+        rig.client, Calibration.from_dict(calibration(1.05, 40.0)), backup_dir=rig.backups
+    )
     old = rig.raw()
     rig.requests.clear()
     rig.node.faults.set()  # restart the request count
-    write_calibration_transaction(rig.client, calibration(0.97, -12.0), backup_dir=rig.backups)
+    write_calibration_transaction(
+        rig.client, Calibration.from_dict(calibration(0.97, -12.0)), backup_dir=rig.backups
+    )
     new = rig.raw()
     n_requests = rig.node.faults.stats.sdo_requests
     assert old != new and old[(od.CAL_INFO, od.CAL_VALID_SUB)] == b"\x01"
@@ -197,7 +202,9 @@ class Tally:
 def _run_case(rig: LoopRig, old: Raw, new: Raw, kind: str, tally: Tally) -> None:
     error: DeviceError | None = None
     try:
-        write_calibration_transaction(rig.client, calibration(0.97, -12.0), backup_dir=rig.backups)
+        write_calibration_transaction(
+            rig.client, Calibration.from_dict(calibration(0.97, -12.0)), backup_dir=rig.backups
+        )
     except DeviceError as exc:
         error = exc
     state = rig.raw()
@@ -250,7 +257,7 @@ def test_reboot_as_another_unit_mid_write_restores_nothing(loop_rig: LoopRig) ->
     try:
         with pytest.raises(DeviceError, match="came back as serial 4243, not 4242") as info:
             write_calibration_transaction(
-                rig.client, calibration(0.97, -12.0), backup_dir=rig.backups
+                rig.client, Calibration.from_dict(calibration(0.97, -12.0)), backup_dir=rig.backups
             )
         assert info.value.exit_code == 3 and "nothing restored" in str(info.value)
         downloads = [r for r in rig.requests[k:] if r[0] & 0xE0 == 0x20]

@@ -13,7 +13,7 @@ import pytest
 
 from canimucal.errors import InputError, ModelError
 from canimucal.io.calibration import (
-    CalibrationRecord,
+    Calibration,
     Conditions,
     Device,
     Fit,
@@ -328,4 +328,4 @@ def test_simulated_positions_summarised_and_written(tmp_path: Path) -> None:
     assert back.positions is not None and back.positions[3].alpha_deg == pytest.approx(45.0)
     assert back.positions[0].mean_gyro is None
     assert back.positions[4].mean_accel == pytest.approx(tuple(averages[4].mean_accel))
-    assert isinstance(back, CalibrationRecord)
+    assert isinstance(back, Calibration)

@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 
 from canimucal.analysis.calibrate import SiteConditions
-from canimucal.device.stream import SampleBlock
 from canimucal.model.layout import JointSpec
 from canimucal.model.positions import Plan, Pose
+from canimucal.model.samples import SampleBlock
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.procedure.machine import Phase, Procedure, ProcedureConfig
