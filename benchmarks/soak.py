@@ -24,6 +24,7 @@ producer's thread (no virtual-bus queue): use it when the machine cannot keep up
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 import threading
 import time
@@ -36,6 +37,8 @@ import can
 import canopen
 import numpy as np
 from numpy.typing import NDArray
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.support
 
 from canimucal.device.client import ImuClient
 from canimucal.io.recording_writer import RecordingWriter

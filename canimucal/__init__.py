@@ -1,5 +1,83 @@
-"""canimucal: field calibration of a CANopen IMU from small rotations."""
+"""canimucal: field calibration of a CANopen IMU from small rotations.
+
+The public API (numpy in, results out)::
+
+    import canimucal as cm
+    cal = cm.calibrate(cm.read_recording("session.csv"), model="full", tilt=True)
+    si = cal.accel.correct(counts)          # (n, 3) counts -> m/s²
+    cal.to_json("calibration.json")
+
+Names load on first use, so ``import canimucal`` (and ``canimucal --help``) stays light.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
 
 from canimucal.version import __version__
 
-__all__ = ["__version__"]
+if TYPE_CHECKING:
+    from canimucal.analysis.report import Analysis, analyze
+    from canimucal.analysis.solve import calibrate
+    from canimucal.errors import CanimucalError, DeviceError, InputError, ModelError
+    from canimucal.io.calibration import Calibration
+    from canimucal.io.importers import read_any as read_recording
+    from canimucal.io.recording import Recording
+    from canimucal.model.plan import BoundTable, plan_bounds
+    from canimucal.model.positions import Plan, Pose, PositionAverage, average_position
+
+_PUBLIC = {
+    "read_recording": ("canimucal.io.importers", "read_any"),
+    "Recording": ("canimucal.io.recording", "Recording"),
+    "average_position": ("canimucal.model.positions", "average_position"),
+    "Pose": ("canimucal.model.positions", "Pose"),
+    "Plan": ("canimucal.model.positions", "Plan"),
+    "PositionAverage": ("canimucal.model.positions", "PositionAverage"),
+    "calibrate": ("canimucal.analysis.solve", "calibrate"),
+    "Calibration": ("canimucal.io.calibration", "Calibration"),
+    "plan_bounds": ("canimucal.model.plan", "plan_bounds"),
+    "BoundTable": ("canimucal.model.plan", "BoundTable"),
+    "analyze": ("canimucal.analysis.report", "analyze"),
+    "Analysis": ("canimucal.analysis.report", "Analysis"),
+    "CanimucalError": ("canimucal.errors", "CanimucalError"),
+    "InputError": ("canimucal.errors", "InputError"),
+    "ModelError": ("canimucal.errors", "ModelError"),
+    "DeviceError": ("canimucal.errors", "DeviceError"),
+}
+
+__all__ = [
+    "Analysis",
+    "BoundTable",
+    "Calibration",
+    "CanimucalError",
+    "DeviceError",
+    "InputError",
+    "ModelError",
+    "Plan",
+    "Pose",
+    "PositionAverage",
+    "Recording",
+    "__version__",
+    "analyze",
+    "average_position",
+    "calibrate",
+    "plan_bounds",
+    "read_recording",
+]
+
+
+def __getattr__(name: str) -> Any:
+    """Load a public name on first use (PEP 562)."""
+    try:
+        module, attr = _PUBLIC[name]
+    except KeyError:
+        raise AttributeError(f"module 'canimucal' has no attribute {name!r}") from None
+    value = getattr(importlib.import_module(module), attr)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    """List the public names with the module's own."""
+    return sorted(set(globals()) | set(__all__))

@@ -10,12 +10,14 @@ Parameters the plan cannot determine (held at nominal) are not checked; the repo
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import chi2 as chi2_distribution
 
 from canimucal.analysis.calibrate import Solution
+from canimucal.io.calibration import Acceptance
 
 
 @dataclass(frozen=True)
@@ -30,8 +32,12 @@ class AcceptanceLimits:
 
 @dataclass(frozen=True)
 class Check:
-    """One limit: the measured value against the limit (``passed`` when within it)."""
+    """One limit: the measured value against the limit (``passed`` when within it).
 
+    ``key`` is the limit's field name in :class:`AcceptanceLimits` (and in the JSON block).
+    """
+
+    key: str
     name: str
     value: float
     limit: float
@@ -89,6 +95,7 @@ def check_acceptance(
         worst = max(bias_mg)
         checks.append(
             Check(
+                "max_bias_sigma_mg",
                 "worst bias σ",
                 worst,
                 limits.max_bias_sigma_mg,
@@ -100,6 +107,7 @@ def check_acceptance(
         worst = max(scale_ppm)
         checks.append(
             Check(
+                "max_scale_sigma_ppm",
                 "worst scale σ",
                 worst,
                 limits.max_scale_sigma_ppm,
@@ -108,8 +116,21 @@ def check_acceptance(
             )
         )
     rms = float(joint.rms_accel_ms2)
-    checks.append(Check("fit rms", rms, limits.max_rms_ms2, "m/s²", rms <= limits.max_rms_ms2))
+    checks.append(
+        Check("max_rms_ms2", "fit rms", rms, limits.max_rms_ms2, "m/s²", rms <= limits.max_rms_ms2)
+    )
     if joint.dof > 0:
         p = float(chi2_distribution.sf(joint.chi2, joint.dof))
-        checks.append(Check("fit p-value", p, limits.min_fit_p, "", p >= limits.min_fit_p))
+        checks.append(
+            Check("min_fit_p", "fit p-value", p, limits.min_fit_p, "", p >= limits.min_fit_p)
+        )
     return AcceptanceReport(tuple(checks), tuple(sorted(joint.undetermined)))
+
+
+def acceptance_block(report: AcceptanceReport, limits: AcceptanceLimits) -> Acceptance:
+    """Build the calibration JSON's ``acceptance`` block: limits, values checked, verdict."""
+    return Acceptance(
+        passed=report.passed,
+        limits={k: float(v) for k, v in dataclasses.asdict(limits).items()},
+        values={c.key: float(c.value) for c in report.checks},
+    )

@@ -17,9 +17,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from canimucal.analysis.conditions import recording_conditions
 from canimucal.analysis.data import EFFECTS, DiscrepancyResult, SessionData
 from canimucal.analysis.discrepancy import analyse_discrepancy
-from canimucal.analysis.session import position_rows, session_from_recording
+from canimucal.analysis.session import session_from_recording
+from canimucal.io.grouping import position_rows
 from canimucal.io.recording import Recording
 from canimucal.model.noise import allan_deviation, best_averaging_time_s, fit_noise
 from canimucal.model.positions import Plan, PlannedPosition
@@ -61,6 +63,28 @@ class Analysis:
     result: DiscrepancyResult
     allan: Mapping[str, AllanCheck]
     g_source: str
+
+
+def analyze(
+    recording: Recording,
+    *,
+    g: float | None = None,
+    latitude_deg: float | None = None,
+    tolerance_deg: float = 0.1,
+) -> Analysis:
+    """Run the discrepancy loop as ``canimucal analyze`` does (g: flag, header, latitude)."""
+    cond = recording_conditions(recording, g)
+    latitude = cond.latitude_rad
+    if latitude_deg is not None:
+        latitude = float(np.deg2rad(latitude_deg))
+    return analyse_recording(
+        recording,
+        g=cond.g,
+        g_source=cond.g_source,
+        latitude=latitude,
+        heading=cond.heading_rad,
+        tolerance_deg=tolerance_deg,
+    )
 
 
 def analyse_recording(

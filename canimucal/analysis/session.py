@@ -14,11 +14,10 @@ from numpy.typing import NDArray
 
 from canimucal.analysis.data import SessionData, Window
 from canimucal.errors import InputError
-from canimucal.io.grouping import has_angles
+from canimucal.io.grouping import has_angles, position_rows
 from canimucal.io.recording import Recording
 from canimucal.model.positions import Plan, Pose, PositionAverage, average_position
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
-from canimucal.model.static import detect_static_intervals
 from canimucal.sim.imu import ImuSimulator
 from canimucal.sim.truth import Truth
 
@@ -28,18 +27,6 @@ Array = NDArray[np.float64]
 
 MIN_POSITION_SAMPLES = 20
 """Positions with fewer samples are skipped (too short to average or to test for drift)."""
-
-
-def position_rows(rec: Recording) -> tuple[list[NDArray[np.intp]], bool]:
-    """Row indices of each position (labels, else static intervals) and whether labelled."""
-    labels = np.unique(rec.position[rec.position >= 0])
-    if labels.size:
-        return [np.flatnonzero(rec.position == k) for k in labels], True
-    fs = rec.sample_rate_hz
-    gyro = rec.gyro if np.isfinite(rec.gyro).any() else None
-    found = detect_static_intervals(rec.accel, fs, gyro=gyro)
-    log.info("no position labels: %d static intervals detected", len(found))
-    return [np.arange(s.start, s.stop) for s in found], False
 
 
 def _lsb(rec: Recording, key: str, default: float) -> float:

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from canimucal.analysis.conditions import recording_conditions
 from canimucal.analysis.reference import Reference, reference_for
 from canimucal.analysis.replay import ReplayRow, replay
 from canimucal.analysis.report import (
@@ -18,7 +19,6 @@ from canimucal.analysis.report import (
     observed_poses,
 )
 from canimucal.cli.analyze_plots import check_plot_targets, write_plots
-from canimucal.cli.conditions import recording_conditions
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.errors import InputError
 from canimucal.io.atomic import refuse_existing

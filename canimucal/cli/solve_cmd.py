@@ -7,18 +7,12 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from canimucal.analysis.calibrate import SiteConditions, Solution, solve_positions, solve_scalar
-from canimucal.cli.conditions import recording_conditions
+from canimucal.analysis.calibrate import Solution
+from canimucal.analysis.solve import solve_recording
 from canimucal.cli.output import add_json_option, check_outputs, emit
-from canimucal.cli.spec_options import add_model_options, spec_from_args
-from canimucal.errors import InputError
-from canimucal.io.calibration import Device, RecordingRef, calibration_to_dict, sha256_of
-from canimucal.io.grouping import has_angles, position_averages
-from canimucal.io.recording import Recording, read_recording
-from canimucal.model.positions import Pose, PositionAverage, average_position
-from canimucal.model.static import detect_static_intervals
+from canimucal.cli.spec_options import add_model_options, choice_from_args
+from canimucal.io.calibration import RecordingRef, sha256_of
+from canimucal.io.recording import read_recording
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -41,66 +35,12 @@ def run(args: argparse.Namespace) -> int:
     """Solve and report."""
     check_outputs(args)
     rec = read_recording(args.recording)
-    cond = recording_conditions(rec, args.g)
-    latitude = cond.latitude_rad
-    if args.latitude_deg is not None:
-        latitude = float(np.deg2rad(args.latitude_deg))
-    site = SiteConditions(
-        g=cond.g,
-        latitude=latitude,
-        heading=cond.heading_rad,
-        height_m=cond.height_m,
-        accel_lsb=cond.accel_lsb,
-        gyro_lsb=cond.gyro_lsb,
-        temp_c=_mean_temp(rec),
-    )
-    device = Device(serial=_serial(rec), node_id=_node_id(rec))
     ref = RecordingRef(file=Path(args.recording).name, sha256=sha256_of(args.recording))
-    if has_angles(rec):
-        averages = position_averages(rec)
-        has_gyro = all(a.mean_gyro is not None for a in averages)
-        spec = spec_from_args(args, has_gyro=has_gyro)
-        solution = solve_positions(averages, spec, site, device, recording=ref)
-    else:
-        averages = _unlabelled_averages(rec)
-        solution = solve_scalar(averages, site, device, full=args.model == "full", recording=ref)
-    for warning in solution.warnings:
+    solved = solve_recording(rec, choice_from_args(args), recording=ref)
+    for warning in solved.solution.warnings:
         print(f"warning: {warning}", file=sys.stderr)
-    emit(args, calibration_to_dict(solution.record), solution_report(solution, cond.g_source))
+    emit(args, solved.record.to_dict(), solution_report(solved.solution, solved.g_source))
     return 0
-
-
-def _serial(rec: Recording) -> int:
-    value = rec.header.get("device_serial")
-    return int(value) if isinstance(value, int | float) and not isinstance(value, bool) else 0
-
-
-def _node_id(rec: Recording) -> int | None:
-    value = rec.header.get("node_id")
-    return int(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
-
-
-def _mean_temp(rec: Recording) -> float | None:
-    t = rec.temp_c[np.isfinite(rec.temp_c)]
-    return float(t.mean()) if t.size else None
-
-
-def _unlabelled_averages(rec: Recording) -> list[PositionAverage]:
-    """Average the still stretches for the scalar fit: labels, else detected intervals."""
-    if np.any(rec.position >= 0):
-        return position_averages(rec, require_angles=False)
-    finite = np.all(np.isfinite(rec.accel), axis=1)
-    if finite.sum() < 3:
-        raise InputError("the recording has no accelerometer samples")
-    filled = np.where(finite[:, None], rec.accel, np.nanmedian(rec.accel, axis=0))
-    intervals = detect_static_intervals(filled, rec.sample_rate_hz)
-    unknown = Pose(np.nan, np.nan, np.nan)
-    return [
-        average_position(
-            unknown, rec.accel[i.start : i.stop], rec.gyro[i.start : i.stop], rec.sample_rate_hz
-        )
-        for i in intervals
-    ]
 
 
 def solution_report(solution: Solution, g_source: str) -> str:

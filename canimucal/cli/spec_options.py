@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from canimucal.errors import InputError
-from canimucal.model.layout import GyroSpec, JointSpec
+from canimucal.analysis.solve import ModelChoice
+from canimucal.model.layout import JointSpec
 
 
 def add_model_options(parser: argparse.ArgumentParser, *, default_tilt: bool) -> None:
@@ -43,15 +43,19 @@ def add_model_options(parser: argparse.ArgumentParser, *, default_tilt: bool) ->
     )
 
 
+def choice_from_args(args: argparse.Namespace) -> ModelChoice:
+    """Build the :class:`ModelChoice` the flags ask for."""
+    return ModelChoice(
+        model=args.model,
+        tilt=bool(args.tilt),
+        tilt_model=args.tilt_model,
+        gyro=args.gyro,
+        gyro_g=bool(args.gyro_g),
+        latitude_deg=args.latitude_deg,
+        g=getattr(args, "g", None),
+    )
+
+
 def spec_from_args(args: argparse.Namespace, *, has_gyro: bool = False) -> JointSpec:
     """Build the :class:`JointSpec` the flags ask for."""
-    gyro: GyroSpec = args.gyro or ("mems" if has_gyro else "none")
-    if gyro == "nav" and args.latitude_deg is None:
-        raise InputError("--gyro nav needs --latitude-deg (the gyro scale comes from Earth rate)")
-    return JointSpec(
-        accel_k=args.model,
-        tilt=args.tilt_model if args.tilt else "none",
-        gyro=gyro,
-        gyro_s=args.model,
-        gyro_g=bool(args.gyro_g),
-    )
+    return choice_from_args(args).spec(has_gyro=has_gyro)

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from canimucal.errors import InputError
 from canimucal.io.recording import Recording
 from canimucal.model.positions import Pose, PositionAverage, average_position
+from canimucal.model.static import detect_static_intervals
 
 logger = logging.getLogger(__name__)
 
@@ -30,6 +31,32 @@ def position_labels(recording: Recording) -> list[int]:
     """Return the distinct position labels of ``recording``, ascending (empty rows skipped)."""
     labels = np.unique(recording.position[recording.position >= 0])
     return [int(x) for x in labels.tolist()]
+
+
+def position_rows(recording: Recording) -> tuple[list[NDArray[np.intp]], bool]:
+    """Row indices of each position and whether they come from labels.
+
+    The one place that decides: the recording's position labels when it has any, else the
+    static intervals :func:`~canimucal.model.static.detect_static_intervals` finds (quiet on
+    the accelerometer, and on the gyro when the recording has gyro data).
+    """
+    labels = position_labels(recording)
+    if labels:
+        return [np.flatnonzero(recording.position == k) for k in labels], True
+    if np.all(np.isfinite(recording.accel), axis=1).sum() < 3:
+        raise InputError(f"{recording.source or 'recording'}: no accelerometer samples")
+    gyro = recording.gyro if np.isfinite(recording.gyro).any() else None
+    found = detect_static_intervals(recording.accel, recording.sample_rate_hz, gyro=gyro)
+    logger.info("no position labels: %d static intervals detected", len(found))
+    return [np.arange(s.start, s.stop) for s in found], False
+
+
+def average_rows(recording: Recording, rows: NDArray[np.intp]) -> PositionAverage:
+    """Average ``rows`` as one position of unknown orientation (NaN angles: scalar fit only)."""
+    gyro = recording.gyro[rows] if np.isfinite(recording.gyro).any() else None
+    return average_position(
+        Pose(np.nan, np.nan, np.nan), recording.accel[rows], gyro, recording.sample_rate_hz
+    )
 
 
 def has_angles(recording: Recording) -> bool:

@@ -195,6 +195,17 @@ def _static_sections(path: _PathLike) -> list[tuple[str, int, int]]:
     return out
 
 
+def read_any(
+    path: _PathLike,
+    format: Format | None = None,  # noqa: A002 (the public API's name, as in `--format`)
+    *,
+    second: _PathLike | None = None,
+    sample_rate_hz: float | None = None,
+) -> Recording:
+    """Read a recording in any format ``analyze`` takes (``format`` None: from content)."""
+    return load_any(path, second, fmt=format, sample_rate_hz=sample_rate_hz)
+
+
 def load_any(
     path: _PathLike,
     second: _PathLike | None = None,

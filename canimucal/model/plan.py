@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from canimucal.errors import ModelError
 from canimucal.model.layout import (
+    GyroSpec,
     JointSpec,
     ModelContext,
     ModelParams,
@@ -370,3 +371,28 @@ def cramer_rao(
         sigma = float(np.sqrt(sep.covariance[j, j]))
         rows.append(Bound(name, unit, sigma, sigma * float(scales[j])))
     return BoundTable(plan.name, spec, tuple(rows), sep)
+
+
+def plan_bounds(
+    plan: Plan | str = "recommended",
+    *,
+    model: Literal["diag", "full"] = "diag",
+    tilt: bool = True,
+    gyro: GyroSpec = "none",
+    latitude_deg: float | None = None,
+    with_tolerance: bool = False,
+) -> BoundTable:
+    """Cramér–Rao bounds of a plan (or a built-in plan's name) as ``canimucal plan`` gives them.
+
+    White noise of 1 count/√Hz, K = I/LSB, standard gravity; the same defaults as the command.
+    """
+    chosen = builtin_plan(plan) if isinstance(plan, str) else plan
+    spec = JointSpec(accel_k=model, tilt="rigid" if tilt else "none", gyro=gyro, gyro_s=model)
+    return cramer_rao(
+        chosen,
+        spec,
+        k_nominal_counts_per_ms2=1.0 / DEFAULT_ACCEL_LSB,
+        g=STANDARD_GRAVITY,
+        latitude=None if latitude_deg is None else float(np.deg2rad(latitude_deg)),
+        include_tolerance=with_tolerance,
+    )

@@ -30,6 +30,12 @@ class Pose:
     psi: float = 0.0
     tolerance: float = DEFAULT_TOLERANCE_RAD
 
+    @classmethod
+    def from_deg(cls, alpha: float, beta: float, psi: float = 0.0, tolerance: float = 0.1) -> Pose:
+        """Build a pose from degrees (angles and the 1σ ``tolerance``)."""
+        alpha, beta, psi, tolerance = np.deg2rad([alpha, beta, psi, tolerance]).tolist()
+        return cls(alpha, beta, psi, tolerance)
+
     @property
     def angles(self) -> NDArray[np.float64]:
         """``[alpha, beta, psi]`` in radians."""

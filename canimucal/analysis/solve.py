@@ -1,0 +1,204 @@
+"""Solving a recording: the library function behind ``canimucal solve`` and ``cm.calibrate``.
+
+One place decides how a recording becomes positions: its labels, else the static intervals
+the detector finds (:func:`canimucal.io.grouping.position_rows`). Positions with known angles
+go to the joint least squares (:func:`~canimucal.analysis.calibrate.solve_positions`), others
+to the scalar ``|f| = g`` fit. The acceptance limits are checked and their verdict travels in
+the record (never an exception: a failed check is a result).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from canimucal.analysis.acceptance import AcceptanceLimits, acceptance_block, check_acceptance
+from canimucal.analysis.calibrate import SiteConditions, Solution, solve_positions, solve_scalar
+from canimucal.analysis.conditions import recording_conditions
+from canimucal.errors import InputError
+from canimucal.io.calibration import Calibration, Device, RecordingRef, sha256_of
+from canimucal.io.grouping import average_rows, has_angles, position_averages, position_rows
+from canimucal.io.recording import Recording, read_recording
+from canimucal.model.layout import GyroSpec, JointSpec
+from canimucal.model.positions import PositionAverage
+from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, STANDARD_GRAVITY
+
+ModelName = Literal["diag", "full"]
+TiltModel = Literal["rigid", "additive"]
+
+
+@dataclass(frozen=True)
+class ModelChoice:
+    """Which model to solve: the options of ``canimucal solve`` (same names, same defaults).
+
+    ``gyro`` None means ``mems`` when every position has gyro data, else ``none``.
+    ``latitude_deg`` and ``g`` override the recording's header.
+    """
+
+    model: ModelName = "diag"
+    tilt: bool = False
+    tilt_model: TiltModel = "rigid"
+    gyro: GyroSpec | None = None
+    gyro_g: bool = False
+    latitude_deg: float | None = None
+    g: float | None = None
+
+    def spec(self, *, has_gyro: bool) -> JointSpec:
+        """Build the :class:`JointSpec` of this choice (InputError: ``nav`` without latitude)."""
+        gyro: GyroSpec = self.gyro or ("mems" if has_gyro else "none")
+        if gyro == "nav" and self.latitude_deg is None:
+            raise InputError(
+                "--gyro nav needs --latitude-deg (the gyro scale comes from Earth rate)"
+            )
+        return JointSpec(
+            accel_k=self.model,
+            tilt=self.tilt_model if self.tilt else "none",
+            gyro=gyro,
+            gyro_s=self.model,
+            gyro_g=self.gyro_g,
+        )
+
+
+@dataclass(frozen=True)
+class RecordingSolution:
+    """A solved recording: the solution and where its g came from (for the report)."""
+
+    solution: Solution
+    g_source: str
+
+    @property
+    def record(self) -> Calibration:
+        """The calibration record (with its acceptance verdict when the fit is joint)."""
+        return self.solution.record
+
+
+def site_of(rec: Recording, choice: ModelChoice) -> tuple[SiteConditions, str]:
+    """Return the site conditions of ``rec`` (header, ``choice`` overrides) and g's source."""
+    cond = recording_conditions(rec, choice.g)
+    latitude = cond.latitude_rad
+    if choice.latitude_deg is not None:
+        latitude = float(np.deg2rad(choice.latitude_deg))
+    t = rec.temp_c[np.isfinite(rec.temp_c)]
+    site = SiteConditions(
+        g=cond.g,
+        latitude=latitude,
+        heading=cond.heading_rad,
+        height_m=cond.height_m,
+        accel_lsb=cond.accel_lsb,
+        gyro_lsb=cond.gyro_lsb,
+        temp_c=float(t.mean()) if t.size else None,
+    )
+    return site, cond.g_source
+
+
+def solve_recording(
+    rec: Recording,
+    choice: ModelChoice = ModelChoice(),
+    *,
+    recording: RecordingRef | None = None,
+    limits: AcceptanceLimits | None = None,
+) -> RecordingSolution:
+    """Solve ``rec`` for the calibration ``choice`` asks for (module doc)."""
+    site, g_source = site_of(rec, choice)
+    serial, node_id = _header_int(rec, "device_serial"), _header_int(rec, "node_id")
+    device = Device(serial=serial or 0, node_id=node_id)
+    if has_angles(rec):
+        averages = position_averages(rec)
+        spec = choice.spec(has_gyro=all(a.mean_gyro is not None for a in averages))
+        solution = solve_positions(averages, spec, site, device, recording=recording)
+    else:
+        solution = solve_scalar(
+            _unknown_pose_averages(rec),
+            site,
+            device,
+            full=choice.model == "full",
+            recording=recording,
+        )
+    return RecordingSolution(
+        _with_acceptance(solution, site, limits or AcceptanceLimits()), g_source
+    )
+
+
+def _unknown_pose_averages(rec: Recording) -> list[PositionAverage]:
+    """Averages of the still stretches whose orientations are not known (scalar fit only)."""
+    rows, labelled = position_rows(rec)
+    if labelled:
+        return position_averages(rec, require_angles=False)
+    return [average_rows(rec, r) for r in rows]
+
+
+def _with_acceptance(
+    solution: Solution, site: SiteConditions, limits: AcceptanceLimits
+) -> Solution:
+    """Attach the acceptance verdict to a joint solution's record (scalar fits have none)."""
+    if solution.joint is None:
+        return solution
+    report = check_acceptance(solution, limits, site.accel_lsb, site.g)
+    record = replace(solution.record, acceptance=acceptance_block(report, limits))
+    return replace(solution, record=record)
+
+
+def _header_int(rec: Recording, key: str) -> int | None:
+    value = rec.header.get(key)
+    return int(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+
+
+def calibrate(
+    source: Recording | str | os.PathLike[str] | Sequence[PositionAverage],
+    *,
+    model: ModelName | None = None,
+    tilt: bool | None = None,
+    gyro: GyroSpec | None = None,
+    tilt_model: TiltModel = "rigid",
+    gyro_g: bool = False,
+    g: float | None = None,
+    latitude_deg: float | None = None,
+) -> Calibration:
+    """Calibrate from a recording (or its path) or from position averages.
+
+    The defaults are ``canimucal solve``'s, so ``calibrate(rec, model="full", tilt=True)``
+    gives the numbers of ``canimucal solve REC --model full --tilt``. Averages (from
+    :func:`~canimucal.model.positions.average_position`) are solved with standard gravity
+    (or ``g``) and the nominal LSBs of DESIGN §4. A failed acceptance check is reported in
+    ``.acceptance``, never raised.
+    """
+    choice = ModelChoice(
+        model=model or "diag",
+        tilt=bool(tilt),
+        tilt_model=tilt_model,
+        gyro=gyro,
+        gyro_g=gyro_g,
+        latitude_deg=latitude_deg,
+        g=g,
+    )
+    if isinstance(source, str | os.PathLike):
+        path = Path(source)
+        ref = RecordingRef(file=path.name, sha256=sha256_of(path))
+        return solve_recording(read_recording(path), choice, recording=ref).record
+    if isinstance(source, Recording):
+        return solve_recording(source, choice).record
+    return _calibrate_averages(list(source), choice)
+
+
+def _calibrate_averages(averages: list[PositionAverage], choice: ModelChoice) -> Calibration:
+    if not averages:
+        raise InputError("calibrate: no position averages given")
+    latitude = None if choice.latitude_deg is None else float(np.deg2rad(choice.latitude_deg))
+    site = SiteConditions(
+        g=choice.g or STANDARD_GRAVITY,
+        latitude=latitude,
+        accel_lsb=DEFAULT_ACCEL_LSB,
+        gyro_lsb=DEFAULT_GYRO_LSB,
+    )
+    device = Device(serial=0)
+    if all(np.all(np.isfinite(a.pose.angles)) for a in averages):
+        spec = choice.spec(has_gyro=all(a.mean_gyro is not None for a in averages))
+        solution = solve_positions(averages, spec, site, device)
+    else:
+        solution = solve_scalar(averages, site, device, full=choice.model == "full")
+    return _with_acceptance(solution, site, AcceptanceLimits()).record
