@@ -23,9 +23,10 @@ from textual.widgets import Footer, ProgressBar, Sparkline, Static
 
 from canimucal.errors import CanimucalError
 from canimucal.procedure import events as ev
+from canimucal.runtime.session import SessionCommand, WriteOptions
 from canimucal.tui.messages import EventsArrived
 from canimucal.tui.modals import ErrorModal
-from canimucal.tui.runner import SessionRunner
+from canimucal.tui.runner import Command, SessionRunner
 from canimucal.tui.source import NodeStatus
 from canimucal.tui.text import live_line, pose_drawing, short_live_line
 
@@ -150,35 +151,35 @@ class PositionScreen(Screen[None]):
             return False
         return self.phase in phases
 
-    def _send(self, name: str) -> None:
+    def _send(self, command: Command) -> None:
         if self.runner is not None:
-            self.runner.send(name)
+            self.runner.send(command)
 
     def action_confirm(self) -> None:
         """Confirm that the pose is set."""
         self.notice.update("moving / waiting for stillness…")
-        self._send("confirm_pose")
+        self._send(SessionCommand.CONFIRM_POSE)
 
     def action_accept(self) -> None:
         """Accept the averaged position."""
-        self._send("accept")
+        self._send(SessionCommand.ACCEPT)
 
     def action_redo(self) -> None:
         """Discard this attempt and instruct the pose again."""
-        self._send("redo")
+        self._send(SessionCommand.REDO)
 
     def action_skip(self) -> None:
         """Leave this position out."""
-        self._send("skip")
+        self._send(SessionCommand.SKIP)
 
     def action_skip_warmup(self) -> None:
         """Stop waiting for warm-up."""
-        self._send("skip_warmup")
+        self._send(SessionCommand.SKIP_WARMUP)
 
     def action_solve(self) -> None:
         """Solve every node."""
         self.notice.update("solving…")
-        self._send("solve")
+        self._send(SessionCommand.SOLVE)
 
     # -- events -----------------------------------------------------------------------------
 
@@ -276,15 +277,13 @@ class PositionScreen(Screen[None]):
                 VerificationScreen(self.level_checks, self.saved, self.writes, finished)
             )
 
-    def decided(self, decision: str | None) -> None:
-        """Act on the results screen's answer: ``write``, ``override`` or ``finish``."""
-        if self.runner is None or decision is None:
+    def decided(self, command: Command | None) -> None:
+        """Send the results screen's answer: a write, or finishing without one."""
+        if self.runner is None or command is None:
             return
-        if decision == "finish":
-            self.runner.send("finish_without_writing")
-            return
-        self.notice.update("writing (backup first, then verify)…")
-        self.runner.send("write", override=decision == "override")
+        if isinstance(command, WriteOptions):
+            self.notice.update("writing (backup first, then verify)…")
+        self.runner.send(command)
 
 
 def _pair(values: tuple[float, float]) -> str:

@@ -9,6 +9,7 @@ import pytest
 
 from canimucal.model.positions import PlannedPosition
 from canimucal.procedure import events as ev
+from canimucal.runtime.session import WriteOptions
 from canimucal.tui.app import CalibrationApp, make_app
 from canimucal.tui.connection import ConnectionScreen
 from canimucal.tui.messages import EventsArrived
@@ -183,7 +184,7 @@ async def test_results_screen_shows_values_sigmas_residuals_and_asks_before_writ
     tmp_path: Path,
 ) -> None:
     solved = solved_event("five")
-    decisions: list[str | None] = []
+    decisions: list[object] = []
     app = make_app(FakeSource(tmp_path), autoconnect=False)
     async with app.run_test(size=SIZE) as pilot:
         await app.push_screen(ResultsScreen(solved, [node_status()]), decisions.append)
@@ -197,7 +198,8 @@ async def test_results_screen_shows_values_sigmas_residuals_and_asks_before_writ
         assert row[0] == "accel.K[0][0]" and " ± " in row[1] and row[3] == "208.838"
         text = screen_text(app)
         assert "worst bias σ" in text and "fit rms" in text
-        key, decision = ("w", "write") if solved.acceptable else ("o", "override")
+        key = "w" if solved.acceptable else "o"
+        decision = WriteOptions(override=not solved.acceptable)
         assert ("write" in enabled(app)) is solved.acceptable
         await pilot.press(key)
         await pilot.pause()
