@@ -10,6 +10,7 @@ where the procedure accepts them (``check_action`` on the reactive ``phase``).
 from __future__ import annotations
 
 from collections.abc import Callable
+from enum import Enum
 from typing import TYPE_CHECKING, cast
 
 import numpy as np
@@ -23,6 +24,7 @@ from textual.widgets import Footer, ProgressBar, Sparkline, Static
 
 from canimucal.errors import CanimucalError
 from canimucal.procedure import events as ev
+from canimucal.procedure.machine import Phase
 from canimucal.runtime.session import SessionCommand, WriteOptions
 from canimucal.tui.messages import EventsArrived
 from canimucal.tui.modals import ErrorModal
@@ -33,27 +35,39 @@ from canimucal.tui.text import live_line, pose_drawing, short_live_line
 if TYPE_CHECKING:
     from canimucal.tui.app import CalibrationApp
 
-ACTION_PHASES: dict[str, tuple[str, ...]] = {
-    "confirm": ("instruct",),
-    "accept": ("review_position",),
-    "redo": ("review_position", "averaging", "settling"),
-    "skip": ("instruct", "settling"),
-    "skip_warmup": ("warmup",),
-    "solve": ("ready_to_solve",),
+
+class SessionState(Enum):
+    """What the screen shows while the procedure has no phase: before the first, after a failure."""
+
+    STARTING = "starting"
+    FAILED = "failed"
+
+
+ScreenPhase = Phase | SessionState
+"""The procedure's phase, or the session's state around it."""
+
+ACTION_PHASES: dict[str, frozenset[Phase]] = {
+    "confirm": frozenset({Phase.INSTRUCT}),
+    "accept": frozenset({Phase.REVIEW_POSITION}),
+    "redo": frozenset({Phase.REVIEW_POSITION, Phase.AVERAGING, Phase.SETTLING}),
+    "skip": frozenset({Phase.INSTRUCT, Phase.SETTLING}),
+    "skip_warmup": frozenset({Phase.WARMUP}),
+    "solve": frozenset({Phase.READY_TO_SOLVE}),
 }
-PHASE_WORDS = {
-    "": "starting",
-    "warmup": "warming up",
-    "instruct": "set the pose, then enter",
-    "settling": "waiting for stillness",
-    "averaging": "averaging",
-    "review_position": "averaged: accept (a) or redo (r)",
-    "ready_to_solve": "all positions done: solve (v)",
-    "review": "reviewing the result",
-    "writing": "writing",
-    "done": "done",
-    "cancelled": "cancelled",
-    "failed": "stopped on an error",
+"""The phases in which each procedure key (by its action) is offered."""
+PHASE_WORDS: dict[ScreenPhase, str] = {
+    SessionState.STARTING: "starting",
+    Phase.WARMUP: "warming up",
+    Phase.INSTRUCT: "set the pose, then enter",
+    Phase.SETTLING: "waiting for stillness",
+    Phase.AVERAGING: "averaging",
+    Phase.REVIEW_POSITION: "averaged: accept (a) or redo (r)",
+    Phase.READY_TO_SOLVE: "all positions done: solve (v)",
+    Phase.REVIEW: "reviewing the result",
+    Phase.WRITING: "writing",
+    Phase.DONE: "done",
+    Phase.CANCELLED: "cancelled",
+    SessionState.FAILED: "stopped on an error",
 }
 
 
@@ -68,7 +82,7 @@ class PositionScreen(Screen[None]):
         Binding("w", "skip_warmup", "Skip warm-up"),
         Binding("v", "solve", "Solve"),
     ]
-    phase = reactive("", bindings=True)
+    phase: reactive[ScreenPhase] = reactive[ScreenPhase](SessionState.STARTING, bindings=True)
     index = reactive(0, bindings=True)
 
     def __init__(
@@ -192,9 +206,9 @@ class PositionScreen(Screen[None]):
     def show(self, event: ev.Event) -> None:  # noqa: C901 - one branch per event kind
         """Update the widgets for one event."""
         if isinstance(event, ev.PhaseChanged):
-            self.phase = event.phase
+            self.phase = Phase(event.phase)
             self._title()
-            if event.phase == "warmup":
+            if self.phase is Phase.WARMUP:
                 self.words.update("waiting for the temperature to settle (w skips)")
         elif isinstance(event, ev.SamplesReceived):
             self._samples(event)
@@ -232,19 +246,19 @@ class PositionScreen(Screen[None]):
         elif isinstance(event, ev.Solved):
             self.solved = event
         elif isinstance(event, ev.ProcedureFailed):
-            self.phase = "failed"  # the session loop has ended: no procedure key applies
+            self.phase = SessionState.FAILED  # the loop has ended: no procedure key applies
             self._title()
             self.notice.update(f"stopped: {event.message} — the recording so far is kept; q quits")
             self.app.push_screen(ErrorModal(event.title, event.message))
 
     def _title(self) -> None:
         what = "verification" if self.verification else f"position {self.index + 1}/{self.total}"
-        words = PHASE_WORDS.get(self.phase, self.phase)
+        words = PHASE_WORDS[self.phase]
         self.title_w.update(f"canimucal · {what} · {words}")
 
     def _instructed(self, event: ev.PoseInstructed) -> None:
         self.index, self.total, self.verification = event.index, event.total, event.verification
-        self.phase = "instruct"  # the first instruction comes without a PhaseChanged
+        self.phase = Phase.INSTRUCT  # the first instruction comes without a PhaseChanged
         alpha, beta, psi = (float(np.rad2deg(x)) for x in event.position.angles)
         self.words.update(f"{event.words}\naverage {event.seconds:g} s once still")
         self.drawing.update(pose_drawing(alpha, beta, psi))
