@@ -44,6 +44,7 @@ from canimucal.io.calibration import (
     Calibration,
     Device,
     RecordingRef,
+    Verification,
     calibration_to_json,
     sha256_of,
 )
@@ -391,12 +392,32 @@ class Session:
         write_text(link.record_path, calibration_to_json(link.record))
 
     def finish(self) -> None:
-        """Rewrite the certificates with the verification, close what is open (idempotent)."""
+        """Rewrite the certificates with the verification, close what is open (idempotent).
+
+        A node that was written but not verified at level (the session was interrupted or
+        cancelled in between) has ``verification: {done: false, passed: false}`` recorded
+        in its calibration JSON and certificate.
+        """
         for node_id, link in self.links.items():
             self._write_rows(node_id)
             link.writer.close()
+            if self._written_unverified(node_id):
+                assert link.record is not None and link.record_path is not None
+                undone = Verification(passed=False, done=False)
+                link.record = replace(link.record, verification=undone)
+                write_text(link.record_path, calibration_to_json(link.record))
             if link.certificate_path is not None and self.procedure.solved is not None:
                 write_text(link.certificate_path, self.certificate(node_id))
+
+    def _written_unverified(self, node_id: int) -> bool:
+        proc, link = self.procedure, self.links[node_id]
+        result = proc.write_results.get(node_id)
+        return (
+            result is not None
+            and result.ok
+            and (node_id, "after") not in proc.level_checks
+            and link.record_path is not None
+        )
 
     def _name(self, stem: str, node_id: int, suffix: str) -> Path:
         return output_name(self.out_dir, stem, node_id, self.several, suffix)
