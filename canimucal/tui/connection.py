@@ -10,7 +10,7 @@ from textual.screen import Screen
 from textual.widgets import DataTable, Footer, Static
 
 from canimucal.errors import CanimucalError
-from canimucal.tui.messages import ConnectFailed, NodesFound
+from canimucal.tui.messages import ConnectFailed, NodesFound, PlanWanted
 from canimucal.tui.modals import ErrorModal
 from canimucal.tui.source import NodeStatus, SessionSource
 from canimucal.tui.text import calibration_summary
@@ -133,7 +133,5 @@ class ConnectionScreen(Screen[None]):
         self.app.push_screen(ErrorModal(message.title, message.message))
 
     def action_next(self) -> None:
-        """Go to the plan screen."""
-        from canimucal.tui.plan_screen import PlanScreen
-
-        self.app.push_screen(PlanScreen(self.statuses))
+        """Ask the app for the plan screen."""
+        self.post_message(PlanWanted(self.statuses))

@@ -2,16 +2,17 @@
 
 The worker thread (one, exclusive) opens the session and runs
 :meth:`~canimucal.tui.runner.SessionRunner.run`, which posts :class:`EventsArrived` batches
-here; the handler updates the cached widgets. Results and verification screens are pushed
-from here when the procedure reaches them. Keys appear in the footer only in the phases
-where the procedure accepts them (``check_action`` on the reactive ``phase``).
+here; the handler updates the cached widgets. When the procedure solves or ends, the screen
+tells the app (:class:`ResultsReady`, :class:`ProcedureEnded`), which shows the next screen.
+Keys appear in the footer only in the phases where the procedure accepts them
+(``check_action`` on the reactive ``phase``); skipping a position asks first.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from enum import Enum
-from typing import TYPE_CHECKING, cast
+from pathlib import Path
 
 import numpy as np
 from textual import work
@@ -26,14 +27,11 @@ from canimucal.errors import CanimucalError
 from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase
 from canimucal.runtime.session import SessionCommand, WriteOptions
-from canimucal.tui.messages import EventsArrived
-from canimucal.tui.modals import ErrorModal
+from canimucal.tui.messages import EventsArrived, ProcedureEnded, ResultsReady
+from canimucal.tui.modals import ConfirmSkip, ErrorModal
 from canimucal.tui.runner import Command, SessionRunner
 from canimucal.tui.source import NodeStatus
 from canimucal.tui.text import live_line, pose_drawing, short_live_line
-
-if TYPE_CHECKING:
-    from canimucal.tui.app import CalibrationApp
 
 
 class SessionState(Enum):
@@ -45,6 +43,8 @@ class SessionState(Enum):
 
 ScreenPhase = Phase | SessionState
 """The procedure's phase, or the session's state around it."""
+ENDED: frozenset[ScreenPhase] = frozenset({Phase.DONE, Phase.CANCELLED, SessionState.FAILED})
+"""The phases after which the session has nothing left to run."""
 
 ACTION_PHASES: dict[str, frozenset[Phase]] = {
     "confirm": frozenset({Phase.INSTRUCT}),
@@ -91,9 +91,11 @@ class PositionScreen(Screen[None]):
         open_runner: Callable[[], SessionRunner] | None = None,
         *,
         total: int = 0,
+        out_dir: Path | None = None,
     ) -> None:
         super().__init__()
         self.statuses = statuses
+        self.out_dir = out_dir
         self.open_runner = open_runner
         self.runner: SessionRunner | None = None
         self.live: dict[int, ev.SamplesReceived] = {}
@@ -147,12 +149,43 @@ class PositionScreen(Screen[None]):
         except CanimucalError as exc:
             self.post_message(EventsArrived([ev.ProcedureFailed(str(exc), exc.title)]))
             return
-        cast("CalibrationApp", self.app).runner = self.runner
         self.runner.run(self._deliver)
 
     def _deliver(self, batch: list[ev.Event]) -> None:
         """Hand a batch to the UI (called on the I/O thread; post_message is thread-safe)."""
         self.post_message(EventsArrived(batch))
+
+    # -- exits ------------------------------------------------------------------------------
+
+    @property
+    def in_progress(self) -> bool:
+        """Whether the session has not ended yet (quitting now interrupts it)."""
+        return self.phase not in ENDED
+
+    def what_quitting_keeps(self) -> str:
+        """Say what quitting now keeps on disk and leaves on the device."""
+        where = str(self.out_dir) if self.out_dir is not None else "the output folder"
+        written = [str(w.node_id) for w in self.writes if w.ok]
+        lines = []
+        if self.phase is Phase.WRITING:
+            lines.append("The write in progress ends first: verified, or rolled back.")
+        if written:
+            lines.append(
+                f"Node {', '.join(written)} keeps the new calibration (written, read back and "
+                "stored). The verification at level is NOT done: calibration.json and the "
+                f"certificate in {where} record it as not done."
+            )
+        elif self.saved:
+            lines.append(
+                "Nothing was written to the device. Kept: the recording, calibration.json and "
+                f"the certificate, in {where}."
+            )
+        else:
+            lines.append(
+                f"Nothing was written to the device. Kept: the recording so far, in {where}; "
+                f"--resume {where} goes on from the last accepted position."
+            )
+        return "\n".join(lines)
 
     # -- keys -------------------------------------------------------------------------------
 
@@ -183,8 +216,18 @@ class PositionScreen(Screen[None]):
         self._send(SessionCommand.REDO)
 
     def action_skip(self) -> None:
-        """Leave this position out."""
-        self._send(SessionCommand.SKIP)
+        """Ask, then leave this position out."""
+
+        def answered(yes: bool | None) -> None:
+            if yes:
+                self._send(SessionCommand.SKIP)
+
+        text = (
+            f"Position {self.index + 1}/{self.total} is left out of the fit; its samples stay "
+            "in the recording. The parameters it would separate may end up less certain or "
+            "held at nominal."
+        )
+        self.app.push_screen(ConfirmSkip(text), answered)
 
     def action_skip_warmup(self) -> None:
         """Stop waiting for warm-up."""
@@ -201,7 +244,7 @@ class PositionScreen(Screen[None]):
         """Show a batch of events; push results or verification when they arrive."""
         for event in message.events:
             self.show(event)
-        self._push_screens(message.events)
+        self._tell_app(message.events)
 
     def show(self, event: ev.Event) -> None:  # noqa: C901 - one branch per event kind
         """Update the widgets for one event."""
@@ -278,17 +321,13 @@ class PositionScreen(Screen[None]):
         if event.node_id == first and event.sparkline:
             self.spark.data = list(event.sparkline)
 
-    def _push_screens(self, events: list[ev.Event]) -> None:
+    def _tell_app(self, events: list[ev.Event]) -> None:
         if any(isinstance(e, ev.Solved) for e in events) and self.solved is not None:
-            from canimucal.tui.results import ResultsScreen
-
-            self.app.push_screen(ResultsScreen(self.solved, self.statuses), self.decided)
-        if any(isinstance(e, ev.ProcedureFinished) for e in events):
-            from canimucal.tui.verification import VerificationScreen
-
-            finished = [e for e in events if isinstance(e, ev.ProcedureFinished)][-1]
-            self.app.push_screen(
-                VerificationScreen(self.level_checks, self.saved, self.writes, finished)
+            self.post_message(ResultsReady(self.solved, self.statuses, self.decided))
+        finished = [e for e in events if isinstance(e, ev.ProcedureFinished)]
+        if finished:
+            self.post_message(
+                ProcedureEnded(self.level_checks, self.saved, self.writes, finished[-1])
             )
 
     def decided(self, command: Command | None) -> None:

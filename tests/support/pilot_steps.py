@@ -44,6 +44,13 @@ async def measure_positions(pilot, screen: PositionScreen, indices: Iterable[int
 
 async def write_and_verify(pilot, screen: PositionScreen) -> None:  # type: ignore[no-untyped-def]
     """From the results: write (anyway, if the limits fail), confirm, verify at level."""
+    await write(pilot, screen)
+    await press(pilot, "enter")
+    await until(pilot, lambda: isinstance(pilot.app.screen, VerificationScreen), "the end")
+
+
+async def write(pilot, screen: PositionScreen) -> None:  # type: ignore[no-untyped-def]
+    """From the results: write (anyway, if the limits fail), confirm; stop at the level pose."""
     app = pilot.app
     await until(pilot, lambda: isinstance(app.screen, ResultsScreen), "the results")
     results = app.screen
@@ -54,5 +61,3 @@ async def write_and_verify(pilot, screen: PositionScreen) -> None:  # type: igno
     await until(
         pilot, lambda: screen.verification and screen.phase is Phase.INSTRUCT, "verification"
     )
-    await press(pilot, "enter")
-    await until(pilot, lambda: isinstance(app.screen, VerificationScreen), "the end")

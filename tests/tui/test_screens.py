@@ -74,7 +74,7 @@ async def test_plan_screen_shows_bounds_and_what_the_five_plan_cannot_separate(
 ) -> None:
     app = make_app(FakeSource(tmp_path), autoconnect=False)
     async with app.run_test(size=SIZE) as pilot:
-        await app.push_screen(PlanScreen([node_status()]))
+        await app.push_screen(PlanScreen([node_status()], app.plans))
         await pilot.pause()
         text = screen_text(app)
         assert "plan recommended: " in text and "accel.K[0][1]" in text
