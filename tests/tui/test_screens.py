@@ -12,7 +12,7 @@ from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase
 from canimucal.runtime.session import WriteOptions
 from canimucal.tui.app import CalibrationApp, make_app
-from canimucal.tui.connection import ConnectionScreen
+from canimucal.tui.connection import ConnectionScreen, LinkState
 from canimucal.tui.messages import EventsArrived
 from canimucal.tui.modals import ConfirmWrite, ErrorModal
 from canimucal.tui.plan_screen import PlanScreen
@@ -43,7 +43,7 @@ async def test_connection_screen_shows_identity_calibration_and_heartbeat(tmp_pa
     async with app.run_test(size=SIZE) as pilot:
         screen = app.screen
         assert isinstance(screen, ConnectionScreen)
-        await wait_for(pilot, lambda: screen.state == "connected")
+        await wait_for(pilot, lambda: screen.state is LinkState.CONNECTED)
         await pilot.pause()
         text = screen_text(app)
         assert "4242" in text and "none (nominal)" in text and "op 0.2 s ago" in text
