@@ -23,6 +23,7 @@ from textual.binding import Binding
 
 from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
+from canimucal.procedure.machine import Phase
 from canimucal.tui.connection import ConnectionScreen
 from canimucal.tui.messages import PlanWanted, ProcedureEnded, ResultsReady, StartWanted
 from canimucal.tui.modals import ConfirmQuit
@@ -36,6 +37,9 @@ from canimucal.tui.verification import VerificationScreen
 logger = logging.getLogger(__name__)
 
 RUNNER_STOP_TIMEOUT_S = 10.0
+WRITE_STOP_TIMEOUT_S = 60.0
+"""How long quitting waits for a write in progress: it ends (verified, or rolled back) within
+its SDO and store timeouts, and the bus must not be closed under it."""
 BUILTIN = ("two", "five", "recommended")
 EXIT_OK = 0
 EXIT_INTERRUPTED = 130
@@ -142,8 +146,10 @@ class CalibrationApp(App[int]):
         runner, self.runner = self.runner, None
         if runner is not None:
             runner.stop()
-            if not runner.finished.wait(RUNNER_STOP_TIMEOUT_S):
-                logger.warning("the session loop did not stop within %g s", RUNNER_STOP_TIMEOUT_S)
+            writing = runner.phase is Phase.WRITING
+            timeout_s = WRITE_STOP_TIMEOUT_S if writing else RUNNER_STOP_TIMEOUT_S
+            if not runner.finished.wait(timeout_s):
+                logger.warning("the session loop did not stop within %g s", timeout_s)
         self.source.close()
 
     def on_unmount(self) -> None:

@@ -9,6 +9,7 @@ two-position calibration of the simulated node and quits at the verification pos
 from __future__ import annotations
 
 import json
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +33,6 @@ from tests.support.tui_fakes import FakeSource, node_status, screen_text
 
 SIZE = (80, 24)
 SEED = 20261124
-pytestmark = pytest.mark.asyncio
 
 
 class RecordingRunner:
@@ -62,6 +62,7 @@ async def session_at(app: CalibrationApp, pilot, tmp_path: Path, *events: ev.Eve
     return screen
 
 
+@pytest.mark.asyncio
 async def test_q_quits_at_once_with_0_when_no_session_is_in_progress(tmp_path: Path) -> None:
     app = make_app(FakeSource(tmp_path))
     async with app.run_test(size=SIZE) as pilot:
@@ -71,6 +72,7 @@ async def test_q_quits_at_once_with_0_when_no_session_is_in_progress(tmp_path: P
     assert app.return_code == EXIT_OK
 
 
+@pytest.mark.asyncio
 async def test_ctrl_c_interrupts_at_once_with_130(tmp_path: Path) -> None:
     app = make_app(FakeSource(tmp_path), autoconnect=False)
     async with app.run_test(size=SIZE) as pilot:
@@ -81,6 +83,7 @@ async def test_ctrl_c_interrupts_at_once_with_130(tmp_path: Path) -> None:
     assert app.return_code == EXIT_INTERRUPTED
 
 
+@pytest.mark.asyncio
 async def test_q_during_a_session_asks_says_what_is_kept_and_exits_130(tmp_path: Path) -> None:
     app = make_app(FakeSource(tmp_path), autoconnect=False)
     async with app.run_test(size=SIZE) as pilot:
@@ -104,6 +107,7 @@ async def test_q_during_a_session_asks_says_what_is_kept_and_exits_130(tmp_path:
     assert app.return_code == EXIT_INTERRUPTED
 
 
+@pytest.mark.asyncio
 async def test_quitting_after_the_write_says_the_verification_is_not_done(tmp_path: Path) -> None:
     app = make_app(FakeSource(tmp_path), autoconnect=False)
     async with app.run_test(size=SIZE) as pilot:
@@ -129,6 +133,7 @@ async def test_quitting_after_the_write_says_the_verification_is_not_done(tmp_pa
     assert app.return_code == EXIT_INTERRUPTED
 
 
+@pytest.mark.asyncio
 async def test_q_after_the_procedure_ended_quits_with_0(tmp_path: Path) -> None:
     app = make_app(FakeSource(tmp_path), autoconnect=False)
     async with app.run_test(size=SIZE) as pilot:
@@ -141,6 +146,7 @@ async def test_q_after_the_procedure_ended_quits_with_0(tmp_path: Path) -> None:
     assert app.return_code == EXIT_OK
 
 
+@pytest.mark.asyncio
 async def test_skip_asks_and_sends_only_on_yes(tmp_path: Path) -> None:
     app = make_app(FakeSource(tmp_path), autoconnect=False)
     async with app.run_test(size=SIZE) as pilot:
@@ -166,6 +172,7 @@ async def test_skip_asks_and_sends_only_on_yes(tmp_path: Path) -> None:
         assert app.screen is screen and runner.sent == [SessionCommand.SKIP]
 
 
+@pytest.mark.asyncio
 async def test_a_session_quit_after_its_write_records_the_verification_as_not_done(
     tmp_path: Path,
 ) -> None:
@@ -198,3 +205,29 @@ async def test_a_session_quit_after_its_write_records_the_verification_as_not_do
     certificate = (tmp_path / "certificate.md").read_text()
     assert "## Verification: NOT DONE" in certificate
     assert "after write (re-read)" not in certificate
+
+
+class SlowWriteRunner:
+    """A runner busy writing: its loop ends ``delay_s`` after it is asked to stop."""
+
+    def __init__(self, delay_s: float) -> None:
+        self.phase = Phase.WRITING
+        self.finished = threading.Event()
+        self.delay_s = delay_s
+
+    def stop(self) -> None:
+        threading.Timer(self.delay_s, self.finished.set).start()
+
+
+def test_quitting_during_a_write_waits_for_it_before_closing_the_bus(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr("canimucal.tui.app.RUNNER_STOP_TIMEOUT_S", 0.05)
+    source = FakeSource(tmp_path)
+    finished_at_close: list[bool] = []
+    monkeypatch.setattr(source, "close", lambda: finished_at_close.append(runner.finished.is_set()))
+    app = make_app(source)
+    runner = SlowWriteRunner(0.3)
+    app.runner = runner  # type: ignore[assignment]
+    app.stop_session()
+    assert finished_at_close == [True]
