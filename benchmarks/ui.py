@@ -65,6 +65,7 @@ def _child(rate_hz: int, result_path: Path) -> None:
     from textual.binding import Binding
 
     from canimucal.model.plan import builtin_plan
+    from canimucal.procedure.machine import Phase
     from canimucal.sim.truth import Truth
     from canimucal.tui.app import CalibrationApp
     from canimucal.tui.position import PositionScreen
@@ -120,11 +121,11 @@ def _child(rate_hz: int, result_path: Path) -> None:
         await wait(lambda: isinstance(app.screen, PositionScreen))
         screen = app.screen
         assert isinstance(screen, PositionScreen)
-        await wait(lambda: screen.phase == "warmup")
+        await wait(lambda: screen.phase is Phase.WARMUP)
         app.simulate_key("w")
-        await wait(lambda: screen.phase == "instruct")
+        await wait(lambda: screen.phase is Phase.INSTRUCT)
         app.simulate_key("enter")
-        await wait(lambda: screen.phase == "averaging")
+        await wait(lambda: screen.phase is Phase.AVERAGING)
         await asyncio.sleep(1.0)
         main_tid = threading.main_thread().native_id
         assert main_tid is not None

@@ -220,6 +220,18 @@ class Acceptance:
 
 
 @dataclass(frozen=True, kw_only=True)
+class Verification:
+    """``verification``: whether the level check after the write was done, and its verdict.
+
+    A session that wrote the device and ended before that check (interrupted) records
+    ``done: false`` and ``passed: false``: the device holds values nobody checked.
+    """
+
+    passed: bool = field(metadata=cs.boolean())
+    done: bool = field(metadata=cs.boolean())
+
+
+@dataclass(frozen=True, kw_only=True)
 class Calibration:
     """The whole calibration JSON (see the module doc for ``None`` and units)."""
 
@@ -241,6 +253,7 @@ class Calibration:
     objects: dict[str, int | float] | None = field(default=None, metadata=cs.objects())
     readback: Readback | None = field(default=None, metadata=cs.block(Readback))
     acceptance: Acceptance | None = field(default=None, metadata=cs.block(Acceptance))
+    verification: Verification | None = field(default=None, metadata=cs.block(Verification))
 
     @classmethod
     def from_json(cls, path: str | os.PathLike[str]) -> Calibration:

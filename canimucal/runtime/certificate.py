@@ -107,6 +107,14 @@ def certificate_markdown(
     if acceptance.held_nominal:
         lines.append(f"- held at nominal: {', '.join(acceptance.held_nominal)}")
     lines += ["", "## Level check", "", *_level_lines(level_checks)]
+    if record.verification is not None and not record.verification.done:
+        lines += [
+            "",
+            "## Verification: NOT DONE",
+            "",
+            "The calibration was written to the device, but the session ended before the "
+            "level check after the write: the device holds these values unverified.",
+        ]
     if warnings:
         lines += ["", "## Warnings", "", *[f"- {w}" for w in warnings]]
     return "\n".join(lines) + "\n"

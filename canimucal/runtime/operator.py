@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from canimucal.errors import DeviceError
 from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase
-from canimucal.runtime.session import Session
+from canimucal.runtime.session import Session, SessionCommand, WriteOptions
 
 MAX_REFUSALS = 3
 
@@ -40,7 +40,7 @@ def run_automatic(
         for _ in range(max_polls):
             if give_up_at is not None and time.monotonic() > give_up_at:
                 proc = session.procedure
-                session.command("cancel")
+                session.command(SessionCommand.CANCEL)
                 raise DeviceError(
                     f"the automatic operator gave up after {deadline_s:.0f} s (phase "
                     f"{proc.phase.value}, position {proc.index + 1}): the simulated bus "
@@ -51,7 +51,7 @@ def run_automatic(
                 break
             session.poll()
             if _refusals_in_a_row(session.history) >= MAX_REFUSALS:
-                session.command("cancel")
+                session.command(SessionCommand.CANCEL)
                 break
     finally:
         session.finish()  # what was recorded is kept, even on an error or Ctrl-C
@@ -72,16 +72,16 @@ def _react(session: Session, write_anyway: bool) -> list[ev.Event]:
     proc = session.procedure
     phase = proc.phase
     if phase is Phase.WARMUP:
-        return session.command("skip_warmup")
+        return session.command(SessionCommand.SKIP_WARMUP)
     if phase is Phase.INSTRUCT:
         return session.confirm_pose()
     if phase is Phase.REVIEW_POSITION:
-        return session.command("accept")
+        return session.command(SessionCommand.ACCEPT)
     if phase is Phase.READY_TO_SOLVE:
         return session.solve()
     if phase is Phase.REVIEW:
         assert proc.solved is not None
         if proc.solved.acceptable or write_anyway:
-            return session.write(override=write_anyway)
-        return session.command("finish_without_writing")
+            return session.write(WriteOptions(override=write_anyway))
+        return session.command(SessionCommand.FINISH_WITHOUT_WRITING)
     return []

@@ -9,7 +9,8 @@ before any write, writes with the transactional write and re-reads the result. I
 (``sims`` given) confirming a pose moves the simulated node(s) there first.
 
 Each call returns the procedure's events; a TUI polls :meth:`Session.poll` from its I/O
-worker and posts the events to its screen.
+worker and posts the events to its screen. What an operator asks of a running session is a
+:class:`SessionCommand`, or a :class:`WriteOptions` for the write (the one command with options).
 """
 
 from __future__ import annotations
@@ -20,8 +21,9 @@ import queue
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
+from enum import Enum
 from pathlib import Path
-from typing import Any
+from typing import Any, assert_never
 
 import numpy as np
 
@@ -42,6 +44,7 @@ from canimucal.io.calibration import (
     Calibration,
     Device,
     RecordingRef,
+    Verification,
     calibration_to_json,
     sha256_of,
 )
@@ -60,6 +63,32 @@ SILENCE_TIMEOUT_S = 5.0
 """A streaming node silent this long (wall time) stops the session with a DeviceError."""
 DEMO_MOVE_S = 3.0
 """Sample time a demo move takes before the pose is confirmed (transient 1 s + lag)."""
+
+
+class SessionCommand(Enum):
+    """An operator's command to a running session (see :meth:`Session.command`)."""
+
+    CONFIRM_POSE = "confirm pose"
+    ACCEPT = "accept"
+    REDO = "redo"
+    SKIP = "skip"
+    SKIP_WARMUP = "skip warm-up"
+    SOLVE = "solve"
+    FINISH_WITHOUT_WRITING = "finish without writing"
+    CANCEL = "cancel"
+
+
+@dataclass(frozen=True)
+class WriteOptions:
+    """How :meth:`Session.write` writes.
+
+    ``override`` writes a result that failed the acceptance limits (operator's choice);
+    ``force`` only overrides the serial check (DESIGN §7); ``store`` saves with 0x1010:04.
+    """
+
+    override: bool = False
+    force: bool = False
+    store: bool = True
 
 
 @dataclass
@@ -263,9 +292,29 @@ class Session:
             out += self.poll()
         return out
 
-    def command(self, name: str) -> list[ev.Event]:
-        """Run a machine command by name (``accept``, ``redo``, ``skip``, ``skip_warmup``…)."""
-        return self._keep(getattr(self.procedure, name)())
+    def command(self, command: SessionCommand) -> list[ev.Event]:
+        """Run one operator command; a command the phase does not take does nothing."""
+        proc = self.procedure
+        match command:
+            case SessionCommand.CONFIRM_POSE:
+                return self.confirm_pose()
+            case SessionCommand.SOLVE:
+                return self.solve()
+            case SessionCommand.ACCEPT:
+                events = proc.accept()
+            case SessionCommand.REDO:
+                events = proc.redo()
+            case SessionCommand.SKIP:
+                events = proc.skip()
+            case SessionCommand.SKIP_WARMUP:
+                events = proc.skip_warmup()
+            case SessionCommand.FINISH_WITHOUT_WRITING:
+                events = proc.finish_without_writing()
+            case SessionCommand.CANCEL:
+                events = proc.cancel()
+            case _:
+                assert_never(command)
+        return self._keep(events)
 
     def solve(self) -> list[ev.Event]:
         """Solve; close the recordings and save records and certificates (before any write)."""
@@ -310,22 +359,21 @@ class Session:
             warnings=proc.solutions[node_id].warnings,
         )
 
-    def write(
-        self, *, force: bool = False, store: bool = True, override: bool = False
-    ) -> list[ev.Event]:
-        """Write every node's calibration transactionally, read it back, verify at level.
-
-        ``override`` writes a result that failed the acceptance limits (operator's choice);
-        ``force`` only overrides the serial check (DESIGN §7).
-        """
-        events = self.procedure.begin_write(override=override)
+    def write(self, options: WriteOptions | None = None) -> list[ev.Event]:
+        """Write every node's calibration transactionally, read it back, verify at level."""
+        options = options or WriteOptions()
+        events = self.procedure.begin_write(override=options.override)
         if self.procedure.phase is not Phase.WRITING:
             return self._keep(events)
         for node_id, link in self.links.items():
             assert link.record is not None
             try:
                 report = write_calibration_transaction(
-                    link.client, link.record, force=force, store=store, backup_dir=self.backup_dir
+                    link.client,
+                    link.record,
+                    force=options.force,
+                    store=options.store,
+                    backup_dir=self.backup_dir,
                 )
             except CanimucalError as exc:
                 events += self.procedure.write_finished(node_id, False, str(exc))
@@ -344,12 +392,32 @@ class Session:
         write_text(link.record_path, calibration_to_json(link.record))
 
     def finish(self) -> None:
-        """Rewrite the certificates with the verification, close what is open (idempotent)."""
+        """Rewrite the certificates with the verification, close what is open (idempotent).
+
+        A node that was written but not verified at level (the session was interrupted or
+        cancelled in between) has ``verification: {done: false, passed: false}`` recorded
+        in its calibration JSON and certificate.
+        """
         for node_id, link in self.links.items():
             self._write_rows(node_id)
             link.writer.close()
+            if self._written_unverified(node_id):
+                assert link.record is not None and link.record_path is not None
+                undone = Verification(passed=False, done=False)
+                link.record = replace(link.record, verification=undone)
+                write_text(link.record_path, calibration_to_json(link.record))
             if link.certificate_path is not None and self.procedure.solved is not None:
                 write_text(link.certificate_path, self.certificate(node_id))
+
+    def _written_unverified(self, node_id: int) -> bool:
+        proc, link = self.procedure, self.links[node_id]
+        result = proc.write_results.get(node_id)
+        return (
+            result is not None
+            and result.ok
+            and (node_id, "after") not in proc.level_checks
+            and link.record_path is not None
+        )
 
     def _name(self, stem: str, node_id: int, suffix: str) -> Path:
         return output_name(self.out_dir, stem, node_id, self.several, suffix)

@@ -1,9 +1,15 @@
 """The Textual app and its factory :func:`make_app` (the entry point and the tests use it).
 
-Screens, in order: connection → plan → position (the procedure, with its I/O worker) →
-results → write confirmation (modal) → position (verification at level) → verification.
-Errors are shown in :class:`~canimucal.tui.modals.ErrorModal`, never as a traceback. Quitting
-stops the I/O loop (the recording so far is kept) and releases the bus.
+The app owns the screen flow: connection → plan → position (the procedure, with its I/O
+worker) → results → write confirmation (modal) → position (verification at level) →
+verification. A screen that is done posts a message (:mod:`canimucal.tui.messages`) and the
+app pushes the next screen, so no screen imports another. Errors are shown in
+:class:`~canimucal.tui.modals.ErrorModal`, never as a traceback.
+
+Exits (DESIGN §7): ``q`` quits at once when no session is in progress (exit 0); during a
+session it first asks, saying what is kept, and a confirmed quit is an interrupted session
+(exit 130). Ctrl+C is the interrupt: it quits at once with exit 130. Either way the I/O
+loop is stopped, the recording so far is kept, and the bus is released.
 """
 
 from __future__ import annotations
@@ -17,15 +23,27 @@ from textual.binding import Binding
 
 from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
+from canimucal.procedure.machine import Phase
 from canimucal.tui.connection import ConnectionScreen
+from canimucal.tui.messages import PlanWanted, ProcedureEnded, ResultsReady, StartWanted
+from canimucal.tui.modals import ConfirmQuit
+from canimucal.tui.plan_screen import PlanScreen
 from canimucal.tui.position import PositionScreen
+from canimucal.tui.results import ResultsScreen
 from canimucal.tui.runner import SessionRunner
-from canimucal.tui.source import NodeStatus, SessionSource
+from canimucal.tui.source import SessionSource
+from canimucal.tui.verification import VerificationScreen
 
 logger = logging.getLogger(__name__)
 
 RUNNER_STOP_TIMEOUT_S = 10.0
+WRITE_STOP_TIMEOUT_S = 60.0
+"""How long quitting waits for a write in progress: it ends (verified, or rolled back) within
+its SDO and store timeouts, and the bus must not be closed under it."""
 BUILTIN = ("two", "five", "recommended")
+EXIT_OK = 0
+EXIT_INTERRUPTED = 130
+"""Exit status of an interrupted session (DESIGN §7: what was recorded so far is kept)."""
 
 
 class CalibrationApp(App[int]):
@@ -35,7 +53,7 @@ class CalibrationApp(App[int]):
     TITLE = "canimucal"
     BINDINGS = [
         Binding("q", "quit", "Quit"),
-        Binding("ctrl+c", "quit", "Quit", show=False, priority=True),
+        Binding("ctrl+c", "interrupt", "Interrupt", show=False, priority=True),
     ]
     ENABLE_COMMAND_PALETTE = False
 
@@ -60,28 +78,79 @@ class CalibrationApp(App[int]):
         """Open on the connection screen."""
         self.push_screen(ConnectionScreen(self.source, autoconnect=self.autoconnect))
 
-    def start_procedure(self, plan_name: str, gyro: str, statuses: list[NodeStatus]) -> None:
+    # -- the screen flow --------------------------------------------------------------------
+
+    def on_plan_wanted(self, message: PlanWanted) -> None:
+        """Show the plan screen once the connection screen is done."""
+        plan_screen = PlanScreen(
+            message.statuses, self.plans, plan_name=self.plan_name, gyro=self.gyro
+        )
+        self.push_screen(plan_screen)
+
+    def on_start_wanted(self, message: StartWanted) -> None:
         """Open the session of the chosen plan on the position screen's worker."""
-        self.plan_name, self.gyro = plan_name, gyro
-        plan = self.plans[plan_name]
+        self.plan_name, self.gyro = message.plan_name, message.gyro
+        plan = self.plans[message.plan_name]
 
-        def open_runner() -> SessionRunner:
-            return SessionRunner(self.source.open(plan, plan_name, gyro))
+        def open_runner() -> SessionRunner:  # on the worker thread: opening blocks
+            session = self.source.open(plan, message.plan_name, message.gyro)
+            self.runner = SessionRunner(session)
+            return self.runner
 
-        self.push_screen(PositionScreen(statuses, open_runner, total=len(plan.positions)))
+        position = PositionScreen(
+            message.statuses, open_runner, total=len(plan.positions), out_dir=self.source.out_dir
+        )
+        self.push_screen(position)
+
+    def on_results_ready(self, message: ResultsReady) -> None:
+        """Show the results; the operator's answer goes back to the session."""
+        self.push_screen(ResultsScreen(message.solved, message.statuses), message.answer)
+
+    def on_procedure_ended(self, message: ProcedureEnded) -> None:
+        """Show the verification and the files once the procedure finished or was cancelled."""
+        self.push_screen(
+            VerificationScreen(message.checks, message.saved, message.writes, message.finished)
+        )
+
+    # -- exits ------------------------------------------------------------------------------
+
+    @property
+    def session_in_progress(self) -> PositionScreen | None:
+        """The position screen of a session that has not ended (quitting now interrupts it)."""
+        for screen in self.screen_stack:
+            if isinstance(screen, PositionScreen) and screen.in_progress:
+                return screen
+        return None
+
+    async def action_quit(self) -> None:
+        """Quit; during a session, first ask (saying what is kept) and exit 130."""
+        position = self.session_in_progress
+        if position is None:
+            self.exit(EXIT_OK, return_code=EXIT_OK)
+            return
+        if isinstance(self.screen, ConfirmQuit):
+            return
+
+        def answered(yes: bool | None) -> None:
+            if yes:
+                self.exit(EXIT_INTERRUPTED, return_code=EXIT_INTERRUPTED)
+
+        self.push_screen(ConfirmQuit(position.what_quitting_keeps()), answered)
+
+    def action_interrupt(self) -> None:
+        """Ctrl+C: quit at once, as an interrupted session does (exit 130)."""
+        self.exit(EXIT_INTERRUPTED, return_code=EXIT_INTERRUPTED)
 
     def stop_session(self) -> None:
         """Stop the I/O loop, wait for it to close the files, release the source."""
         runner, self.runner = self.runner, None
         if runner is not None:
             runner.stop()
-            if not runner.finished.wait(RUNNER_STOP_TIMEOUT_S):
-                logger.warning("the session loop did not stop within %g s", RUNNER_STOP_TIMEOUT_S)
+            writing = runner.phase is Phase.WRITING
+            timeout_s = WRITE_STOP_TIMEOUT_S if writing else RUNNER_STOP_TIMEOUT_S
+            if not runner.finished.wait(timeout_s):
+                logger.warning("the session loop did not stop within %g s", timeout_s)
         self.source.close()
-
-    async def action_quit(self) -> None:
-        """Stop the session (keeping what was recorded) and exit."""
-        self.exit(0)
 
     def on_unmount(self) -> None:
         """Release everything when the app closes (also after a test)."""

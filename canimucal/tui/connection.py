@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from enum import Enum
+
 from textual import work
 from textual.app import ComposeResult
 from textual.binding import Binding
@@ -10,7 +12,7 @@ from textual.screen import Screen
 from textual.widgets import DataTable, Footer, Static
 
 from canimucal.errors import CanimucalError
-from canimucal.tui.messages import ConnectFailed, NodesFound
+from canimucal.tui.messages import ConnectFailed, NodesFound, PlanWanted
 from canimucal.tui.modals import ErrorModal
 from canimucal.tui.source import NodeStatus, SessionSource
 from canimucal.tui.text import calibration_summary
@@ -21,6 +23,14 @@ STATE_WORDS = {"PRE-OPERATIONAL": "pre-op", "OPERATIONAL": "op", "STOPPED": "sto
 COLUMNS = ("node", "serial", "rev", "ODR", "calibration", "heartbeat")
 
 
+class LinkState(Enum):
+    """Where connecting stands: enter needs CONNECTED, retry (c) needs FAILED."""
+
+    CONNECTING = "connecting"
+    CONNECTED = "connected"
+    FAILED = "failed"
+
+
 class ConnectionScreen(Screen[None]):
     """Connects (on a worker thread), then shows every node; enter goes to the plan."""
 
@@ -28,7 +38,7 @@ class ConnectionScreen(Screen[None]):
         Binding("enter", "next", "Plan"),
         Binding("c", "connect", "Retry"),
     ]
-    state = reactive("connecting", bindings=True)
+    state: reactive[LinkState] = reactive[LinkState](LinkState.CONNECTING, bindings=True)
 
     def __init__(self, source: SessionSource, *, autoconnect: bool = True) -> None:
         super().__init__()
@@ -58,14 +68,14 @@ class ConnectionScreen(Screen[None]):
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
         """Enter only once connected; retry only after a failure."""
         if action == "next":
-            return self.state == "connected"
+            return self.state is LinkState.CONNECTED
         if action == "connect":
-            return self.state == "failed"
+            return self.state is LinkState.FAILED
         return True
 
     def action_connect(self) -> None:
         """Connect on a worker thread."""
-        self.state = "connecting"
+        self.state = LinkState.CONNECTING
         self.status.update("connecting…")
         self.connect_worker()
 
@@ -102,7 +112,7 @@ class ConnectionScreen(Screen[None]):
                 "…",
                 key=str(s.node_id),
             )
-        self.state = "connected"
+        self.state = LinkState.CONNECTED
         self.refresh_heartbeats()
         lines = [
             f"node {s.node_id}: {s.identity.device_name}, vendor 0x{s.identity.vendor_id:X}, "
@@ -128,12 +138,10 @@ class ConnectionScreen(Screen[None]):
 
     def on_connect_failed(self, message: ConnectFailed) -> None:
         """Show the error in a modal; c retries."""
-        self.state = "failed"
+        self.state = LinkState.FAILED
         self.status.update(f"{message.title}: {message.message} (c: retry, q: quit)")
         self.app.push_screen(ErrorModal(message.title, message.message))
 
     def action_next(self) -> None:
-        """Go to the plan screen."""
-        from canimucal.tui.plan_screen import PlanScreen
-
-        self.app.push_screen(PlanScreen(self.statuses))
+        """Ask the app for the plan screen."""
+        self.post_message(PlanWanted(self.statuses))

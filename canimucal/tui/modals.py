@@ -1,4 +1,4 @@
-"""Modal screens: the write confirmation (``ModalScreen[bool]``) and the error modal."""
+"""Modal screens: the yes/no confirmations (write, quit, skip) and the error modal."""
 
 from __future__ import annotations
 
@@ -9,12 +9,18 @@ from textual.screen import ModalScreen
 from textual.widgets import Button, Static
 
 
-class ConfirmWrite(ModalScreen[bool]):
-    """Ask before writing: True to write, False to go back to the results."""
+class Confirm(ModalScreen[bool]):
+    """Ask a yes/no question: True for yes (``y``), False for no (``n``, escape).
 
+    The safe answer, no, has the focus; subclasses name the question and the two buttons.
+    """
+
+    QUESTION = "Are you sure?"
+    YES = "Yes"
+    NO = "No"
     BINDINGS = [
-        Binding("y", "answer(True)", "Write"),
-        Binding("n,escape", "answer(False)", "Cancel"),
+        Binding("y", "answer(True)", "Yes"),
+        Binding("n,escape", "answer(False)", "No"),
     ]
 
     def __init__(self, text: str) -> None:
@@ -22,13 +28,13 @@ class ConfirmWrite(ModalScreen[bool]):
         self.text = text
 
     def compose(self) -> ComposeResult:
-        """Question and two buttons."""
+        """Question, explanation and two buttons."""
         with Vertical(id="dialog"):
-            yield Static("Write the calibration?", classes="dialog-title")
+            yield Static(self.QUESTION, classes="dialog-title")
             yield Static(self.text, id="confirm-text")
             with Horizontal(classes="buttons"):
-                yield Button("Write (y)", variant="warning", id="yes")
-                yield Button("Cancel (n)", variant="primary", id="no")
+                yield Button(f"{self.YES} (y)", variant="warning", id="yes")
+                yield Button(f"{self.NO} (n)", variant="primary", id="no")
 
     def on_mount(self) -> None:
         """Focus the safe choice."""
@@ -41,6 +47,30 @@ class ConfirmWrite(ModalScreen[bool]):
     def action_answer(self, yes: bool) -> None:
         """Answer from a key."""
         self.dismiss(yes)
+
+
+class ConfirmWrite(Confirm):
+    """Ask before writing: True to write, False to go back to the results."""
+
+    QUESTION = "Write the calibration?"
+    YES = "Write"
+    NO = "Cancel"
+
+
+class ConfirmQuit(Confirm):
+    """Ask before quitting a session in progress; the text says what is kept."""
+
+    QUESTION = "Quit the session in progress?"
+    YES = "Quit"
+    NO = "Stay"
+
+
+class ConfirmSkip(Confirm):
+    """Ask before leaving a position out of the fit."""
+
+    QUESTION = "Skip this position?"
+    YES = "Skip"
+    NO = "Stay"
 
 
 class ErrorModal(ModalScreen[None]):

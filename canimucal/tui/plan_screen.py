@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import replace
-from typing import TYPE_CHECKING, cast
 
 from textual.app import ComposeResult
 from textual.binding import Binding
@@ -13,25 +13,27 @@ from textual.screen import Screen
 from textual.widgets import DataTable, Footer, Static
 
 from canimucal.model.plan import BoundTable, cramer_rao
+from canimucal.model.positions import Plan
 from canimucal.runtime.demo_rig import spec_for_plan
+from canimucal.tui.messages import StartWanted
 from canimucal.tui.source import NodeStatus
 from canimucal.tui.text import bound_rows, findings_text
 from canimucal.tui.widgets import passive_table
 
-if TYPE_CHECKING:
-    from canimucal.tui.app import CalibrationApp
-
 PLAN_KEYS = {"2": "two", "5": "five", "r": "recommended", "u": "custom"}
 
 
-def bound_table(plan_name: str, app: CalibrationApp, accel_lsb: float) -> BoundTable:
+def bound_table(plan_name: str, plan: Plan, accel_lsb: float) -> BoundTable:
     """Cramér–Rao bounds of a plan for the accelerometer model the procedure will fit."""
     spec = replace(spec_for_plan(plan_name, "mems"), gyro="none")
-    return cramer_rao(app.plans[plan_name], spec, k_nominal_counts_per_ms2=1.0 / abs(accel_lsb))
+    return cramer_rao(plan, spec, k_nominal_counts_per_ms2=1.0 / abs(accel_lsb))
 
 
 class PlanScreen(Screen[None]):
-    """Plan choice (2, 5, r, u), gyro grade (g), start (enter)."""
+    """Plan choice (2, 5, r, u), gyro grade (g), start (enter).
+
+    ``plans`` are the plans on offer by name; ``plan_name`` and ``gyro`` the first choice.
+    """
 
     BINDINGS = [
         Binding("enter", "start", "Start"),
@@ -45,14 +47,18 @@ class PlanScreen(Screen[None]):
     plan_name = reactive("recommended", bindings=True)
     gyro = reactive("mems")
 
-    def __init__(self, statuses: list[NodeStatus]) -> None:
+    def __init__(
+        self,
+        statuses: list[NodeStatus],
+        plans: Mapping[str, Plan],
+        *,
+        plan_name: str = "recommended",
+        gyro: str = "mems",
+    ) -> None:
         super().__init__()
         self.statuses = statuses
-
-    @property
-    def calibration_app(self) -> CalibrationApp:
-        """The app, typed."""
-        return cast("CalibrationApp", self.app)
+        self.plans = dict(plans)
+        self.first_choice = (plan_name if plan_name in self.plans else "recommended", gyro)
 
     def compose(self) -> ComposeResult:
         """Title, plan summary, bound table, findings."""
@@ -69,16 +75,14 @@ class PlanScreen(Screen[None]):
         self.table = self.query_one("#bounds", DataTable)
         self.findings = self.query_one("#findings", Static)
         self.table.add_columns("parameter", "σ", "unit", "effect at 1 g (counts)")
-        app = self.calibration_app
-        self.gyro = app.gyro
-        self.plan_name = app.plan_name if app.plan_name in app.plans else "recommended"
+        self.plan_name, self.gyro = self.first_choice
         self.show_plan()
 
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
         """Offer only the plans there are (custom needs --plan FILE)."""
         if action == "plan":
             name = str(parameters[0])
-            return name in self.calibration_app.plans and name != self.plan_name
+            return name in self.plans and name != self.plan_name
         return True
 
     def action_plan(self, name: str) -> None:
@@ -93,9 +97,9 @@ class PlanScreen(Screen[None]):
 
     def show_plan(self) -> None:
         """Recompute and show the bound table of the chosen plan."""
-        plan = self.calibration_app.plans[self.plan_name]
+        plan = self.plans[self.plan_name]
         lsb = self.statuses[0].accel_lsb if self.statuses else 9.80665 / 2048.0
-        table = bound_table(self.plan_name, self.calibration_app, lsb)
+        table = bound_table(self.plan_name, plan, lsb)
         nodes = ", ".join(str(s.node_id) for s in self.statuses) or "—"
         grade = "MEMS (bias)" if self.gyro == "mems" else "navigation (bias + scale)"
         self.summary.update(
@@ -109,8 +113,8 @@ class PlanScreen(Screen[None]):
         self.findings.update(findings_text(table))
 
     def action_start(self) -> None:
-        """Start the procedure with this plan."""
-        self.calibration_app.start_procedure(self.plan_name, self.gyro, self.statuses)
+        """Ask the app to start the procedure with this plan."""
+        self.post_message(StartWanted(self.plan_name, self.gyro, self.statuses))
 
     def action_back(self) -> None:
         """Back to the connection screen."""

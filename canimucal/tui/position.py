@@ -2,15 +2,17 @@
 
 The worker thread (one, exclusive) opens the session and runs
 :meth:`~canimucal.tui.runner.SessionRunner.run`, which posts :class:`EventsArrived` batches
-here; the handler updates the cached widgets. Results and verification screens are pushed
-from here when the procedure reaches them. Keys appear in the footer only in the phases
-where the procedure accepts them (``check_action`` on the reactive ``phase``).
+here; the handler updates the cached widgets. When the procedure solves or ends, the screen
+tells the app (:class:`ResultsReady`, :class:`ProcedureEnded`), which shows the next screen.
+Keys appear in the footer only in the phases where the procedure accepts them
+(``check_action`` on the reactive ``phase``); skipping a position asks first.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, cast
+from enum import Enum
+from pathlib import Path
 
 import numpy as np
 from textual import work
@@ -23,36 +25,49 @@ from textual.widgets import Footer, ProgressBar, Sparkline, Static
 
 from canimucal.errors import CanimucalError
 from canimucal.procedure import events as ev
-from canimucal.tui.messages import EventsArrived
-from canimucal.tui.modals import ErrorModal
-from canimucal.tui.runner import SessionRunner
+from canimucal.procedure.machine import Phase
+from canimucal.runtime.session import SessionCommand, WriteOptions
+from canimucal.tui.messages import EventsArrived, ProcedureEnded, ResultsReady
+from canimucal.tui.modals import ConfirmSkip, ErrorModal
+from canimucal.tui.runner import Command, SessionRunner
 from canimucal.tui.source import NodeStatus
 from canimucal.tui.text import live_line, pose_drawing, short_live_line
 
-if TYPE_CHECKING:
-    from canimucal.tui.app import CalibrationApp
 
-ACTION_PHASES: dict[str, tuple[str, ...]] = {
-    "confirm": ("instruct",),
-    "accept": ("review_position",),
-    "redo": ("review_position", "averaging", "settling"),
-    "skip": ("instruct", "settling"),
-    "skip_warmup": ("warmup",),
-    "solve": ("ready_to_solve",),
+class SessionState(Enum):
+    """What the screen shows while the procedure has no phase: before the first, after a failure."""
+
+    STARTING = "starting"
+    FAILED = "failed"
+
+
+ScreenPhase = Phase | SessionState
+"""The procedure's phase, or the session's state around it."""
+ENDED: frozenset[ScreenPhase] = frozenset({Phase.DONE, Phase.CANCELLED, SessionState.FAILED})
+"""The phases after which the session has nothing left to run."""
+
+ACTION_PHASES: dict[str, frozenset[Phase]] = {
+    "confirm": frozenset({Phase.INSTRUCT}),
+    "accept": frozenset({Phase.REVIEW_POSITION}),
+    "redo": frozenset({Phase.REVIEW_POSITION, Phase.AVERAGING, Phase.SETTLING}),
+    "skip": frozenset({Phase.INSTRUCT, Phase.SETTLING}),
+    "skip_warmup": frozenset({Phase.WARMUP}),
+    "solve": frozenset({Phase.READY_TO_SOLVE}),
 }
-PHASE_WORDS = {
-    "": "starting",
-    "warmup": "warming up",
-    "instruct": "set the pose, then enter",
-    "settling": "waiting for stillness",
-    "averaging": "averaging",
-    "review_position": "averaged: accept (a) or redo (r)",
-    "ready_to_solve": "all positions done: solve (v)",
-    "review": "reviewing the result",
-    "writing": "writing",
-    "done": "done",
-    "cancelled": "cancelled",
-    "failed": "stopped on an error",
+"""The phases in which each procedure key (by its action) is offered."""
+PHASE_WORDS: dict[ScreenPhase, str] = {
+    SessionState.STARTING: "starting",
+    Phase.WARMUP: "warming up",
+    Phase.INSTRUCT: "set the pose, then enter",
+    Phase.SETTLING: "waiting for stillness",
+    Phase.AVERAGING: "averaging",
+    Phase.REVIEW_POSITION: "averaged: accept (a) or redo (r)",
+    Phase.READY_TO_SOLVE: "all positions done: solve (v)",
+    Phase.REVIEW: "reviewing the result",
+    Phase.WRITING: "writing",
+    Phase.DONE: "done",
+    Phase.CANCELLED: "cancelled",
+    SessionState.FAILED: "stopped on an error",
 }
 
 
@@ -67,7 +82,7 @@ class PositionScreen(Screen[None]):
         Binding("w", "skip_warmup", "Skip warm-up"),
         Binding("v", "solve", "Solve"),
     ]
-    phase = reactive("", bindings=True)
+    phase: reactive[ScreenPhase] = reactive[ScreenPhase](SessionState.STARTING, bindings=True)
     index = reactive(0, bindings=True)
 
     def __init__(
@@ -76,9 +91,11 @@ class PositionScreen(Screen[None]):
         open_runner: Callable[[], SessionRunner] | None = None,
         *,
         total: int = 0,
+        out_dir: Path | None = None,
     ) -> None:
         super().__init__()
         self.statuses = statuses
+        self.out_dir = out_dir
         self.open_runner = open_runner
         self.runner: SessionRunner | None = None
         self.live: dict[int, ev.SamplesReceived] = {}
@@ -132,12 +149,43 @@ class PositionScreen(Screen[None]):
         except CanimucalError as exc:
             self.post_message(EventsArrived([ev.ProcedureFailed(str(exc), exc.title)]))
             return
-        cast("CalibrationApp", self.app).runner = self.runner
         self.runner.run(self._deliver)
 
     def _deliver(self, batch: list[ev.Event]) -> None:
         """Hand a batch to the UI (called on the I/O thread; post_message is thread-safe)."""
         self.post_message(EventsArrived(batch))
+
+    # -- exits ------------------------------------------------------------------------------
+
+    @property
+    def in_progress(self) -> bool:
+        """Whether the session has not ended yet (quitting now interrupts it)."""
+        return self.phase not in ENDED
+
+    def what_quitting_keeps(self) -> str:
+        """Say what quitting now keeps on disk and leaves on the device."""
+        where = str(self.out_dir) if self.out_dir is not None else "the output folder"
+        written = [str(w.node_id) for w in self.writes if w.ok]
+        lines = []
+        if self.phase is Phase.WRITING:
+            lines.append("The write in progress ends first: verified, or rolled back.")
+        if written:
+            lines.append(
+                f"Node {', '.join(written)} keeps the new calibration (written, read back and "
+                "stored). The verification at level is NOT done: calibration.json and the "
+                f"certificate in {where} record it as not done."
+            )
+        elif self.saved:
+            lines.append(
+                "Nothing was written to the device. Kept: the recording, calibration.json and "
+                f"the certificate, in {where}."
+            )
+        else:
+            lines.append(
+                f"Nothing was written to the device. Kept: the recording so far, in {where}; "
+                f"--resume {where} goes on from the last accepted position."
+            )
+        return "\n".join(lines)
 
     # -- keys -------------------------------------------------------------------------------
 
@@ -150,35 +198,45 @@ class PositionScreen(Screen[None]):
             return False
         return self.phase in phases
 
-    def _send(self, name: str) -> None:
+    def _send(self, command: Command) -> None:
         if self.runner is not None:
-            self.runner.send(name)
+            self.runner.send(command)
 
     def action_confirm(self) -> None:
         """Confirm that the pose is set."""
         self.notice.update("moving / waiting for stillness…")
-        self._send("confirm_pose")
+        self._send(SessionCommand.CONFIRM_POSE)
 
     def action_accept(self) -> None:
         """Accept the averaged position."""
-        self._send("accept")
+        self._send(SessionCommand.ACCEPT)
 
     def action_redo(self) -> None:
         """Discard this attempt and instruct the pose again."""
-        self._send("redo")
+        self._send(SessionCommand.REDO)
 
     def action_skip(self) -> None:
-        """Leave this position out."""
-        self._send("skip")
+        """Ask, then leave this position out."""
+
+        def answered(yes: bool | None) -> None:
+            if yes:
+                self._send(SessionCommand.SKIP)
+
+        text = (
+            f"Position {self.index + 1}/{self.total} is left out of the fit; its samples stay "
+            "in the recording. The parameters it would separate may end up less certain or "
+            "held at nominal."
+        )
+        self.app.push_screen(ConfirmSkip(text), answered)
 
     def action_skip_warmup(self) -> None:
         """Stop waiting for warm-up."""
-        self._send("skip_warmup")
+        self._send(SessionCommand.SKIP_WARMUP)
 
     def action_solve(self) -> None:
         """Solve every node."""
         self.notice.update("solving…")
-        self._send("solve")
+        self._send(SessionCommand.SOLVE)
 
     # -- events -----------------------------------------------------------------------------
 
@@ -186,14 +244,14 @@ class PositionScreen(Screen[None]):
         """Show a batch of events; push results or verification when they arrive."""
         for event in message.events:
             self.show(event)
-        self._push_screens(message.events)
+        self._tell_app(message.events)
 
     def show(self, event: ev.Event) -> None:  # noqa: C901 - one branch per event kind
         """Update the widgets for one event."""
         if isinstance(event, ev.PhaseChanged):
-            self.phase = event.phase
+            self.phase = Phase(event.phase)
             self._title()
-            if event.phase == "warmup":
+            if self.phase is Phase.WARMUP:
                 self.words.update("waiting for the temperature to settle (w skips)")
         elif isinstance(event, ev.SamplesReceived):
             self._samples(event)
@@ -231,19 +289,19 @@ class PositionScreen(Screen[None]):
         elif isinstance(event, ev.Solved):
             self.solved = event
         elif isinstance(event, ev.ProcedureFailed):
-            self.phase = "failed"  # the session loop has ended: no procedure key applies
+            self.phase = SessionState.FAILED  # the loop has ended: no procedure key applies
             self._title()
             self.notice.update(f"stopped: {event.message} — the recording so far is kept; q quits")
             self.app.push_screen(ErrorModal(event.title, event.message))
 
     def _title(self) -> None:
         what = "verification" if self.verification else f"position {self.index + 1}/{self.total}"
-        words = PHASE_WORDS.get(self.phase, self.phase)
+        words = PHASE_WORDS[self.phase]
         self.title_w.update(f"canimucal · {what} · {words}")
 
     def _instructed(self, event: ev.PoseInstructed) -> None:
         self.index, self.total, self.verification = event.index, event.total, event.verification
-        self.phase = "instruct"  # the first instruction comes without a PhaseChanged
+        self.phase = Phase.INSTRUCT  # the first instruction comes without a PhaseChanged
         alpha, beta, psi = (float(np.rad2deg(x)) for x in event.position.angles)
         self.words.update(f"{event.words}\naverage {event.seconds:g} s once still")
         self.drawing.update(pose_drawing(alpha, beta, psi))
@@ -263,28 +321,22 @@ class PositionScreen(Screen[None]):
         if event.node_id == first and event.sparkline:
             self.spark.data = list(event.sparkline)
 
-    def _push_screens(self, events: list[ev.Event]) -> None:
+    def _tell_app(self, events: list[ev.Event]) -> None:
         if any(isinstance(e, ev.Solved) for e in events) and self.solved is not None:
-            from canimucal.tui.results import ResultsScreen
-
-            self.app.push_screen(ResultsScreen(self.solved, self.statuses), self.decided)
-        if any(isinstance(e, ev.ProcedureFinished) for e in events):
-            from canimucal.tui.verification import VerificationScreen
-
-            finished = [e for e in events if isinstance(e, ev.ProcedureFinished)][-1]
-            self.app.push_screen(
-                VerificationScreen(self.level_checks, self.saved, self.writes, finished)
+            self.post_message(ResultsReady(self.solved, self.statuses, self.decided))
+        finished = [e for e in events if isinstance(e, ev.ProcedureFinished)]
+        if finished:
+            self.post_message(
+                ProcedureEnded(self.level_checks, self.saved, self.writes, finished[-1])
             )
 
-    def decided(self, decision: str | None) -> None:
-        """Act on the results screen's answer: ``write``, ``override`` or ``finish``."""
-        if self.runner is None or decision is None:
+    def decided(self, command: Command | None) -> None:
+        """Send the results screen's answer: a write, or finishing without one."""
+        if self.runner is None or command is None:
             return
-        if decision == "finish":
-            self.runner.send("finish_without_writing")
-            return
-        self.notice.update("writing (backup first, then verify)…")
-        self.runner.send("write", override=decision == "override")
+        if isinstance(command, WriteOptions):
+            self.notice.update("writing (backup first, then verify)…")
+        self.runner.send(command)
 
 
 def _pair(values: tuple[float, float]) -> str:

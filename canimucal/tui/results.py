@@ -15,7 +15,9 @@ from textual.widgets import DataTable, Footer, Static
 
 from canimucal.analysis.calibrate import Solution
 from canimucal.procedure import events as ev
+from canimucal.runtime.session import SessionCommand, WriteOptions
 from canimucal.tui.modals import ConfirmWrite
+from canimucal.tui.runner import Command
 from canimucal.tui.source import NodeStatus
 from canimucal.tui.text import device_values
 from canimucal.tui.widgets import passive_table
@@ -62,8 +64,12 @@ def residual_rows(solution: Solution) -> list[tuple[str, ...]]:
     return rows
 
 
-class ResultsScreen(Screen[str]):
-    """Dismissed with ``write``, ``override`` (failed limits, operator's choice) or ``finish``."""
+class ResultsScreen(Screen[Command]):
+    """Dismissed with the operator's answer as the command to run.
+
+    ``WriteOptions()`` to write, ``WriteOptions(override=True)`` to write although the limits
+    failed (operator's choice), ``SessionCommand.FINISH_WITHOUT_WRITING`` to finish.
+    """
 
     BINDINGS = [
         Binding("w", "write", "Write to device"),
@@ -128,21 +134,21 @@ class ResultsScreen(Screen[str]):
             "value and rolled back on any failure, then stored (0x1010:04)."
         )
 
-    def _ask(self, decision: str) -> None:
+    def _ask(self, write: WriteOptions) -> None:
         def answered(yes: bool | None) -> None:
             if yes:
-                self.dismiss(decision)
+                self.dismiss(write)
 
         self.app.push_screen(ConfirmWrite(self._confirm_text()), answered)
 
     def action_write(self) -> None:
         """Ask, then write."""
-        self._ask("write")
+        self._ask(WriteOptions())
 
     def action_override(self) -> None:
         """Ask, then write although the limits failed."""
-        self._ask("override")
+        self._ask(WriteOptions(override=True))
 
     def action_finish(self) -> None:
         """End without writing."""
-        self.dismiss("finish")
+        self.dismiss(SessionCommand.FINISH_WITHOUT_WRITING)

@@ -1,7 +1,8 @@
 """The session runner of the TUI: one I/O thread owns the session, the UI sends it commands.
 
 The screen's worker thread calls :meth:`SessionRunner.run`; it polls the session, runs the
-commands the UI queued (``confirm_pose``, ``accept``, ``write``…) on the same thread (the
+commands the UI queued (a :class:`~canimucal.runtime.session.SessionCommand`, or the
+:class:`~canimucal.runtime.session.WriteOptions` of a write) on the same thread (the
 session is not thread-safe, and SDO writes block), and hands the events to the UI in
 batches no more often than every ``batch_period_s`` (10–25 Hz). Within a batch only the
 latest live readout per node and the latest progress event are kept: the UI shows the
@@ -15,20 +16,19 @@ import queue
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
 
 from canimucal.errors import CanimucalError
 from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase
-from canimucal.runtime.session import Session
+from canimucal.runtime.session import Session, SessionCommand, WriteOptions
 
 logger = logging.getLogger(__name__)
 
 BATCH_PERIOD_S = 0.05
 POLL_TIMEOUT_S = 0.02
-SESSION_COMMANDS = frozenset(
-    {"accept", "redo", "skip", "skip_warmup", "cancel", "finish_without_writing"}
-)
+
+Command = SessionCommand | WriteOptions
+"""What the UI can queue: a session command, or the options of a write."""
 
 
 def coalesce(events: list[ev.Event]) -> list[ev.Event]:
@@ -54,13 +54,13 @@ class SessionRunner:
     def __init__(self, session: Session, *, batch_period_s: float = BATCH_PERIOD_S) -> None:
         self.session = session
         self.batch_period_s = batch_period_s
-        self.commands: queue.Queue[tuple[str, dict[str, Any]]] = queue.Queue()
+        self.commands: queue.Queue[Command] = queue.Queue()
         self.stopped = threading.Event()
         self.finished = threading.Event()
 
-    def send(self, name: str, **kwargs: Any) -> None:
+    def send(self, command: Command) -> None:
         """Queue a command for the I/O thread (returns at once)."""
-        self.commands.put((name, kwargs))
+        self.commands.put(command)
 
     def stop(self) -> None:
         """Ask the loop to end (what was recorded is kept)."""
@@ -108,19 +108,13 @@ class SessionRunner:
         out: list[ev.Event] = []
         while True:
             try:
-                name, kwargs = self.commands.get_nowait()
+                command = self.commands.get_nowait()
             except queue.Empty:
                 return out
-            out += self._command(name, kwargs)
+            out += self._run(command)
 
-    def _command(self, name: str, kwargs: dict[str, Any]) -> list[ev.Event]:
-        logger.debug("command %s %s in phase %s", name, kwargs, self.phase)
-        if name == "confirm_pose":
-            return self.session.confirm_pose()
-        if name == "solve":
-            return self.session.solve()
-        if name == "write":
-            return self.session.write(**kwargs)
-        if name in SESSION_COMMANDS:
-            return self.session.command(name)
-        raise ValueError(f"unknown command {name!r}")
+    def _run(self, command: Command) -> list[ev.Event]:
+        logger.debug("command %s in phase %s", command, self.phase)
+        if isinstance(command, WriteOptions):
+            return self.session.write(command)
+        return self.session.command(command)

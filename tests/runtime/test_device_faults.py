@@ -1,4 +1,4 @@
-"""The procedure survives what the node reports mid-session (issue 6, item 2).
+"""The procedure survives what the node reports mid-session.
 
 A session against a simulated node (:class:`DemoRig`) with faults injected while a position
 is averaged: a reboot or an EMCY rejects that attempt and the position is averaged again
@@ -23,7 +23,7 @@ from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.procedure.machine import Phase
 from canimucal.runtime.demo_rig import DemoRig
 from canimucal.runtime.recorder import Recorder
-from canimucal.runtime.session import Session
+from canimucal.runtime.session import Session, SessionCommand
 from canimucal.sim.truth import Truth
 
 NODE = 0x10
@@ -54,11 +54,11 @@ def _drive(rig: DemoRig, session: Session, hook: Hook, max_polls: int = 20_000) 
             if proc.phase is Phase.INSTRUCT:
                 hook(rig, session.confirm_pose())
             elif proc.phase is Phase.REVIEW_POSITION:
-                hook(rig, session.command("accept"))
+                hook(rig, session.command(SessionCommand.ACCEPT))
             elif proc.phase is Phase.READY_TO_SOLVE:
                 hook(rig, session.solve())
             elif proc.phase is Phase.REVIEW:
-                hook(rig, session.command("finish_without_writing"))
+                hook(rig, session.command(SessionCommand.FINISH_WITHOUT_WRITING))
             if session.procedure.phase in (Phase.DONE, Phase.CANCELLED):
                 return
             hook(rig, session.poll())

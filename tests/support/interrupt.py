@@ -20,11 +20,12 @@ def interrupt_after(monkeypatch: pytest.MonkeyPatch, positions: int) -> None:
     real = run_automatic
 
     def run_until(session: session_mod.Session, **kwargs: Any) -> Any:
-        command = session.command
+        run_command = session.command
 
-        def interrupting(name: str) -> Any:
-            events = command(name)
-            if name == "accept" and session.procedure.index >= positions:
+        def interrupting(command: session_mod.SessionCommand) -> Any:
+            events = run_command(command)
+            accepted = command is session_mod.SessionCommand.ACCEPT
+            if accepted and session.procedure.index >= positions:
                 raise KeyboardInterrupt
             return events
 

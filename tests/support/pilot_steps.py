@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
+from canimucal.procedure.machine import Phase
 from canimucal.tui.modals import ConfirmWrite
 from canimucal.tui.position import PositionScreen
 from canimucal.tui.results import ResultsScreen
@@ -32,17 +33,24 @@ async def press(pilot, key: str) -> None:  # type: ignore[no-untyped-def]
 async def measure_positions(pilot, screen: PositionScreen, indices: Iterable[int]) -> None:  # type: ignore[no-untyped-def]
     """Confirm each pose, accept each average, and ask for the solution."""
     for index in indices:
-        await until(pilot, lambda: screen.phase == "instruct", f"pose {index + 1}")
+        await until(pilot, lambda: screen.phase is Phase.INSTRUCT, f"pose {index + 1}")
         assert screen.index == index
         await press(pilot, "enter")
-        await until(pilot, lambda: screen.phase == "review_position", f"average {index}")
+        await until(pilot, lambda: screen.phase is Phase.REVIEW_POSITION, f"average {index}")
         await press(pilot, "a")
-    await until(pilot, lambda: screen.phase == "ready_to_solve", "all positions")
+    await until(pilot, lambda: screen.phase is Phase.READY_TO_SOLVE, "all positions")
     await press(pilot, "v")
 
 
 async def write_and_verify(pilot, screen: PositionScreen) -> None:  # type: ignore[no-untyped-def]
     """From the results: write (anyway, if the limits fail), confirm, verify at level."""
+    await write(pilot, screen)
+    await press(pilot, "enter")
+    await until(pilot, lambda: isinstance(pilot.app.screen, VerificationScreen), "the end")
+
+
+async def write(pilot, screen: PositionScreen) -> None:  # type: ignore[no-untyped-def]
+    """From the results: write (anyway, if the limits fail), confirm; stop at the level pose."""
     app = pilot.app
     await until(pilot, lambda: isinstance(app.screen, ResultsScreen), "the results")
     results = app.screen
@@ -50,6 +58,6 @@ async def write_and_verify(pilot, screen: PositionScreen) -> None:  # type: igno
     await press(pilot, "w" if results.solved.acceptable else "o")
     await until(pilot, lambda: isinstance(app.screen, ConfirmWrite), "the confirmation")
     await press(pilot, "y")
-    await until(pilot, lambda: screen.verification and screen.phase == "instruct", "verification")
-    await press(pilot, "enter")
-    await until(pilot, lambda: isinstance(app.screen, VerificationScreen), "the end")
+    await until(
+        pilot, lambda: screen.verification and screen.phase is Phase.INSTRUCT, "verification"
+    )

@@ -9,7 +9,7 @@ import pytest
 
 from canimucal.device.busload import BusLoad
 from canimucal.tui.app import make_app
-from canimucal.tui.connection import ConnectionScreen
+from canimucal.tui.connection import ConnectionScreen, LinkState
 from canimucal.tui.source import Heartbeat
 from tests.support.tui_fakes import FakeSource, screen_text
 
@@ -31,7 +31,7 @@ async def test_connection_screen_shows_the_bus_load(tmp_path: Path) -> None:
         screen = app.screen
         assert isinstance(screen, ConnectionScreen)
         for _ in range(100):
-            if screen.state == "connected":
+            if screen.state is LinkState.CONNECTED:
                 break
             await pilot.pause(0.05)
         await pilot.pause()

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from canimucal.procedure.machine import Phase
 from canimucal.runtime.demo_rig import readback_deviations
 from canimucal.sim.truth import Truth
 from canimucal.tui.app import make_app
@@ -40,7 +41,7 @@ async def test_the_tui_calibrates_the_simulated_node_and_the_device_holds_the_tr
         await press(pilot, "enter")  # plan five -> position
         screen = app.screen
         assert isinstance(screen, PositionScreen)
-        await until(pilot, lambda: screen.phase == "warmup", "warm-up")
+        await until(pilot, lambda: screen.phase is Phase.WARMUP, "warm-up")
         await press(pilot, "w")
         await measure_positions(pilot, screen, range(5))
         await write_and_verify(pilot, screen)

@@ -10,6 +10,7 @@ import numpy as np
 from canimucal.errors import DeviceError
 from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase
+from canimucal.runtime.session import SessionCommand, WriteOptions
 from canimucal.tui.runner import SessionRunner, coalesce
 
 
@@ -36,7 +37,7 @@ class FakeProcedure:
 
 
 class FakeSession:
-    """Polls give one live event each; 'accept' ends the procedure; a poll may raise."""
+    """Polls give one live event each; ACCEPT ends the procedure; a poll may raise."""
 
     def __init__(self, fail_after: int | None = None) -> None:
         self.procedure = FakeProcedure()
@@ -44,7 +45,7 @@ class FakeSession:
         self.fail_after = fail_after
         self.finished = 0
         self.threads: set[str] = set()
-        self.commands: list[str] = []
+        self.commands: list[SessionCommand | WriteOptions] = []
 
     def start(self) -> list[ev.Event]:
         return [ev.PhaseChanged("instruct", "")]
@@ -56,16 +57,17 @@ class FakeSession:
             raise DeviceError("node 16 sent no samples for 5 s; what was recorded is kept")
         return [_live(16, float(self.polls))]
 
-    def command(self, name: str) -> list[ev.Event]:
+    def command(self, command: SessionCommand) -> list[ev.Event]:
         self.threads.add(threading.current_thread().name)
-        self.commands.append(name)
-        if name == "accept":
+        self.commands.append(command)
+        if command is SessionCommand.ACCEPT:
             self.procedure.phase = Phase.DONE
             return [ev.PhaseChanged("done", "instruct"), ev.ProcedureFinished()]
         return []
 
-    def confirm_pose(self) -> list[ev.Event]:
-        self.commands.append("confirm_pose")
+    def write(self, options: WriteOptions) -> list[ev.Event]:
+        self.threads.add(threading.current_thread().name)
+        self.commands.append(options)
         return []
 
     def finish(self) -> None:
@@ -84,11 +86,13 @@ def test_commands_run_on_the_io_thread_and_events_come_in_few_batches() -> None:
     runner = SessionRunner(session, batch_period_s=0.05)  # type: ignore[arg-type]
     batches, thread = _run(session, runner)
     threading.Event().wait(0.3)
-    runner.send("confirm_pose")
-    runner.send("accept")
+    runner.send(SessionCommand.CONFIRM_POSE)
+    runner.send(WriteOptions(override=True))
+    runner.send(SessionCommand.ACCEPT)
     thread.join(5.0)
     assert not thread.is_alive() and runner.finished.is_set()
-    assert session.commands == ["confirm_pose", "accept"] and session.threads == {"io"}
+    expected = [SessionCommand.CONFIRM_POSE, WriteOptions(override=True), SessionCommand.ACCEPT]
+    assert session.commands == expected and session.threads == {"io"}
     assert session.finished == 1
     flat = [e for b in batches for e in b]
     assert isinstance(flat[-1], ev.ProcedureFinished)

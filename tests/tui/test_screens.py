@@ -9,12 +9,14 @@ import pytest
 
 from canimucal.model.positions import PlannedPosition
 from canimucal.procedure import events as ev
+from canimucal.procedure.machine import Phase
+from canimucal.runtime.session import WriteOptions
 from canimucal.tui.app import CalibrationApp, make_app
-from canimucal.tui.connection import ConnectionScreen
+from canimucal.tui.connection import ConnectionScreen, LinkState
 from canimucal.tui.messages import EventsArrived
 from canimucal.tui.modals import ConfirmWrite, ErrorModal
 from canimucal.tui.plan_screen import PlanScreen
-from canimucal.tui.position import PositionScreen
+from canimucal.tui.position import PHASE_WORDS, PositionScreen, ScreenPhase, SessionState
 from canimucal.tui.results import ResultsScreen
 from canimucal.tui.verification import VerificationScreen
 from tests.support.tui_fakes import FakeSource, live, node_status, screen_text, solved_event
@@ -41,7 +43,7 @@ async def test_connection_screen_shows_identity_calibration_and_heartbeat(tmp_pa
     async with app.run_test(size=SIZE) as pilot:
         screen = app.screen
         assert isinstance(screen, ConnectionScreen)
-        await wait_for(pilot, lambda: screen.state == "connected")
+        await wait_for(pilot, lambda: screen.state is LinkState.CONNECTED)
         await pilot.pause()
         text = screen_text(app)
         assert "4242" in text and "none (nominal)" in text and "op 0.2 s ago" in text
@@ -72,7 +74,7 @@ async def test_plan_screen_shows_bounds_and_what_the_five_plan_cannot_separate(
 ) -> None:
     app = make_app(FakeSource(tmp_path), autoconnect=False)
     async with app.run_test(size=SIZE) as pilot:
-        await app.push_screen(PlanScreen([node_status()]))
+        await app.push_screen(PlanScreen([node_status()], app.plans))
         await pilot.pause()
         text = screen_text(app)
         assert "plan recommended: " in text and "accel.K[0][1]" in text
@@ -154,19 +156,21 @@ async def test_a_refused_pose_is_explained(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("phase", "index", "expected"),
     [
-        ("warmup", 0, {"skip_warmup"}),
-        ("instruct", 0, {"confirm"}),
-        ("instruct", 2, {"confirm", "skip"}),
-        ("settling", 2, {"redo", "skip"}),
-        ("averaging", 2, {"redo"}),
-        ("review_position", 2, {"accept", "redo"}),
-        ("ready_to_solve", 4, {"solve"}),
-        ("review", 4, set()),
-        ("done", 4, set()),
+        (Phase.WARMUP, 0, {"skip_warmup"}),
+        (Phase.INSTRUCT, 0, {"confirm"}),
+        (Phase.INSTRUCT, 2, {"confirm", "skip"}),
+        (Phase.SETTLING, 2, {"redo", "skip"}),
+        (Phase.AVERAGING, 2, {"redo"}),
+        (Phase.REVIEW_POSITION, 2, {"accept", "redo"}),
+        (Phase.READY_TO_SOLVE, 4, {"solve"}),
+        (Phase.REVIEW, 4, set()),
+        (Phase.DONE, 4, set()),
+        (SessionState.STARTING, 0, set()),
+        (SessionState.FAILED, 2, set()),
     ],
 )
 async def test_keys_appear_only_in_the_phases_that_take_them(
-    tmp_path: Path, phase: str, index: int, expected: set[str]
+    tmp_path: Path, phase: ScreenPhase, index: int, expected: set[str]
 ) -> None:
     app = make_app(FakeSource(tmp_path), autoconnect=False)
     async with app.run_test(size=SIZE) as pilot:
@@ -179,11 +183,15 @@ async def test_keys_appear_only_in_the_phases_that_take_them(
         assert enabled(app) & procedure_keys == expected
 
 
+async def test_every_phase_has_words_for_the_title() -> None:
+    assert set(PHASE_WORDS) == set(Phase) | set(SessionState)
+
+
 async def test_results_screen_shows_values_sigmas_residuals_and_asks_before_writing(
     tmp_path: Path,
 ) -> None:
     solved = solved_event("five")
-    decisions: list[str | None] = []
+    decisions: list[object] = []
     app = make_app(FakeSource(tmp_path), autoconnect=False)
     async with app.run_test(size=SIZE) as pilot:
         await app.push_screen(ResultsScreen(solved, [node_status()]), decisions.append)
@@ -197,7 +205,8 @@ async def test_results_screen_shows_values_sigmas_residuals_and_asks_before_writ
         assert row[0] == "accel.K[0][0]" and " ± " in row[1] and row[3] == "208.838"
         text = screen_text(app)
         assert "worst bias σ" in text and "fit rms" in text
-        key, decision = ("w", "write") if solved.acceptable else ("o", "override")
+        key = "w" if solved.acceptable else "o"
+        decision = WriteOptions(override=not solved.acceptable)
         assert ("write" in enabled(app)) is solved.acceptable
         await pilot.press(key)
         await pilot.pause()

@@ -42,7 +42,7 @@ def test_connection_screen(snap_compare: Any, tmp_path: Path) -> None:
 
 def test_plan_screen_five(snap_compare: Any, tmp_path: Path) -> None:
     async def run_before(pilot: Any) -> None:
-        await pilot.app.push_screen(PlanScreen([node_status()]))
+        await pilot.app.push_screen(PlanScreen([node_status()], pilot.app.plans))
         await pilot.press("5")
 
     assert snap_compare(_app(tmp_path), terminal_size=SIZE, run_before=run_before)

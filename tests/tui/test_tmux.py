@@ -74,8 +74,8 @@ def test_the_demo_starts_renders_at_80x24_and_quits_with_q(demo: str) -> None:
     screen = _wait_for(demo, "EXITED 0", "demo files in")
 
 
-def test_ctrl_c_quits_the_demo(demo: str) -> None:
+def test_ctrl_c_interrupts_the_demo_with_130(demo: str) -> None:
     _wait_for(demo, "canimucal · connection", "none (nominal)")
     _tmux("send-keys", "-t", demo, "C-c")
-    screen = _wait_for(demo, "EXITED 0")
+    screen = _wait_for(demo, "EXITED 130")
     assert "Traceback" not in screen
