@@ -69,13 +69,13 @@ def _child(rate_hz: int, result_path: Path) -> None:
     from canimucal.sim.truth import Truth
     from canimucal.tui.app import CalibrationApp
     from canimucal.tui.position import PositionScreen
-    from canimucal.tui.source import DemoSource, NodeStatus
+    from canimucal.tui.source import DeviceSource, NodeStatus, demo_source
 
-    class RateSource(DemoSource):
+    class RateSource(DeviceSource):
         def connect(self) -> list[NodeStatus]:
             super().connect()
-            assert self.rig is not None
-            for client in self.rig.clients.values():
+            assert self.devices is not None
+            for client in self.devices.clients.values():
                 client.set_output_data_rate(rate_hz)
             return super().connect()
 
@@ -102,7 +102,15 @@ def _child(rate_hz: int, result_path: Path) -> None:
 
     out = Path(tempfile.mkdtemp(prefix="canimucal-ui-bench-"))
     truth = Truth.random(np.random.default_rng(7), cross_axis_max=0.0)
-    source = RateSource([truth], out, time_scale=1.0, seed=7, seconds=POSITION_S)
+    demo = demo_source([truth], out, time_scale=1.0, seed=7, seconds=POSITION_S)
+    source = RateSource(
+        demo.settings,
+        out,
+        demo.description,
+        backup_dir=demo.backup_dir,
+        overwrite=True,
+        seconds=POSITION_S,
+    )
     plans = {"five": builtin_plan("five")}
     app = BenchApp(source, plans, plan_name="five")
 

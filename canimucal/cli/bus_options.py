@@ -1,4 +1,4 @@
-"""The bus flags every device command shares (DESIGN §7) and the session they open.
+"""The bus flags every device command shares (DESIGN §7) and the devices they open.
 
 ``--interface --channel --bitrate`` follow python-can (its config file, ``--can-config``, and
 ``CAN_*`` environment fill in what the flags leave out; ``--interface`` defaults to
@@ -7,19 +7,15 @@ may repeat: one client per node. ``--sim`` instead attaches the built-in simulat
 in-process on a private python-can ``virtual`` bus (``--truth``/``--state``/``--time-scale``
 configure it), so every command can be tried without hardware.
 
-The session is quiet on a live bus: NMT only to the target nodes (sent by the client when
-it streams), no SYNC unless ``--sync-producer``.
+The flags become :class:`~canimucal.runtime.wiring.DeviceSettings`; opening them is the
+wiring path the demo and the TUI share.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
-import os
-import socket
-import uuid
 from pathlib import Path
-from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
 from canimucal.errors import InputError
@@ -27,22 +23,12 @@ from canimucal.io.truth import load_truth
 from canimucal.sim.truth import Truth
 
 if TYPE_CHECKING:  # the CAN stack loads only when a device command runs (fast --help)
-    import can
-    import canopen
-
     from canimucal.device.bus import BusSettings
-    from canimucal.device.client import ImuClient
-    from canimucal.simnode.node import SimulatedImuNode
+    from canimucal.runtime.wiring import Devices, DeviceSettings
 
 log = logging.getLogger(__name__)
 
 DEFAULT_NODE_ID = 0x10
-FIND_NODE_TIMEOUT_S = 1.5
-"""How long to wait for a heartbeat (0x1017 defaults to 1000 ms) before probing by SDO."""
-NOTIFIER_CYCLE_S = 0.1
-RECEIVE_BUFFER_BYTES = 4 << 20
-"""Socket receive buffer asked for on SocketCAN (the default ~200 kB holds well under a
-second of 200 Hz TPDOs once a busy or emulated machine stalls the receive thread)."""
 
 
 def node_id(text: str) -> int:
@@ -136,148 +122,38 @@ def bus_settings(args: argparse.Namespace) -> BusSettings:
     )
 
 
-def per_node_path(path: str | os.PathLike[str], node: int, several: bool) -> Path:
-    """``NAME.node<ID>.EXT`` when there are several nodes, else ``path`` itself."""
-    target = Path(path)
-    if not several:
-        return target
-    return target.with_name(f"{target.stem}.node{node}{target.suffix}")
-
-
 def load_sim_truth(args: argparse.Namespace) -> Truth:
     """Load the ``--truth`` file, or a nominal unit."""
     return load_truth(args.truth) if args.truth else Truth.from_dict({})
 
 
-class DeviceSession:
-    """The bus, the canopen network and one :class:`ImuClient` per node (context manager).
+def device_settings(args: argparse.Namespace, *, find: bool = True) -> DeviceSettings:
+    """Build the :class:`DeviceSettings` the flags describe (``--sim``: the simulated IMU)."""
+    from canimucal.runtime.wiring import DeviceSettings, SimSettings
 
-    With ``--sim`` it also owns the simulated nodes (``sim_nodes``, by node id) on a
-    private virtual bus. ``where`` names the bus for messages.
-    """
-
-    def __init__(self, args: argparse.Namespace, *, find: bool = True) -> None:
-        from canimucal.device.bus import describe, open_bus
-        from canimucal.device.client import ImuClient
-
-        self.ids = node_ids(args)
-        self.sim_nodes: dict[int, SimulatedImuNode] = {}
-        self.clients: dict[int, ImuClient] = {}
-        self._buses: list[can.BusABC] = []
-        self._networks: list[canopen.Network] = []
-        self.truth: Truth | None = None
-        try:
-            if getattr(args, "sim", False):
-                bus = self._open_sim(args)
-            else:
-                bus = open_bus(bus_settings(args))
-                self._buses.append(bus)
-                enlarge_receive_buffer(bus)
-            self.where = "simulated IMU (in-process virtual bus)" if self.sim_nodes else ""
-            bitrate = getattr(args, "bitrate", None)
-            if not self.where:
-                config = bus_settings(args).resolve()
-                self.where = describe(config)
-                bitrate = bitrate or config.get("bitrate")
-            network = self._network(bus)
-            for nid in self.ids:
-                self.clients[nid] = ImuClient(
-                    network,
-                    nid,
-                    sdo_timeout_s=args.sdo_timeout,
-                    sync_producer=bool(args.sync_producer),
-                    bitrate_bps=int(bitrate) if bitrate else None,
-                )
-                if find and not self.sim_nodes:
-                    how = self.clients[nid].find_node(FIND_NODE_TIMEOUT_S)
-                    log.info("node %d found by %s", nid, how)
-        except BaseException:
-            self.close()
-            raise
-
-    def _network(self, bus: can.BusABC) -> canopen.Network:
-        import canopen
-
-        network = canopen.Network(bus)
-        network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
-        network.connect()
-        self._networks.append(network)
-        return network
-
-    def _open_sim(self, args: argparse.Namespace) -> can.BusABC:
-        """Start the simulated nodes on a private virtual bus; return the client's bus."""
-        import can
-
-        from canimucal.simnode.node import SimulatedImuNode
-
-        channel = f"canimucal-sim-{os.getpid()}-{uuid.uuid4().hex[:8]}"
-        self.truth = load_sim_truth(args)
-        node_bus = can.Bus(interface="virtual", channel=channel)
-        self._buses.append(node_bus)
-        node_network = self._network(node_bus)
-        several = len(self.ids) > 1
-        for nid in self.ids:
-            state = per_node_path(args.state, nid, several) if args.state else None
-            node = SimulatedImuNode(
-                node_network,
-                nid,
-                self.truth,
-                state_file=state,
-                time_scale=args.time_scale,
-                seed=args.seed,
-            )
-            self.sim_nodes[nid] = node.start()
-        client_bus = can.Bus(interface="virtual", channel=channel)
-        self._buses.append(client_bus)
-        return client_bus
-
-    def close(self) -> None:
-        """Close the clients, stop the simulated nodes and notifiers, shut the buses down."""
-        for client in self.clients.values():
-            try:
-                client.close()
-            except Exception as exc:  # closing must go on for the other resources
-                log.warning("closing node %d: %s", client.node_id, exc)
-        for node in self.sim_nodes.values():
-            node.stop()
-        for network in self._networks:
-            if network.notifier is not None:
-                network.notifier.stop(network.NOTIFIER_SHUTDOWN_TIMEOUT)
-        for bus in self._buses:
-            bus.shutdown()
-        self.clients, self.sim_nodes, self._networks, self._buses = {}, {}, [], []
-
-    def __enter__(self) -> DeviceSession:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
+    sim = None
+    if getattr(args, "sim", False):
+        sim = SimSettings(
+            truths=(load_sim_truth(args),),
+            state=Path(args.state) if args.state else None,
+            time_scale=args.time_scale,
+            seed=args.seed,
+        )
+    return DeviceSettings(
+        node_ids=tuple(node_ids(args)),
+        bus=bus_settings(args),
+        sim=sim,
+        sdo_timeout_s=args.sdo_timeout,
+        sync_producer=bool(args.sync_producer),
+        find=find,
+    )
 
 
-def enlarge_receive_buffer(bus: Any, size: int = RECEIVE_BUFFER_BYTES) -> int | None:
-    """Raise a SocketCAN bus's receive buffer; return the size granted (None: not SocketCAN).
+def open_from_args(args: argparse.Namespace, *, find: bool = True) -> Devices:
+    """Open the devices the flags describe (the wiring path of :mod:`canimucal.runtime.wiring`)."""
+    from canimucal.runtime.wiring import open_devices
 
-    ``SO_RCVBUFFORCE`` as root, else ``SO_RCVBUF`` (capped by ``net.core.rmem_max``).
-    """
-    sock = getattr(bus, "socket", None)
-    if not isinstance(sock, socket.socket):
-        return None
-    for option in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
-        if option is None:
-            continue
-        try:
-            sock.setsockopt(socket.SOL_SOCKET, option, size)
-            break
-        except OSError:
-            continue
-    granted = int(sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF))
-    log.info("CAN socket receive buffer: %d bytes", granted)
-    return granted
+    return open_devices(device_settings(args, find=find))
 
 
 def require_single_stdout(args: argparse.Namespace, count: int) -> None:

@@ -36,10 +36,11 @@ from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
-from canimucal.runtime.demo_rig import DemoRig, comparison_table, readback_deviations
 from canimucal.runtime.operator import run_automatic
+from canimucal.runtime.readback_check import comparison_table, readback_deviations
 from canimucal.runtime.resume import load_resume_state
 from canimucal.runtime.session import Session, output_name
+from canimucal.runtime.wiring import demo_settings, open_devices
 from canimucal.sim.truth import Truth
 
 log = logging.getLogger(__name__)
@@ -128,7 +129,8 @@ def run(args: argparse.Namespace) -> int:
         print("note: no terminal; running the headless demo", file=sys.stderr)
     policy = AveragingPolicy(fixed_s=args.seconds)
     verify_s = min(args.seconds, 10.0) if args.seconds else 10.0
-    with DemoRig(truths, time_scale=args.time_scale, seed=args.seed + 1) as rig:
+    settings = demo_settings(truths, time_scale=args.time_scale, seed=args.seed + 1)
+    with open_devices(settings) as rig:
         session = rig.session(
             plan,
             out,
@@ -138,6 +140,7 @@ def run(args: argparse.Namespace) -> int:
             warmup=False,
             verify_seconds=verify_s,
             resume=bool(args.resume),
+            overwrite=True,
         )
         resumed = session.procedure.config.resume_from
         if resumed is not None:
@@ -172,18 +175,13 @@ def _run_tui(
 ) -> int:
     """Open the TUI on a demo source; files go to ``out``."""
     from canimucal.tui.app import make_app
-    from canimucal.tui.source import DemoSource
+    from canimucal.tui.source import demo_source
 
     seconds = args.seconds
-    source = DemoSource(
-        truths,
-        out,
-        time_scale=args.time_scale,
-        seed=args.seed + 1,
-        seconds=seconds,
-        verify_seconds=min(seconds, 10.0) if seconds else 10.0,
-        resume=bool(args.resume),
-    )
+    source = demo_source(truths, out, time_scale=args.time_scale, seed=args.seed + 1)
+    source.seconds = seconds
+    source.verify_seconds = min(seconds, 10.0) if seconds else 10.0
+    source.resume = bool(args.resume)
     custom = plan if plan_name == "custom" else None
     app = make_app(source, plan_name=plan_name, gyro=args.gyro, custom_plan=custom)
     try:

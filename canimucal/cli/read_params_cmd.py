@@ -14,13 +14,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from canimucal.cli.bus_options import (
-    DeviceSession,
     add_bus_options,
     node_ids,
-    per_node_path,
+    open_from_args,
     require_single_stdout,
 )
 from canimucal.cli.output import add_json_option, check_outputs, emit
+from canimucal.io.atomic import per_node_path
 
 if TYPE_CHECKING:
     from canimucal.device.client import ImuClient
@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     """Read every node and report."""
     check_outputs(args)
     require_single_stdout(args, len(node_ids(args)))
-    with DeviceSession(args) as session:
+    with open_from_args(args) as session:
         several = len(session.clients) > 1
         for nid, client in session.clients.items():
             document = read_document(client)

@@ -18,9 +18,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from canimucal.cli.bus_options import DeviceSession, add_bus_options, node_ids, per_node_path
+from canimucal.cli.bus_options import add_bus_options, node_ids, open_from_args
 from canimucal.errors import InputError
-from canimucal.io.atomic import refuse_existing
+from canimucal.io.atomic import per_node_path, refuse_existing
 from canimucal.io.plans import resolve_plan
 from canimucal.io.recording import HeaderValue
 from canimucal.io.recording_writer import RecordingWriter
@@ -31,6 +31,7 @@ from canimucal.sim.truth import Truth
 if TYPE_CHECKING:
     from canimucal.device.client import ImuClient
     from canimucal.runtime.recorder import NodeTally, Recorder
+    from canimucal.runtime.wiring import Devices
 
 POSE_TRANSIENT_S = 1.0
 """Default move time between scheduled poses, as ``sim_node.POSE_TRANSIENT_S``."""
@@ -158,11 +159,11 @@ def run(args: argparse.Namespace) -> int:
     from canimucal.runtime.recorder import Recorder
 
     plan = check_args(args)
-    with DeviceSession(args) as session, contextlib.ExitStack() as files:
+    with open_from_args(args) as session, contextlib.ExitStack() as files:
         several = len(session.clients) > 1
         channels = []
         for nid, client in session.clients.items():
-            header = header_for(client, args, session.truth)
+            header = header_for(client, args, session.truths.get(nid))
             path = per_node_path(args.output, nid, several)
             writer = RecordingWriter.open(
                 path, header, overwrite=args.overwrite, append=args.append
@@ -180,9 +181,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _record(
-    args: argparse.Namespace, session: DeviceSession, recorder: Recorder, plan: Plan
-) -> None:
+def _record(args: argparse.Namespace, session: Devices, recorder: Recorder, plan: Plan) -> None:
     scheduled = args.position is None and (args.sim or args.follow_schedule)
     for node in session.sim_nodes.values():  # the operator's hands, in-process
         if scheduled:

@@ -20,8 +20,8 @@ from canimucal.cli.bus_options import (
     bus_settings,
     load_sim_truth,
     node_ids,
-    per_node_path,
 )
+from canimucal.io.atomic import per_node_path
 from canimucal.io.plans import read_plan
 from canimucal.model.positions import Plan
 

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from canimucal.cli.bus_options import DeviceSession, add_bus_options, node_ids
+from canimucal.cli.bus_options import add_bus_options, device_settings, node_ids
 from canimucal.errors import InputError
 from canimucal.io.plans import resolve_plan
 from canimucal.model.gravity import normal_gravity
@@ -86,19 +86,19 @@ def run(args: argparse.Namespace) -> int:
     """Open the TUI on the bus the flags name."""
     from canimucal.runtime.resume import load_resume_state
     from canimucal.tui.app import make_app
-    from canimucal.tui.source import BusSource
+    from canimucal.tui.source import DeviceSource
 
     plan = resolve_plan(args.plan, builtin_plan)
     plan_name = plan.name if plan.name in BUILTIN else "custom"
     if args.resume:  # a different plan or an unreadable recording: exit 2 before the TUI
         load_resume_state(args.resume, plan)
-    source = BusSource(
-        opener=lambda: DeviceSession(args, find=False),
-        out_dir=Path(args.resume or args.out),
+    source = DeviceSource(
+        device_settings(args, find=False),
+        Path(args.resume or args.out),
+        _where(args),
         site=_site(args),
         backup_dir=Path(args.backup_dir) if args.backup_dir else None,
         warmup=not args.no_warmup,
-        description=_where(args),
         resume=bool(args.resume),
     )
     custom = plan if plan_name == "custom" else None

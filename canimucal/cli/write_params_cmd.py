@@ -13,7 +13,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from canimucal.cli.bus_options import DeviceSession, add_bus_options
+from canimucal.cli.bus_options import add_bus_options, open_from_args
 from canimucal.errors import InputError
 from canimucal.io.calibration import Calibration, read_calibration
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     from canimucal.device.transaction import write_calibration_transaction
 
     record = check_file(args.calibration)
-    with DeviceSession(args) as session:
+    with open_from_args(args) as session:
         for client in session.clients.values():
             result = write_calibration_transaction(
                 client,

@@ -113,3 +113,11 @@ def unique_path(directory: str | os.PathLike[str], stem: str, suffix: str) -> Pa
         if not os.path.lexists(candidate):
             return candidate
     raise InputError(f"no free name for {stem}{dot_suffix} in {base}")
+
+
+def per_node_path(path: str | os.PathLike[str], node: int, several: bool) -> Path:
+    """``NAME.node<ID>.EXT`` when there are several nodes, else ``path`` itself."""
+    target = Path(path)
+    if not several:
+        return target
+    return target.with_name(f"{target.stem}.node{node}{target.suffix}")

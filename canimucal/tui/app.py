@@ -165,7 +165,7 @@ def make_app(
     custom_plan: Plan | None = None,
     autoconnect: bool = True,
 ) -> CalibrationApp:
-    """Build the TUI over ``source`` (a :class:`DemoSource` or :class:`BusSource`).
+    """Build the TUI over ``source`` (a :class:`~canimucal.tui.source.DeviceSource`).
 
     ``custom_plan`` (from ``--plan FILE``) is offered as ``custom`` beside the built-in plans;
     ``plan_name`` is the plan selected first. ``autoconnect=False`` leaves the connection

@@ -14,7 +14,7 @@ from textual.widgets import DataTable, Footer, Static
 
 from canimucal.model.plan import BoundTable, cramer_rao
 from canimucal.model.positions import Plan
-from canimucal.runtime.demo_rig import spec_for_plan
+from canimucal.runtime.wiring import spec_for_plan
 from canimucal.tui.messages import StartWanted
 from canimucal.tui.source import NodeStatus
 from canimucal.tui.text import bound_rows, findings_text

@@ -19,7 +19,7 @@ from typing import Any
 import pytest
 
 from canimucal.io.recording import read_recording
-from canimucal.runtime.demo_rig import readback_deviations
+from canimucal.runtime.readback_check import readback_deviations
 from canimucal.sim.truth import Truth
 
 FAST = ["--headless", "--seconds", "4", "--time-scale", "30"]

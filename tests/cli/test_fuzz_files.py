@@ -85,15 +85,15 @@ class _ReachedRig(BaseException):
     """The truth was accepted and a node was built from it: stop the demo here."""
 
 
-class _StubRig:
-    def __init__(self, truths: list[Any], **_: Any) -> None:
-        for truth in truths:
-            bus = can.Bus(interface="virtual", channel="canimucal-fuzz-stub")
-            try:
-                SimulatedImuNode(bus, 0x10, truth).stop()
-            finally:
-                bus.shutdown()
-        raise _ReachedRig
+def _stub_open(settings: Any) -> None:
+    """Build each simulated node from its truth, then stop the demo (no session runs)."""
+    for truth in settings.sim.truths:
+        bus = can.Bus(interface="virtual", channel="canimucal-fuzz-stub")
+        try:
+            SimulatedImuNode(bus, 0x10, truth).stop()
+        finally:
+            bus.shutdown()
+    raise _ReachedRig
 
 
 def _paths(node: Any, prefix: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
@@ -199,7 +199,7 @@ def test_fuzz_demo_truth(
     monkeypatch: pytest.MonkeyPatch,
     data: bytes,
 ) -> None:
-    monkeypatch.setattr(demo_cmd, "DemoRig", _StubRig)
+    monkeypatch.setattr(demo_cmd, "open_devices", _stub_open)
     (scratch / "truth.json").write_bytes(data)
     argv = ["demo", "--headless", "--truth", str(scratch / "truth.json")]
     try:

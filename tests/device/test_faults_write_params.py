@@ -15,10 +15,10 @@ from typing import Any
 
 import pytest
 
-from canimucal.cli.bus_options import DeviceSession
 from canimucal.cli.main import COMMANDS, main
 from canimucal.device import od
 from canimucal.device.bus import SdoChannel
+from canimucal.runtime.wiring import Devices
 from canimucal.sim.truth import Truth
 from canimucal.simnode.node import SimulatedImuNode
 from canimucal.simnode.store import factory_values
@@ -49,10 +49,10 @@ def _with(path: tuple[str, ...], value: Any) -> dict[str, Any]:
 
 @pytest.fixture
 def tripwire(monkeypatch: pytest.MonkeyPatch) -> None:
-    def refuse(self: DeviceSession, *args: Any, **kwargs: Any) -> None:
+    def refuse(self: Devices, *args: Any, **kwargs: Any) -> None:
         raise _Connected
 
-    monkeypatch.setattr(DeviceSession, "__init__", refuse)
+    monkeypatch.setattr(Devices, "__init__", refuse)
 
 
 @pytest.mark.parametrize(

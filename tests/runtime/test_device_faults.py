@@ -1,6 +1,6 @@
 """The procedure survives what the node reports mid-session.
 
-A session against a simulated node (:class:`DemoRig`) with faults injected while a position
+A session against a simulated node (:class:`Devices`) with faults injected while a position
 is averaged: a reboot or an EMCY rejects that attempt and the position is averaged again
 (never across the reboot); another unit after the reboot stops the session with
 ``ProcedureFailed``; a heartbeat loss is a notice and the session goes on.
@@ -21,21 +21,21 @@ from canimucal.model.plan import builtin_plan
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.procedure.machine import Phase
-from canimucal.runtime.demo_rig import DemoRig
 from canimucal.runtime.recorder import Recorder
 from canimucal.runtime.session import Session, SessionCommand
+from canimucal.runtime.wiring import Devices, demo_settings, open_devices
 from canimucal.sim.truth import Truth
 
 NODE = 0x10
-Hook = Callable[[DemoRig, list[ev.Event]], None]
+Hook = Callable[[Devices, list[ev.Event]], None]
 
 
-def _rig() -> DemoRig:
+def _rig() -> Devices:
     truth = Truth.random(np.random.default_rng(8), cross_axis_max=0.0, tilt_max_deg=0.0)
-    return DemoRig([truth], time_scale=30.0, seed=3)
+    return open_devices(demo_settings([truth], time_scale=30.0, seed=3))
 
 
-def _session(rig: DemoRig, out: Path, *, warmup: bool = False) -> Session:
+def _session(rig: Devices, out: Path, *, warmup: bool = False) -> Session:
     return rig.session(
         builtin_plan("two"),
         out,
@@ -45,7 +45,7 @@ def _session(rig: DemoRig, out: Path, *, warmup: bool = False) -> Session:
     )
 
 
-def _drive(rig: DemoRig, session: Session, hook: Hook, max_polls: int = 20_000) -> None:
+def _drive(rig: Devices, session: Session, hook: Hook, max_polls: int = 20_000) -> None:
     """An automatic operator that never writes; ``hook`` sees every batch of events."""
     try:
         hook(rig, session.start())
@@ -71,11 +71,11 @@ def _at_averaging(index: int, **faults: object) -> Hook:
     """Inject ``faults`` (times relative to now, simulated) when ``index`` starts averaging."""
     done: list[bool] = []
 
-    def hook(rig: DemoRig, events: list[ev.Event]) -> None:
+    def hook(rig: Devices, events: list[ev.Event]) -> None:
         started = [e for e in events if isinstance(e, ev.AveragingStarted) and e.index == index]
         if started and not done:
             done.append(True)
-            sim = rig.sims[NODE]
+            sim = rig.sim_nodes[NODE]
             now = sim.simulator.time_s
             keys = dict(faults)
             if "reboot_in_s" in keys:
@@ -154,8 +154,8 @@ def test_heartbeat_loss_is_a_notice_and_the_session_goes_on(tmp_path: Path) -> N
         rig.clients[NODE].write_value(od.HEARTBEAT, 0, "u16", 100)  # watched: 3 × 0.1 s
         session = _session(rig, tmp_path, warmup=True)
         history = session.start()
-        now = rig.sims[NODE].simulator.time_s
-        rig.sims[NODE].faults.set(heartbeat_loss={"from_s": now, "until_s": now + 30.0})
+        now = rig.sim_nodes[NODE].simulator.time_s
+        rig.sim_nodes[NODE].faults.set(heartbeat_loss={"from_s": now, "until_s": now + 30.0})
         try:
             for _ in range(2000):
                 history += session.poll()
@@ -179,7 +179,7 @@ def _record_with_reboot(
     error = None
     with _rig() as rig:
         rig.identities()
-        client, sim = rig.clients[NODE], rig.sims[NODE]
+        client, sim = rig.clients[NODE], rig.sim_nodes[NODE]
         rate = float(client.output_data_rate())
         header = {"sample_rate_hz": rate, "device_serial": rig.truths[NODE].serial}
         with RecordingWriter.open(path, header) as writer:

@@ -14,14 +14,14 @@ from canimucal.model.plan import builtin_plan
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.procedure.machine import Phase
-from canimucal.runtime.demo_rig import DemoRig
 from canimucal.runtime.operator import run_automatic
+from canimucal.runtime.wiring import Devices, demo_settings, open_devices
 from canimucal.sim.truth import Truth
 
 
-def _rig() -> DemoRig:
+def _rig() -> Devices:
     truth = Truth.random(np.random.default_rng(8), cross_axis_max=0.0, tilt_max_deg=0.0)
-    return DemoRig([truth], time_scale=30.0, seed=3)
+    return open_devices(demo_settings([truth], time_scale=30.0, seed=3))
 
 
 def test_a_silent_node_stops_the_session_and_the_recording_is_kept(tmp_path: Path) -> None:
@@ -38,7 +38,7 @@ def test_a_silent_node_stops_the_session_and_the_recording_is_kept(tmp_path: Pat
         for _ in range(20):
             session.poll()
         assert session.procedure.phase is Phase.WARMUP
-        rig.sims[0x10].stop()
+        rig.sim_nodes[0x10].stop()
         with pytest.raises(DeviceError, match="sent no samples"):
             for _ in range(200):
                 session.poll()

@@ -19,8 +19,8 @@ from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
 from canimucal.procedure import events as ev
-from canimucal.runtime.demo_rig import spec_for_plan
 from canimucal.runtime.session import Session, device_of
+from canimucal.runtime.wiring import spec_for_plan
 from canimucal.sim.averages import simulate_averages
 from canimucal.sim.truth import Truth
 from canimucal.tui.source import Heartbeat, NodeStatus

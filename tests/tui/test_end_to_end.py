@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 
 from canimucal.procedure.machine import Phase
-from canimucal.runtime.demo_rig import readback_deviations
+from canimucal.runtime.readback_check import readback_deviations
 from canimucal.sim.truth import Truth
 from canimucal.tui.app import make_app
 from canimucal.tui.position import PositionScreen
-from canimucal.tui.source import DemoSource
+from canimucal.tui.source import demo_source
 from tests.support.pilot_steps import measure_positions, press, until, write_and_verify
 
 SEED = 20261121
@@ -31,7 +31,7 @@ async def test_the_tui_calibrates_the_simulated_node_and_the_device_holds_the_tr
     tmp_path: Path,
 ) -> None:
     truth = Truth.random(np.random.default_rng(SEED), cross_axis_max=0.0)
-    source = DemoSource([truth], tmp_path, time_scale=20.0, seed=SEED, seconds=10.0)
+    source = demo_source([truth], tmp_path, time_scale=20.0, seed=SEED, seconds=10.0)
     source.verify_seconds = 5.0
     app = make_app(source, plan_name="five")
     async with app.run_test(size=(80, 24)) as pilot:

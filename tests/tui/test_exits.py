@@ -26,7 +26,7 @@ from canimucal.tui.messages import EventsArrived
 from canimucal.tui.modals import ConfirmQuit, ConfirmSkip
 from canimucal.tui.position import PositionScreen
 from canimucal.tui.runner import Command
-from canimucal.tui.source import DemoSource
+from canimucal.tui.source import demo_source
 from canimucal.tui.verification import VerificationScreen
 from tests.support.pilot_steps import measure_positions, press, until, write
 from tests.support.tui_fakes import FakeSource, node_status, screen_text
@@ -177,7 +177,7 @@ async def test_a_session_quit_after_its_write_records_the_verification_as_not_do
     tmp_path: Path,
 ) -> None:
     truth = Truth.random(np.random.default_rng(SEED), cross_axis_max=0.0)
-    source = DemoSource([truth], tmp_path, time_scale=20.0, seed=SEED, seconds=5.0)
+    source = demo_source([truth], tmp_path, time_scale=20.0, seed=SEED, seconds=5.0)
     app = make_app(source, plan_name="two")
     async with app.run_test(size=SIZE) as pilot:
         await until(pilot, lambda: app.screen.check_action("next", ()) is True, "the node")

@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 
 from canimucal.model.plan import builtin_plan
-from canimucal.runtime.demo_rig import readback_deviations
+from canimucal.runtime.readback_check import readback_deviations
 from canimucal.runtime.resume import load_resume_state
 from canimucal.sim.truth import Truth
 from canimucal.tui.app import make_app
 from canimucal.tui.position import PositionScreen
-from canimucal.tui.source import DemoSource
+from canimucal.tui.source import demo_source
 from tests.support.interrupt import assert_kept, run_interrupted
 from tests.support.pilot_steps import measure_positions, press, until, write_and_verify
 
@@ -47,7 +47,7 @@ async def test_the_tui_demo_resumes_an_interrupted_session(
     assert sorted(first.averages[0x10]) == [0, 1]
 
     # the headless demo seeds its rig with seed + 1, as the TUI demo does
-    source = DemoSource([truth], out, time_scale=30.0, seed=SEED + 1, seconds=3.0)
+    source = demo_source([truth], out, time_scale=30.0, seed=SEED + 1, seconds=3.0)
     source.warmup, source.verify_seconds, source.resume = False, 3.0, True
     app = make_app(source, plan_name="five")
     async with app.run_test(size=(80, 24)) as pilot:

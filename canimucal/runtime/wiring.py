@@ -1,0 +1,310 @@
+"""The one wiring path: settings → open devices → session, for the CLI, the demo and the TUI.
+
+:class:`DeviceSettings` says what to open: a CAN bus (python-can settings) with one client per
+node id, or the built-in simulated IMU(s) on a private python-can ``virtual`` bus.
+:func:`open_devices` opens it into :class:`Devices` (buses, canopen networks, one
+:class:`~canimucal.device.client.ImuClient` per node, the simulated nodes), and
+:meth:`Devices.session` builds the guided :class:`~canimucal.runtime.session.Session` over
+them. The session is quiet on a live bus: NMT only to the target nodes (sent by the client
+when it streams), no SYNC unless ``sync_producer``.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import uuid
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from types import TracebackType
+from typing import Any, cast
+
+import can
+import canopen
+import numpy as np
+
+from canimucal.analysis.calibrate import SiteConditions
+from canimucal.device.bus import BusSettings, describe, open_bus
+from canimucal.device.client import NOTIFIER_CYCLE_S, Identity, ImuClient
+from canimucal.io.atomic import per_node_path
+from canimucal.model.layout import GyroSpec, JointSpec
+from canimucal.model.positions import Plan
+from canimucal.procedure.machine import Procedure, ProcedureConfig
+from canimucal.runtime.resume import load_resume_state
+from canimucal.runtime.session import Session, device_of, recording_header
+from canimucal.sim.truth import Truth
+from canimucal.simnode.node import SimulatedImuNode
+
+log = logging.getLogger(__name__)
+
+FIRST_NODE_ID = 0x10
+FIND_NODE_TIMEOUT_S = 2.0
+"""How long to wait for a heartbeat (0x1017 defaults to 1000 ms) before probing by SDO."""
+RECEIVE_BUFFER_BYTES = 4 << 20
+"""Socket receive buffer asked for on SocketCAN (the default ~200 kB holds well under a
+second of 200 Hz TPDOs once a busy or emulated machine stalls the receive thread)."""
+SIMULATED_WHERE = "simulated IMU (in-process virtual CAN bus)"
+
+
+@dataclass(frozen=True)
+class SimSettings:
+    """The simulated unit(s): one truth per node (a single truth serves every node).
+
+    Node ``i`` (in node-id order) gets noise seed ``seed + i``; ``state`` is the non-volatile
+    memory file (``NAME.node<ID>.EXT`` per node when there are several).
+    """
+
+    truths: tuple[Truth, ...] = (Truth.from_dict({}),)
+    state: Path | None = None
+    time_scale: float = 1.0
+    seed: int | None = None
+
+    def truth_of(self, index: int) -> Truth:
+        """Return the truth of the ``index``-th node."""
+        return self.truths[index] if len(self.truths) > 1 else self.truths[0]
+
+
+@dataclass(frozen=True)
+class DeviceSettings:
+    """What to open: ``sim`` set → simulated nodes, else the CAN bus of ``bus``."""
+
+    node_ids: tuple[int, ...] = (FIRST_NODE_ID,)
+    bus: BusSettings = field(default_factory=BusSettings)
+    sim: SimSettings | None = None
+    sdo_timeout_s: float | None = None
+    sync_producer: bool = False
+    find: bool = True
+    """Find every node on a real bus while opening (heartbeat, else an SDO probe)."""
+
+
+def demo_settings(
+    truths: Sequence[Truth], *, time_scale: float = 10.0, seed: int = 1
+) -> DeviceSettings:
+    """Describe simulated nodes 0x10, 0x11, … one per truth (the demo's rig)."""
+    ids = tuple(FIRST_NODE_ID + i for i in range(len(truths)))
+    return DeviceSettings(
+        node_ids=ids, sim=SimSettings(tuple(truths), time_scale=time_scale, seed=seed)
+    )
+
+
+def spec_for_plan(plan_name: str, gyro: str = "mems") -> JointSpec:
+    """Return the model each plan can determine (``gyro``: ``mems`` or ``nav``, checked).
+
+    two → bias + diagonal K; five → bias + diagonal K + base tilt; recommended and custom →
+    bias, full K and base tilt.
+    """
+    grade = cast(GyroSpec, gyro)  # JointSpec checks the value
+    if plan_name == "two":
+        return JointSpec(accel_k="diag", tilt="none", gyro=grade)
+    if plan_name == "five":
+        return JointSpec(accel_k="diag", tilt="rigid", gyro=grade)
+    return JointSpec(accel_k="full", tilt="rigid", gyro=grade)
+
+
+class Devices:
+    """Open buses and networks, one client per node and the simulated nodes (context manager).
+
+    ``truths`` holds each simulated node's truth; ``where`` names the bus for messages.
+    """
+
+    def __init__(self, settings: DeviceSettings) -> None:
+        self.settings = settings
+        self.clients: dict[int, ImuClient] = {}
+        self.sim_nodes: dict[int, SimulatedImuNode] = {}
+        self.truths: dict[int, Truth] = {}
+        self._buses: list[can.BusABC] = []
+        self._networks: list[canopen.Network] = []
+        self.where = SIMULATED_WHERE
+        try:
+            self._open()
+        except BaseException:
+            self.close()
+            raise
+
+    def _open(self) -> None:
+        settings = self.settings
+        bitrate: Any = None
+        if settings.sim is not None:
+            network = self._network(self._start_sim(settings.sim))
+        else:
+            config = settings.bus.resolve()
+            bus = open_bus(settings.bus)
+            self._buses.append(bus)
+            enlarge_receive_buffer(bus)
+            self.where = describe(config)
+            bitrate = settings.bus.bitrate or config.get("bitrate")
+            network = self._network(bus)
+        for nid in settings.node_ids:
+            self.clients[nid] = ImuClient(
+                network,
+                nid,
+                sdo_timeout_s=settings.sdo_timeout_s,
+                sync_producer=settings.sync_producer,
+                bitrate_bps=int(bitrate) if bitrate else None,
+            )
+            if settings.find and settings.sim is None:
+                how = self.clients[nid].find_node(FIND_NODE_TIMEOUT_S)
+                log.info("node %d found by %s", nid, how)
+
+    def _network(self, bus: can.BusABC) -> canopen.Network:
+        network = canopen.Network(bus)
+        network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
+        network.connect()
+        self._networks.append(network)
+        return network
+
+    def _start_sim(self, sim: SimSettings) -> can.BusABC:
+        """Start the simulated nodes on a private virtual bus; return the clients' bus."""
+        channel = f"canimucal-sim-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        ids = self.settings.node_ids
+        for i, nid in enumerate(ids):
+            bus = can.Bus(interface="virtual", channel=channel)
+            self._buses.append(bus)
+            state = per_node_path(sim.state, nid, len(ids) > 1) if sim.state else None
+            truth = sim.truth_of(i)
+            node = SimulatedImuNode(
+                bus,
+                nid,
+                truth,
+                state_file=state,
+                time_scale=sim.time_scale,
+                seed=None if sim.seed is None else sim.seed + i,
+            )
+            self.sim_nodes[nid] = node.start()
+            self.truths[nid] = truth
+        client_bus = can.Bus(interface="virtual", channel=channel)
+        self._buses.append(client_bus)
+        return client_bus
+
+    def identities(self) -> dict[int, Identity]:
+        """Find every node and read its identity."""
+        out = {}
+        for node_id, client in self.clients.items():
+            client.find_node(FIND_NODE_TIMEOUT_S)
+            out[node_id] = client.identity()
+        return out
+
+    def simulated_site(self) -> SiteConditions:
+        """Return the first simulated node's site, with the LSBs its node reports."""
+        accel_lsb, gyro_lsb = next(iter(self.clients.values())).nominal_lsb()
+        truth = next(iter(self.truths.values()))
+        return SiteConditions(
+            g=truth.g,
+            latitude=truth.latitude,
+            heading=truth.heading,
+            accel_lsb=accel_lsb,
+            gyro_lsb=gyro_lsb,
+        )
+
+    def session(
+        self,
+        plan: Plan,
+        out_dir: Path,
+        *,
+        plan_name: str,
+        gyro: str = "mems",
+        site: SiteConditions | None = None,
+        backup_dir: Path | None = None,
+        overwrite: bool = False,
+        resume: bool = False,
+        identities: dict[int, Identity] | None = None,
+        **config: Any,
+    ) -> Session:
+        """Build the guided session of ``plan`` over every node.
+
+        ``site`` None: the simulated truth's site. The LSBs and the data rate come from the
+        first node. Simulated nodes keep their backups in ``out_dir/backups`` by default.
+        ``resume``: go on with the interrupted session in ``out_dir``, if its recordings came
+        from these very units. ``config`` goes to :class:`ProcedureConfig`.
+        """
+        identities = identities or self.identities()
+        if backup_dir is None and self.sim_nodes:
+            backup_dir = out_dir / "backups"
+        first = next(iter(self.clients.values()))
+        accel_lsb, gyro_lsb = first.nominal_lsb()
+        site = self.simulated_site() if site is None else site
+        site = replace(site, accel_lsb=accel_lsb, gyro_lsb=gyro_lsb)
+        rate = float(first.output_data_rate())
+        if resume:
+            serials = {n: i.serial for n, i in identities.items()}
+            config["resume_from"] = load_resume_state(out_dir, plan, tuple(self.clients), serials)
+        cfg = ProcedureConfig(
+            plan=plan,
+            node_ids=tuple(self.clients),
+            sample_rate_hz=rate,
+            site=site,
+            spec=spec_for_plan(plan_name, gyro),
+            devices={n: device_of(n, i) for n, i in identities.items()},
+            plan_name=plan_name,
+            **config,
+        )
+        header = {n: recording_header(rate, site, identities[n], n) for n in self.clients}
+        for sim in self.sim_nodes.values():
+            sim.set_pose(0.0, 0.0, 0.0)
+        seed = None if self.settings.sim is None else self.settings.sim.seed
+        return Session(
+            Procedure(cfg),
+            self.clients,
+            identities,
+            out_dir,
+            sims=self.sim_nodes or None,
+            header=header,
+            backup_dir=backup_dir,
+            overwrite=overwrite,
+            operator_rng=None if seed is None else np.random.default_rng(seed + 1000),
+        )
+
+    def close(self) -> None:
+        """Close the clients, stop the simulated nodes and notifiers, shut the buses down."""
+        for client in self.clients.values():
+            try:
+                client.close()
+            except Exception as exc:  # closing must go on for the other resources
+                log.warning("closing node %d: %s", client.node_id, exc)
+        for network in self._networks:
+            if network.notifier is not None:
+                network.notifier.stop(network.NOTIFIER_SHUTDOWN_TIMEOUT)
+        for node in self.sim_nodes.values():
+            node.stop()
+        for bus in self._buses:
+            bus.shutdown()
+        self.clients, self.sim_nodes, self._networks, self._buses = {}, {}, [], []
+
+    def __enter__(self) -> Devices:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def open_devices(settings: DeviceSettings) -> Devices:
+    """Open what ``settings`` describe (:class:`NoDeviceError` when the bus cannot open)."""
+    return Devices(settings)
+
+
+def enlarge_receive_buffer(bus: Any, size: int = RECEIVE_BUFFER_BYTES) -> int | None:
+    """Raise a SocketCAN bus's receive buffer; return the size granted (None: not SocketCAN).
+
+    ``SO_RCVBUFFORCE`` as root, else ``SO_RCVBUF`` (capped by ``net.core.rmem_max``).
+    """
+    sock = getattr(bus, "socket", None)
+    if not isinstance(sock, socket.socket):
+        return None
+    for option in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+        if option is None:
+            continue
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, option, size)
+            break
+        except OSError:
+            continue
+    granted = int(sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF))
+    log.info("CAN socket receive buffer: %d bytes", granted)
+    return granted
