@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import struct
+import sys
 import tempfile
 import threading
 import time
@@ -31,14 +32,16 @@ import can
 import canopen
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.support
+
 from canimucal.device.client import ImuClient
-from canimucal.device.pdo_layout import design_layout
 from canimucal.device.stream import SamplePairer
 from canimucal.device.transaction import write_calibration_transaction
 from canimucal.io.calibration import Calibration
 from canimucal.model.samples import SampleBlock
 from canimucal.sim.truth import Truth
 from canimucal.simnode.node import SimulatedImuNode
+from tests.support.pdo import design_layout
 
 NODE = 0x10
 T1, T2 = 0x180 + NODE, 0x280 + NODE

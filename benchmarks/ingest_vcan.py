@@ -28,8 +28,8 @@ import can
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from canimucal.device.client import ImuClient  # noqa: E402
-from canimucal.device.pdo_layout import design_layout  # noqa: E402
 from canimucal.model.samples import concat_blocks  # noqa: E402
+from tests.support.pdo import design_layout  # noqa: E402
 
 NODE = 0x10
 T1, T2 = 0x180 + NODE, 0x280 + NODE

@@ -21,7 +21,7 @@ scalar residual) per unit of the parameter (the units listed in :data:`UNITS`).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -207,8 +207,3 @@ def scalar_candidates(
         labels = tuple(f"G[{i}][{j}]" for i in range(3) for j in range(3))
         out.append(Candidate("gyro_g_sensitivity", "gyro", gg, labels))
     return out
-
-
-def whiten_columns(whitener: Array, candidates: Sequence[Candidate]) -> Mapping[str, Array]:
-    """Whitened columns of each candidate, by key."""
-    return {c.key: whitener @ c.columns for c in candidates}

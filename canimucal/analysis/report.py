@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.analysis.conditions import recording_conditions
-from canimucal.analysis.data import EFFECTS, DiscrepancyResult, SessionData
+from canimucal.analysis.data import DiscrepancyResult, SessionData
 from canimucal.analysis.discrepancy import analyse_discrepancy
 from canimucal.analysis.session import session_from_recording
 from canimucal.io.grouping import position_rows
@@ -285,8 +285,3 @@ def observed_poses(a: Analysis) -> Plan | None:
 def _wrap(angle: float) -> float:
     """Wrap an angle into (−π, π] (the pose schedule's range, ±180°)."""
     return float(-((np.pi - angle) % (2.0 * np.pi)) + np.pi)
-
-
-def effects_vocabulary() -> tuple[str, ...]:
-    """Return the effect names the analysis can report."""
-    return EFFECTS

@@ -16,10 +16,8 @@ from canimucal.analysis.data import SessionData, Window
 from canimucal.errors import InputError
 from canimucal.io.grouping import has_angles, position_rows
 from canimucal.io.recording import Recording
-from canimucal.model.positions import Plan, Pose, PositionAverage, average_position
+from canimucal.model.positions import Pose, PositionAverage, average_position
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
-from canimucal.sim.imu import ImuSimulator
-from canimucal.sim.truth import Truth
 
 log = logging.getLogger(__name__)
 
@@ -80,39 +78,4 @@ def session_from_recording(
         accel_lsb=_lsb(rec, "accel_lsb", DEFAULT_ACCEL_LSB),
         gyro_lsb=_lsb(rec, "gyro_lsb", DEFAULT_GYRO_LSB if known else 1.0),
         known_positions=known,
-    )
-
-
-def simulate_session(
-    truth: Truth, plan: Plan, *, seed: int, transient_s: float = 2.0
-) -> SessionData:
-    """Simulate a plan position by position, grouped as :func:`session_from_recording` would.
-
-    The fast path of the Monte Carlo tests: the unit is set to each pose plus an angle error
-    drawn from the pose's tolerance (labelled with the nominal angles), time runs on for
-    ``transient_s`` between positions (the warm-up goes on), and no recording is built.
-    """
-    sim = ImuSimulator(truth, seed=seed)
-    rng = np.random.default_rng(seed)
-    fs = sim.sample_rate_hz
-    averages, windows = [], []
-    for p in plan.positions:
-        alpha, beta, psi = p.angles + rng.normal(0.0, p.tolerance, 3)
-        sim.set_pose(alpha, beta, psi, transient_s=0.0)
-        if transient_s > 0:
-            sim.next_block(int(round(transient_s * fs)))
-        block = sim.next_block(int(round(p.seconds * fs)))
-        pose = Pose(p.alpha, p.beta, p.psi, p.tolerance)
-        temp = float(np.mean(block.temp_c))
-        averages.append(average_position(pose, block.accel, block.gyro, fs, temp))
-        windows.append(Window(block.t_s, block.accel, block.gyro, block.temp_c))
-    return SessionData(
-        averages=tuple(averages),
-        windows=tuple(windows),
-        g=truth.g,
-        latitude=truth.latitude,
-        heading=truth.heading,
-        accel_lsb=truth.accel.nominal_lsb,
-        gyro_lsb=truth.gyro.nominal_lsb,
-        known_positions=True,
     )

@@ -2,7 +2,7 @@
 
 Receive callbacks (canopen's notifier thread) only record and enqueue; nothing here makes
 an SDO call. The events are past-tense dataclasses on ``ImuClient.events``; the procedure
-redoes or flags the position being averaged when one arrives (issue 6).
+redoes or flags the position being averaged when one arrives.
 """
 
 from __future__ import annotations

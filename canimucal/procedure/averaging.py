@@ -1,4 +1,4 @@
-"""How long each position is averaged (issue 4: the first level position, then the noise).
+"""How long each position is averaged (the first level position, then the measured noise).
 
 - ``fixed_s`` (the demo's ``--seconds``): every position, the first one included.
 - Otherwise the first position records ``max(first_min_s, user_s or default_s)`` (120 s by

@@ -1,4 +1,4 @@
-"""Fault hooks of :class:`~canimucal.simnode.node.SimulatedImuNode` (issue 6).
+"""Fault hooks of :class:`~canimucal.simnode.node.SimulatedImuNode`.
 
 The node routes SDO requests and responses, TPDO frames and its simulated clock through
 its :class:`~canimucal.simnode.faults.FaultInjector` (``node.faults``); this mixin holds

@@ -1,4 +1,4 @@
-"""Fault injection for the simulated node (issue 6): the truth JSON's ``faults`` block.
+"""Fault injection for the simulated node: the truth JSON's ``faults`` block.
 
 Every key is optional; an empty block injects nothing. Times are *simulated* seconds (the
 sample clock), so a fast ``time_scale`` runs long scenarios quickly.

@@ -74,7 +74,7 @@ class SimulatedImuNode(FaultHooks, ObjectAccessHooks):
         self.time_scale = float(time_scale)
         self._lock = threading.RLock()
         self.faults = FaultInjector(self.truth.faults)  # validated before joining any bus
-        """Fault injection (issue 6): ``node.faults.set(...)``, ``clear()``, ``stats``."""
+        """Fault injection: ``node.faults.set(...)``, ``clear()``, ``stats``."""
         self._network, self._own_network = _network_of(bus_or_network)
         eds = od.eds_path()
         if not eds.is_file():

@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 
 from canimucal.analysis.discrepancy import effect_sigmas
-from canimucal.analysis.session import simulate_session
 from canimucal.cli.main import main
 from canimucal.model.plan import RECOMMENDED
 from canimucal.sim.effects import hide_effect, warm_up_profile
 from canimucal.sim.truth import Truth
+from tests.support.sessions import simulate_session
 
 SEED = 1
 REFERENCE_SEED = 999

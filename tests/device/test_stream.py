@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 
 from canimucal.device.client import ImuClient
-from canimucal.device.pdo_layout import design_layout
 from canimucal.device.stream import (
     PdoLayout,
     SamplePairer,
@@ -22,6 +21,7 @@ from canimucal.device.stream import (
 )
 from canimucal.model.samples import SampleBlock, concat_blocks
 from canimucal.simnode.node import SimulatedImuNode
+from tests.support.pdo import design_layout
 
 NODE = 0x10
 T1, T2, T3 = 0x180 + NODE, 0x280 + NODE, 0x380 + NODE
