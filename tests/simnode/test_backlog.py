@@ -77,5 +77,7 @@ def test_a_bus_nobody_reads_does_not_stop_the_node(
     n0, w0 = node.samples_produced, time.monotonic()
     time.sleep(1.0)
     rate = (node.samples_produced - n0) / (time.monotonic() - w0)
-    assert 1700 < rate < 2300, rate  # 10 simulated s per wall s at 200 Hz
+    # 10 simulated s per wall s at 200 Hz is 2000/s; a node held back by the deaf reader
+    # would fall towards 0, while a loaded machine only slows it (1065/s seen under load)
+    assert 500 < rate < 2300, rate
     assert deaf.queue.qsize() > 2000  # type: ignore[attr-defined]
