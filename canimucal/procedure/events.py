@@ -19,6 +19,7 @@ from canimucal.model.positions import PlannedPosition, PositionAverage
 if TYPE_CHECKING:
     from canimucal.analysis.acceptance import AcceptanceReport
     from canimucal.analysis.calibrate import Solution
+    from canimucal.procedure.config import Phase
 
 Array = NDArray[np.float64]
 
@@ -30,10 +31,10 @@ class Event:
 
 @dataclass(frozen=True)
 class PhaseChanged(Event):
-    """The procedure entered ``phase`` (a :class:`~canimucal.procedure.machine.Phase` value)."""
+    """The procedure entered ``phase`` from ``previous`` (None at the start)."""
 
-    phase: str
-    previous: str
+    phase: Phase
+    previous: Phase | None
 
 
 @dataclass(frozen=True)

@@ -105,7 +105,7 @@ class Procedure:
     def start(self) -> list[ev.Event]:
         """First events: warm-up, or the first instruction when warm-up is off."""
         if self.phase is Phase.WARMUP:
-            return [ev.PhaseChanged(Phase.WARMUP.value, "")]
+            return [ev.PhaseChanged(Phase.WARMUP, None)]
         return self._instruct()
 
     def preload(self, node_id: int, averages: Mapping[int, PositionAverage]) -> None:
@@ -351,7 +351,7 @@ class Procedure:
 
     def _set_phase(self, phase: Phase) -> list[ev.Event]:
         previous, self.phase = self.phase, phase
-        return [ev.PhaseChanged(phase.value, previous.value)] if previous != phase else []
+        return [ev.PhaseChanged(phase, previous)] if previous != phase else []
 
     def _instruct(self) -> list[ev.Event]:
         events = self._set_phase(Phase.INSTRUCT)

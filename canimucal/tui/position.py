@@ -249,7 +249,7 @@ class PositionScreen(Screen[None]):
     def show(self, event: ev.Event) -> None:  # noqa: C901 - one branch per event kind
         """Update the widgets for one event."""
         if isinstance(event, ev.PhaseChanged):
-            self.phase = Phase(event.phase)
+            self.phase = event.phase
             self._title()
             if self.phase is Phase.WARMUP:
                 self.words.update("waiting for the temperature to settle (w skips)")

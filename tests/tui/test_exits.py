@@ -76,7 +76,7 @@ async def test_q_quits_at_once_with_0_when_no_session_is_in_progress(tmp_path: P
 async def test_ctrl_c_interrupts_at_once_with_130(tmp_path: Path) -> None:
     app = make_app(FakeSource(tmp_path), autoconnect=False)
     async with app.run_test(size=SIZE) as pilot:
-        await session_at(app, pilot, tmp_path, ev.PhaseChanged("averaging", "settling"))
+        await session_at(app, pilot, tmp_path, ev.PhaseChanged(Phase.AVERAGING, Phase.SETTLING))
         await pilot.press("ctrl+c")
         await pilot.pause()
         assert not isinstance(app.screen, ConfirmQuit)
@@ -87,7 +87,9 @@ async def test_ctrl_c_interrupts_at_once_with_130(tmp_path: Path) -> None:
 async def test_q_during_a_session_asks_says_what_is_kept_and_exits_130(tmp_path: Path) -> None:
     app = make_app(FakeSource(tmp_path), autoconnect=False)
     async with app.run_test(size=SIZE) as pilot:
-        screen = await session_at(app, pilot, tmp_path, ev.PhaseChanged("averaging", "settling"))
+        screen = await session_at(
+            app, pilot, tmp_path, ev.PhaseChanged(Phase.AVERAGING, Phase.SETTLING)
+        )
         await pilot.press("q")
         await pilot.pause()
         question = app.screen
@@ -116,9 +118,9 @@ async def test_quitting_after_the_write_says_the_verification_is_not_done(tmp_pa
             pilot,
             tmp_path,
             ev.RecordSaved(16, "out/calibration.json", "out/certificate.md", "out/rec.csv"),
-            ev.PhaseChanged("writing", "review"),
+            ev.PhaseChanged(Phase.WRITING, Phase.REVIEW),
             ev.WriteFinished(16, True, "written and verified", "out/backups/4242-x.json"),
-            ev.PhaseChanged("instruct", "writing"),
+            ev.PhaseChanged(Phase.INSTRUCT, Phase.WRITING),
         )
         await pilot.press("q")
         await pilot.pause()
@@ -138,7 +140,11 @@ async def test_q_after_the_procedure_ended_quits_with_0(tmp_path: Path) -> None:
     app = make_app(FakeSource(tmp_path), autoconnect=False)
     async with app.run_test(size=SIZE) as pilot:
         await session_at(
-            app, pilot, tmp_path, ev.PhaseChanged("done", "averaging"), ev.ProcedureFinished()
+            app,
+            pilot,
+            tmp_path,
+            ev.PhaseChanged(Phase.DONE, Phase.AVERAGING),
+            ev.ProcedureFinished(),
         )
         assert isinstance(app.screen, VerificationScreen)
         await pilot.press("q")

@@ -48,7 +48,7 @@ class FakeSession:
         self.commands: list[SessionCommand | WriteOptions] = []
 
     def start(self) -> list[ev.Event]:
-        return [ev.PhaseChanged("instruct", "")]
+        return [ev.PhaseChanged(Phase.INSTRUCT, None)]
 
     def poll(self, timeout_s: float = 0.05) -> list[ev.Event]:
         self.threads.add(threading.current_thread().name)
@@ -62,7 +62,7 @@ class FakeSession:
         self.commands.append(command)
         if command is SessionCommand.ACCEPT:
             self.procedure.phase = Phase.DONE
-            return [ev.PhaseChanged("done", "instruct"), ev.ProcedureFinished()]
+            return [ev.PhaseChanged(Phase.DONE, Phase.INSTRUCT), ev.ProcedureFinished()]
         return []
 
     def write(self, options: WriteOptions) -> list[ev.Event]:

@@ -96,7 +96,7 @@ def _instructed(index: int = 1, alpha_deg: float = 22.5) -> list[ev.Event]:
     pose = PlannedPosition(np.deg2rad(alpha_deg), 0.0, 0.0)
     words = f"tilt {alpha_deg:g}° about z (lower the +x end)"
     return [
-        ev.PhaseChanged("instruct", "review_position"),
+        ev.PhaseChanged(Phase.INSTRUCT, Phase.REVIEW_POSITION),
         ev.PoseInstructed(index, 5, pose, words, 30.0),
     ]
 
@@ -118,7 +118,7 @@ async def test_position_screen_shows_pose_live_readout_progress_and_sparkline(
         screen.post_message(
             EventsArrived(
                 [
-                    ev.PhaseChanged("averaging", "settling"),
+                    ev.PhaseChanged(Phase.AVERAGING, Phase.SETTLING),
                     ev.StillnessChanged(True, 2.0, 2.0),
                     ev.AveragingStarted(1, 30.0, (0.2, -0.1)),
                     live(spark=spark),
@@ -243,7 +243,9 @@ async def test_a_procedure_failure_is_a_modal_with_its_title(tmp_path: Path) -> 
         screen = PositionScreen([node_status()], None, total=5)
         await app.push_screen(screen)
         failed = ev.ProcedureFailed("node 16 sent no samples for 5 s", "Device error")
-        screen.post_message(EventsArrived([ev.PhaseChanged("averaging", "settling"), failed]))
+        screen.post_message(
+            EventsArrived([ev.PhaseChanged(Phase.AVERAGING, Phase.SETTLING), failed])
+        )
         await pilot.pause()
         assert isinstance(app.screen, ErrorModal)
         text = screen_text(app)
@@ -266,7 +268,7 @@ async def test_the_end_of_the_procedure_shows_the_level_check_before_and_after(
             ev.RecordSaved(16, "out/calibration.json", "out/certificate.md", "out/rec.csv"),
             ev.WriteFinished(16, True, "written and verified", "out/backups/4242-x.json"),
             ev.LevelChecked(16, "after", 0.0399, (-0.25, 1.16), -0.0012, (-0.57, 0.12)),
-            ev.PhaseChanged("done", "averaging"),
+            ev.PhaseChanged(Phase.DONE, Phase.AVERAGING),
             ev.ProcedureFinished(),
         ]
         screen.post_message(EventsArrived(events))

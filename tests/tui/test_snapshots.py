@@ -14,6 +14,7 @@ import numpy as np
 
 from canimucal.model.positions import PlannedPosition
 from canimucal.procedure import events as ev
+from canimucal.procedure.config import Phase
 from canimucal.tui.app import make_app
 from canimucal.tui.connection import ConnectionScreen
 from canimucal.tui.messages import EventsArrived
@@ -59,7 +60,7 @@ def test_position_screen_averaging(snap_compare: Any, tmp_path: Path) -> None:
             EventsArrived(
                 [
                     ev.PoseInstructed(3, 5, pose, words, 30.0),
-                    ev.PhaseChanged("averaging", "settling"),
+                    ev.PhaseChanged(Phase.AVERAGING, Phase.SETTLING),
                     ev.StillnessChanged(True, 2.0, 2.0),
                     ev.AveragingStarted(3, 30.0, (0.2, -0.1)),
                     live(spark=spark),
