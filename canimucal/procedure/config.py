@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from enum import StrEnum
 from pathlib import Path
 
 from canimucal.analysis.acceptance import AcceptanceLimits
@@ -25,21 +24,6 @@ class ResumeState:
     next_index: int
     recordings: dict[int, Path] = field(default_factory=dict)
     """The file read per node (the ``.partial`` when one was left over)."""
-
-
-class Phase(StrEnum):
-    """Where the procedure is."""
-
-    WARMUP = "warmup"
-    INSTRUCT = "instruct"
-    SETTLING = "settling"
-    AVERAGING = "averaging"
-    REVIEW_POSITION = "review_position"
-    READY_TO_SOLVE = "ready_to_solve"
-    REVIEW = "review"
-    WRITING = "writing"
-    DONE = "done"
-    CANCELLED = "cancelled"
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ readout (about twice a second per node) and the data of a sparkline.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -19,7 +20,22 @@ from canimucal.model.positions import PlannedPosition, PositionAverage
 if TYPE_CHECKING:
     from canimucal.analysis.acceptance import AcceptanceReport
     from canimucal.analysis.calibrate import Solution
-    from canimucal.procedure.config import Phase
+
+
+class Phase(StrEnum):
+    """Where the procedure is."""
+
+    WARMUP = "warmup"
+    INSTRUCT = "instruct"
+    SETTLING = "settling"
+    AVERAGING = "averaging"
+    REVIEW_POSITION = "review_position"
+    READY_TO_SOLVE = "ready_to_solve"
+    REVIEW = "review"
+    WRITING = "writing"
+    DONE = "done"
+    CANCELLED = "cancelled"
+
 
 Array = NDArray[np.float64]
 

@@ -25,7 +25,8 @@ from canimucal.model.positions import PlannedPosition, Pose, PositionAverage, av
 from canimucal.model.samples import SampleBlock
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import choose_time
-from canimucal.procedure.config import LEVEL, Phase, ProcedureConfig
+from canimucal.procedure.config import LEVEL, ProcedureConfig
+from canimucal.procedure.events import Phase
 from canimucal.procedure.level import level_check
 from canimucal.procedure.posecheck import (
     PoseCheck,

@@ -14,7 +14,7 @@ import numpy as np
 
 from canimucal.model.positions import PlannedPosition
 from canimucal.procedure import events as ev
-from canimucal.procedure.config import Phase
+from canimucal.procedure.events import Phase
 from canimucal.tui.app import make_app
 from canimucal.tui.connection import ConnectionScreen
 from canimucal.tui.messages import EventsArrived
