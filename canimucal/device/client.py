@@ -38,6 +38,8 @@ from canimucal.model.samples import SampleBlock, concat_blocks
 logger = logging.getLogger(__name__)
 
 NMT_START, NMT_PRE_OPERATIONAL = 0x01, 0x80
+DEFAULT_STORE_TIMEOUT_S = 10.0
+"""How long a 0x1010 store may take to answer (flash erase inside the SDO handler)."""
 NOTIFIER_CYCLE_S = 0.1
 """Receive-thread wake-up of a network the client makes itself (bounds :meth:`close`)."""
 
@@ -122,6 +124,7 @@ class ImuClient:
             network.notifier.add_listener(self.heartbeat)  # error frames
             network.notifier.add_listener(self.bus_meter)
         self._serial: int | None = None
+        self._original_odr: int | None = None
         self.sync_producer = sync_producer
         self.sync_period_s = sync_period_s
         self.samples: queue.SimpleQueue[SampleBlock] = queue.SimpleQueue()
@@ -196,6 +199,8 @@ class ImuClient:
         """Change the output data rate (only when the user asks: DESIGN §4 quiet bus)."""
         if rate_hz not in od.ODR_CHOICES_HZ:
             raise ValueError(f"output data rate must be one of {od.ODR_CHOICES_HZ}, got {rate_hz}")
+        if self._original_odr is None:
+            self._original_odr = self.output_data_rate()
         self.write_value(od.NOMINAL, 3, "u16", rate_hz)
 
     def pdo_mapping(self) -> SampleLayout:
@@ -234,7 +239,40 @@ class ImuClient:
 
     def store_calibration(self) -> None:
         """Persist the calibration objects: 0x1010:04 = 'save'."""
-        self.write_value(od.STORE, od.STORE_CALIBRATION_SUB, "u32", od.SAVE_SIGNATURE)
+        self.store(od.STORE_CALIBRATION_SUB)
+
+    def store_supported(self, sub: int) -> bool:
+        """Tell whether 0x1010:``sub`` exists and reports "save on command" (bit 0).
+
+        A missing object or sub-index (abort 0x06020000 / 0x06090011) is False; any other
+        abort or a silent node raises.
+        """
+        try:
+            value = int(self.read_value(od.STORE, sub, "u32"))
+        except SdoAbort as exc:
+            if exc.code in (od.ABORT_NO_OBJECT, od.ABORT_NO_SUBINDEX):
+                return False
+            raise
+        return bool(value & 1)
+
+    def store(self, sub: int, timeout_s: float = DEFAULT_STORE_TIMEOUT_S) -> None:
+        """Write 'save' to 0x1010:``sub`` once, waiting up to ``timeout_s`` for the answer.
+
+        Never retried: a device that stores inside its SDO handler (CANopenNode erases
+        flash there) may answer seconds late, and a second 'save' stores twice.
+        Raises :class:`~canimucal.errors.StoreTimeoutError` when no answer comes in time.
+        """
+        self.sdo.download_once(od.STORE, sub, od.encode("u32", od.SAVE_SIGNATURE), timeout_s)
+
+    def undo_ram_changes(self) -> None:
+        """Write back what this client changed in the node's RAM besides the calibration.
+
+        The output data rate (and with it the TPDO1/2 event timers), so that a store of
+        every parameter (0x1010:01) keeps only the calibration the tool was asked to write.
+        """
+        if self._original_odr is not None:
+            self.write_value(od.NOMINAL, 3, "u16", self._original_odr)
+            self._original_odr = None
 
     def bus_load(self, *, full_window: bool = False) -> BusLoad:
         """Load of the bus over the last second, all frames seen (:mod:`~.busload`).
