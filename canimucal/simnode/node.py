@@ -233,6 +233,11 @@ class SimulatedImuNode:
         """Put a CAN error frame on the bus (as a controller reporting a bus error does)."""
         self._fault_actions.send_error_frame()
 
+    @property
+    def store_log(self) -> list[int]:
+        """0x1010 sub-index of every store this node made, in order."""
+        return list(self._store.log)
+
     def stored_objects(self) -> dict[Key, bytes]:
         """Return the non-volatile memory: raw values a reboot reloads (0x1010 stored)."""
         return self._store.values()
@@ -272,6 +277,8 @@ class SimulatedImuNode:
             nmt = self._node.nmt
             nmt.send_command(NMT_RESET_NODE)  # INITIALISING: boot-up frame 0x700+id [0]
             nmt.send_command(0x80)  # PRE-OPERATIONAL; starts the producer heartbeat (0x1017)
+            if self.truth.nmt_start == "operational":
+                nmt.send_command(NMT_START)  # a node that starts itself (CANopenNode's habit)
         finally:
             self._booting = False
         if self._started:

@@ -11,12 +11,14 @@ from __future__ import annotations
 import logging
 import struct
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
 import canopen
 from canopen.objectdictionary import ODVariable
 from canopen.objectdictionary.datatypes import SIGNED_TYPES
+from canopen.sdo.exceptions import SdoAbortedError
 
 from canimucal.device import od
 from canimucal.sim.truth import Truth
@@ -84,9 +86,16 @@ class ObjectAccess:
             self._layout_cache = None
             self._cal_cache = None
 
+    def _check_storage_sub(self, index: int, subindex: int) -> None:
+        """0x1010/0x1011 sub-indices the truth leaves out answer "sub-index does not exist"."""
+        if index in (od.STORE, od.RESTORE) and subindex >= 1:
+            if subindex not in self._truth.storage_subs:
+                raise SdoAbortedError(od.ABORT_NO_SUBINDEX)
+
     def on_read(self, index: int, subindex: int, **_: Any) -> int | None:
         """``LocalNode`` read callback: live values, and 1 for 0x1010/0x1011 (on command)."""
         check_subindex_exists(self._node, index, subindex)
+        self._check_storage_sub(index, subindex)
         if index in _LIVE_INDICES:
             with self._lock:
                 return self._live().get((index, subindex), None)
@@ -96,6 +105,7 @@ class ObjectAccess:
 
     def on_write(self, index: int, subindex: int, data: bytes, **_: Any) -> None:
         """Refuse a write before ``LocalNode`` stores it (raising ``SdoAbortedError``)."""
+        self._check_storage_sub(index, subindex)
         check_write(
             self._node,
             index,
@@ -116,6 +126,10 @@ class ObjectAccess:
         if index == od.NOMINAL and subindex == 3:
             self._set_odr(struct.unpack("<H", data)[0])
         elif index == od.STORE:
+            if self._truth.store_delay_s > 0.0:
+                # as CANopenNode: flash is erased inside the SDO handler, the answer waits
+                # (this is the network's receive thread: SYNC and NMT wait too; TPDOs go on)
+                time.sleep(self._truth.store_delay_s)
             self._store.store(self.current_raw(), subindex)
         elif index == od.RESTORE:
             self._store.forget(subindex)
