@@ -30,6 +30,7 @@ from canimucal.device.events import (
     NodeMonitor,
     SerialChanged,
 )
+from canimucal.device.nmt_state import NmtFound, infer_nmt_state
 from canimucal.device.stream import SampleLayout, SamplePairer, layout_from_mapping
 from canimucal.device.stream_consumer import StreamConsumer
 from canimucal.errors import DeviceError, DeviceSilentError, NoDeviceError, SdoAbort
@@ -37,7 +38,7 @@ from canimucal.model.samples import SampleBlock, concat_blocks
 
 logger = logging.getLogger(__name__)
 
-NMT_START, NMT_PRE_OPERATIONAL = 0x01, 0x80
+NMT_START = 0x01
 DEFAULT_STORE_TIMEOUT_S = 10.0
 """How long a 0x1010 store may take to answer (flash erase inside the SDO handler)."""
 NOTIFIER_CYCLE_S = 0.1
@@ -125,6 +126,9 @@ class ImuClient:
             network.notifier.add_listener(self.bus_meter)
         self._serial: int | None = None
         self._original_odr: int | None = None
+        self.nmt_found: NmtFound | None = None
+        """The NMT state the node was found in (set by :meth:`observe_nmt_state`)."""
+        self._nmt_sent = False
         self.sync_producer = sync_producer
         self.sync_period_s = sync_period_s
         self.samples: queue.SimpleQueue[SampleBlock] = queue.SimpleQueue()
@@ -310,8 +314,39 @@ class ImuClient:
             raise DeviceError("not streaming: call start_streaming() first")
         self._nmt(NMT_START)
 
+    def observe_nmt_state(self) -> NmtFound:
+        """Find out (once) the NMT state the node is in now, to leave it so (DESIGN §9)."""
+        if self.nmt_found is None:
+            self.nmt_found = infer_nmt_state(
+                self.read_value,
+                self.heartbeat.recent_state,
+                self.network.subscribe,
+                self.network.unsubscribe,
+            )
+            logger.info("node %d found %s", self.node_id, self.nmt_found.describe())
+        return self.nmt_found
+
+    def restore_nmt_state(self) -> None:
+        """Put the node back into the NMT state it was found in, if this client changed it.
+
+        Safe on every exit path (errors, Ctrl-C, SIGTERM, the TUI quitting): it sends at
+        most one NMT command, to the target node only, and none when the state was unknown
+        or this client never sent NMT. A failing bus is logged, not raised.
+        """
+        found = self.nmt_found
+        if not self._nmt_sent or found is None or found.command is None:
+            return
+        try:
+            self._nmt(found.command)
+        except DeviceError as exc:
+            logger.error("%s; node %d may not be %s", exc, self.node_id, found.state)
+            return
+        self._nmt_sent = False
+        logger.info("node %d left %s", self.node_id, found.state)
+
     def _nmt(self, command: int) -> None:
         """NMT command to the target node only; a failing bus is a DeviceError."""
+        self._nmt_sent = True
         try:
             self.node.nmt.send_command(command)
         except can.CanError as exc:
@@ -339,10 +374,13 @@ class ImuClient:
         """Read the layout and ODR, subscribe TPDO1–3, then NMT start the target node only.
 
         ``layout``/``rate_hz`` skip the SDO reads (a known device); ``nmt_start=False``
-        listens to a node someone else started.
+        listens to a node someone else started. The NMT state is observed first: a node
+        already OPERATIONAL gets no NMT, and one in an unknown state (SYNC-only TPDOs, no
+        heartbeat) none either; :meth:`stop_streaming` puts it back as found.
         """
         if self._stream is not None:
             return self._stream.pairer.layout
+        found = self.observe_nmt_state() if nmt_start else None  # before SYNC or NMT
         layout = self.pdo_mapping() if layout is None else layout
         rate = self.output_data_rate() if rate_hz is None else rate_hz
         period_s = 1.0 / max(rate, 1)
@@ -354,7 +392,7 @@ class ImuClient:
         self._stream.start()
         if self.sync_producer:
             self.network.sync.start(self.sync_period_s)
-        if nmt_start:
+        if found is not None and found.state not in (None, "OPERATIONAL"):
             try:
                 self._nmt(NMT_START)
             except DeviceError:
@@ -363,15 +401,15 @@ class ImuClient:
         return layout
 
     def stop_streaming(self, *, keep_operational: bool = False) -> None:
-        """Stop the node's TPDOs (NMT pre-operational, target only) and drain the stream."""
+        """Leave the node in the NMT state it was found in and drain the stream.
+
+        ``keep_operational``: send no NMT at all (the node stays as it is now).
+        """
         stream, self._stream = self._stream, None
         if stream is None:
             return
         if not keep_operational:
-            try:
-                self._nmt(NMT_PRE_OPERATIONAL)
-            except DeviceError as exc:
-                logger.error("%s; the node may still be streaming", exc)
+            self.restore_nmt_state()
         if self.sync_producer:
             self.network.sync.stop()
         for cob_id in stream.cob_ids():
@@ -408,8 +446,12 @@ class ImuClient:
         return concat_blocks(blocks)
 
     def close(self) -> None:
-        """Stop streaming, remove the node; stop our own notifier (the bus stays open)."""
+        """Stop streaming and leave the NMT state as found; stop our own notifier.
+
+        The node is removed from the network; the bus stays open.
+        """
         self.stop_streaming()
+        self.restore_nmt_state()
         self.heartbeat.unwatch()
         self.network.unsubscribe(HEARTBEAT_BASE + self.node_id, self.heartbeat.on_heartbeat)
         self.network.unsubscribe(EMCY_BASE + self.node_id, self.heartbeat.on_emergency)

@@ -279,6 +279,9 @@ class SimulatedImuNode:
             nmt.send_command(0x80)  # PRE-OPERATIONAL; starts the producer heartbeat (0x1017)
             if self.truth.nmt_start == "operational":
                 nmt.send_command(NMT_START)  # a node that starts itself (CANopenNode's habit)
+                period_ms = int(self.od_value(od.HEARTBEAT, 0))
+                if period_ms:  # a heartbeat at once on the state change, as CANopenNode
+                    nmt.start_heartbeat(period_ms)
         finally:
             self._booting = False
         if self._started:

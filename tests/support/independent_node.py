@@ -143,7 +143,7 @@ class Behaviour:
     store_delay_s: float = 0.0  # the store blocks the SDO answer this long (flash erase)
     store_pdo_mode: str = "drop"  # meanwhile TPDOs are "drop"ped, "queue"d or "continue"
     storage_subs: tuple[int, ...] = (1, 2, 3, 4)  # 0x1010/0x1011 sub-indices present
-    sync_pdos: bool = False  # TPDO1/2 on every SYNC (transmission type 1) instead of 254
+    sync_pdos: bool = False  # TPDO1-3 on every SYNC (transmission type 1) instead of 254
     timer_skew_ppm: float = 0.0  # TPDO event timers slow (+) / fast (-) vs the sensor clock
     noise_counts: float = 2.0
     seed: int = 0
@@ -397,8 +397,8 @@ class IndependentImuNode:
         b = self.behaviour
         period = 1000 // b.odr_hz
         values: dict[Key, Any] = {(HEARTBEAT, 0): b.heartbeat_ms, (NOMINAL, 3): b.odr_hz}
-        ttype = 1 if b.sync_pdos else 254
-        for i, (tt, et) in enumerate(((ttype, period), (ttype, period), (254, 100))):
+        ttype = 1 if b.sync_pdos else 254  # durand sends types 2..240 on every SYNC too
+        for i, (tt, et) in enumerate(((ttype, period), (ttype, period), (ttype, 100))):
             values[(0x1800 + i, 2)] = tt
             values[(0x1800 + i, 3)] = 0
             values[(0x1800 + i, 5)] = et
