@@ -181,3 +181,54 @@ def test_store_timeout_is_not_retried_nor_rolled_back(
     assert device.calibration_valid()  # RAM keeps the new set: nothing rolled back
     device.power_cycle()
     assert device.calibration_valid()  # and the late store did reach flash
+
+
+# -- NMT left as found (DESIGN §9) -----------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("behaviour", "found", "source"),
+    [
+        ({}, "PRE-OPERATIONAL", "heartbeat"),
+        ({"nmt_start": "operational"}, "OPERATIONAL", "heartbeat"),
+        ({"nmt_start": "operational", "heartbeat_ms": 0}, "OPERATIONAL", "tpdo"),
+        ({"heartbeat_ms": 0}, "PRE-OPERATIONAL", "sdo"),
+    ],
+)
+def test_streaming_leaves_the_node_in_the_state_found(
+    make_device: MakeDevice,
+    client: ImuClient,
+    behaviour: dict[str, Any],
+    found: str,
+    source: str,
+) -> None:
+    device = make_device(**behaviour)
+    client.start_streaming()
+    try:
+        assert client.read_samples(50, timeout_s=5.0).n >= 50
+        assert device.nmt_state == "OPERATIONAL"
+    finally:
+        client.close()
+    assert client.nmt_found is not None
+    assert (client.nmt_found.state, client.nmt_found.source) == (found, source)
+    assert device.nmt_state == found
+
+
+def test_sync_only_node_without_heartbeat_gets_no_nmt(
+    make_device: MakeDevice, client: ImuClient
+) -> None:
+    device = make_device(sync_pdos=True, heartbeat_ms=0)  # skipped for the simulated node
+    client.start_streaming()
+    client.close()
+    assert client.nmt_found is not None and client.nmt_found.state is None
+    assert device.nmt_state == "PRE-OPERATIONAL"  # never started: no NMT was sent at all
+
+
+def test_read_params_leaves_an_operational_node_operational(
+    make_device: MakeDevice, capsys: pytest.CaptureFixture[str], bus_channel: str, tmp_path: Path
+) -> None:
+    device = make_device(nmt_start="operational", heartbeat_ms=0)
+    argv = ["read-params", "--interface", "virtual", "--channel", bus_channel]
+    code = main([*argv, "--json", str(tmp_path / "r.json")])
+    assert code == 0, capsys.readouterr().err
+    assert device.nmt_state == "OPERATIONAL"
