@@ -39,6 +39,8 @@ from canimucal.model.samples import SampleBlock, concat_blocks
 logger = logging.getLogger(__name__)
 
 NMT_START = 0x01
+SKEW_NOTICE_PPM = 1000.0
+"""Event-timer skew worth a warning when streaming stops (one sample in a thousand)."""
 DEFAULT_STORE_TIMEOUT_S = 10.0
 """How long a 0x1010 store may take to answer (flash erase inside the SDO handler)."""
 NOTIFIER_CYCLE_S = 0.1
@@ -408,6 +410,14 @@ class ImuClient:
         stream, self._stream = self._stream, None
         if stream is None:
             return
+        skew = stream.pairer.skew_ppm
+        if skew is not None and abs(skew) >= SKEW_NOTICE_PPM:
+            logger.warning(
+                "node %d: TPDO event timer %+.0f ppm off the sensor clock: the device %s",
+                self.node_id,
+                skew,
+                "skipped counters (lost samples)" if skew > 0 else "re-sent counters",
+            )
         if not keep_operational:
             self.restore_nmt_state()
         if self.sync_producer:
@@ -416,6 +426,15 @@ class ImuClient:
             self.network.unsubscribe(cob_id, stream.on_frame)
         self.network.unsubscribe(HEARTBEAT_BASE + self.node_id, stream.on_boot)
         stream.stop()
+
+    @property
+    def skew_ppm(self) -> float | None:
+        """TPDO event timer against the sensor clock while streaming, ppm (None: not yet).
+
+        Positive: the timer is slow and the device skips counters (lost samples that no bus
+        fault caused); negative: it is fast and re-sends counters (duplicates, not losses).
+        """
+        return self._stream.pairer.skew_ppm if self._stream is not None else None
 
     @property
     def consumer_cpu_s(self) -> float:

@@ -21,6 +21,7 @@ import pytest
 from canimucal.cli.main import main
 from canimucal.device import od
 from canimucal.device.client import ImuClient
+from canimucal.errors import DeviceError
 from tests.support.canbus import NODE_ID
 from tests.support.independent_node import IndependentImuNode
 from tests.support.nodes import DeviceUnderTest
@@ -232,3 +233,58 @@ def test_read_params_leaves_an_operational_node_operational(
     code = main([*argv, "--json", str(tmp_path / "r.json")])
     assert code == 0, capsys.readouterr().err
     assert device.nmt_state == "OPERATIONAL"
+
+
+# -- TPDO timing and mapping -----------------------------------------------------------------
+
+
+@pytest.mark.parametrize("skew_ppm", [5000.0, -5000.0])
+def test_timer_skew_is_reported_and_repeats_are_not_losses(
+    make_device: MakeDevice, client: ImuClient, skew_ppm: float
+) -> None:
+    # the event timer 0.5 % off the sensor clock (independent node only): slow skips a
+    # counter every 200 frames, fast re-sends one; 3 s at 200 Hz is ~600 frames
+    make_device(timer_skew_ppm=skew_ppm, nmt_start="operational")
+    client.start_streaming()
+    try:
+        block = client.read_samples(600, timeout_s=6.0)
+        skew = client.skew_ppm
+    finally:
+        client.close()
+    assert skew is not None and abs(skew - skew_ppm) < 2500, skew
+    expected_skips = block.n * skew_ppm * 1e-6
+    if skew_ppm < 0:
+        assert block.lost_samples == 0 and block.lost_accel == block.lost_gyro == 0
+        assert block.duplicates >= 2  # repeated pairs: both halves again
+    else:
+        assert block.duplicates == 0
+        assert block.lost_samples <= expected_skips + 3  # the device's skips, nothing more
+
+
+def test_no_skew_reads_near_zero(make_device: MakeDevice, client: ImuClient) -> None:
+    make_device(nmt_start="operational")
+    client.start_streaming()
+    try:
+        block = client.read_samples(400, timeout_s=5.0)
+        skew = client.skew_ppm
+    finally:
+        client.close()
+    assert block.lost_samples == 0 and skew is not None and abs(skew) < 2500, skew
+
+
+def test_mapping_longer_than_8_bytes_is_refused(
+    make_independent_node: Callable[..., IndependentImuNode], client_network: canopen.Network
+) -> None:
+    node = make_independent_node()
+    with node.lock:  # durand accepts a 12-byte mapping (and would send 12-byte frames)
+        node.node.tpdo[0].mapping = [
+            (0x2000, 1),
+            (0x2000, 2),
+            (0x2000, 3),
+            (0x2002, 2),
+            (0x2100, 1),
+        ]
+    client = ImuClient(client_network, NODE_ID, sdo_timeout_s=1.0)
+    with pytest.raises(DeviceError, match="96 bits .12 bytes.; a classic CAN frame holds 8"):
+        client.start_streaming()
+    assert node.nmt_state == "PRE-OPERATIONAL"  # refused before any NMT
