@@ -131,6 +131,7 @@ class ImuClient:
         self.nmt_found: NmtFound | None = None
         """The NMT state the node was found in (set by :meth:`observe_nmt_state`)."""
         self._nmt_sent = False
+        self._closed = False
         self.sync_producer = sync_producer
         self.sync_period_s = sync_period_s
         self.samples: queue.SimpleQueue[SampleBlock] = queue.SimpleQueue()
@@ -467,8 +468,12 @@ class ImuClient:
     def close(self) -> None:
         """Stop streaming and leave the NMT state as found; stop our own notifier.
 
-        The node is removed from the network; the bus stays open.
+        The node is removed from the network; the bus stays open. Idempotent (a signal
+        handler and the normal exit path may both call it).
         """
+        if self._closed:
+            return
+        self._closed = True
         self.stop_streaming()
         self.restore_nmt_state()
         self.heartbeat.unwatch()
