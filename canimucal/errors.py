@@ -62,6 +62,10 @@ class DeviceSilentError(DeviceError):
     """An SDO transfer timed out after every retry."""
 
 
+class StoreTimeoutError(DeviceSilentError):
+    """A 0x1010 store got no answer within its own timeout (never retried, never rolled back)."""
+
+
 class NodeRebootedError(DeviceError):
     """The node booted during an SDO transfer: its unsaved values are gone (never retried)."""
 

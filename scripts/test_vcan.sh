@@ -40,7 +40,7 @@ native_ok() {
 pins() {  # the host venv's versions of what the VM needs (textual is not needed there)
   "$PY" - <<'PYEOF'
 import importlib.metadata as m
-print(" ".join(f"{p}=={m.version(p)}" for p in ("numpy", "scipy", "python-can", "canopen")))
+print(" ".join(f"{p}=={m.version(p)}" for p in ("numpy", "scipy", "python-can", "canopen", "durand")))
 PYEOF
 }
 

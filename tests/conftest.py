@@ -1,3 +1,3 @@
 """Fixtures shared by every test directory: simulated nodes and clients on a virtual bus."""
 
-pytest_plugins = ["tests.support.canbus"]
+pytest_plugins = ["tests.support.canbus", "tests.support.nodes"]

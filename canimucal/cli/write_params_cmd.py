@@ -10,6 +10,7 @@ and restores the device bit-exactly. ``--dry-run`` prints the planned SDO writes
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -35,6 +36,21 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("--no-store", action="store_true", help="do not store (0x1010:04)")
     p.add_argument("--force", action="store_true", help="write even if the device serial differs")
     p.add_argument("--backup-dir", metavar="DIR", help="where the backup of the device goes")
+    p.add_argument(
+        "--store-sub",
+        type=int,
+        choices=(1, 3, 4),
+        default=None,
+        help="0x1010 sub-index to store with (default: 4 if the node has it, else 1; "
+        "3 only on request, with a warning)",
+    )
+    p.add_argument(
+        "--store-timeout-s",
+        type=float,
+        default=10.0,
+        metavar="S",
+        help="how long the store may take to answer; never retried (default 10)",
+    )
     add_bus_options(p)
     p.set_defaults(run=run)
 
@@ -56,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
     from canimucal.device.transaction import write_calibration_transaction
 
     record = check_file(args.calibration)
+    store_timeout_s = _store_timeout(args.store_timeout_s)
     with open_from_args(args) as session:
         for client in session.clients.values():
             result = write_calibration_transaction(
@@ -65,9 +82,17 @@ def run(args: argparse.Namespace) -> int:
                 store=not args.no_store,
                 backup_dir=args.backup_dir,
                 dry_run=args.dry_run,
+                store_sub=args.store_sub,
+                store_timeout_s=store_timeout_s,
             )
             print(report(result, client.node_id), end="")
     return 0
+
+
+def _store_timeout(value: float) -> float:
+    if not (math.isfinite(value) and value > 0.0):
+        raise InputError(f"--store-timeout-s must be a positive number, got {value}")
+    return value
 
 
 def report(result: WriteReport, node: int) -> str:
@@ -82,6 +107,7 @@ def report(result: WriteReport, node: int) -> str:
         lines += [f"  {w.key} = {w.value!r} ({w.data.hex()})" for w in result.writes]
         return "\n".join(lines) + "\n"
     lines.append(f"backup of the previous calibration: {result.backup_path}")
-    stored = "stored (0x1010:04)" if result.stored else "not stored (--no-store)"
+    sub = result.store_sub
+    stored = f"stored (0x1010:{sub:02X})" if result.stored and sub else "not stored (--no-store)"
     lines.append(f"wrote {len(result.writes)} objects, read back bit-exactly, valid, {stored}")
     return "\n".join(lines) + "\n"

@@ -30,6 +30,7 @@ from canimucal.errors import (
     NodeRebootedError,
     NoDeviceError,
     SdoAbort,
+    StoreTimeoutError,
 )
 
 logger = logging.getLogger(__name__)
@@ -174,6 +175,30 @@ class SdoChannel:
     def download(self, index: int, sub: int, data: bytes) -> None:
         """Write ``data`` to ``index:sub`` (expedited when ≤ 4 bytes)."""
         self._call("write", index, sub, lambda: self._sdo.download(index, sub, data))
+
+    def download_once(self, index: int, sub: int, data: bytes, timeout_s: float) -> None:
+        """Write once with its own response timeout and no retry (a 0x1010 store).
+
+        A device may erase flash inside the SDO handler for seconds before it answers
+        (CANopenNode does); a retry would store twice. Timeout: :class:`StoreTimeoutError`.
+        """
+        name = od.format_key(index, sub)
+        with self._lock:
+            saved = self._sdo.RESPONSE_TIMEOUT
+            self._sdo.RESPONSE_TIMEOUT = timeout_s
+            try:
+                self._sdo.download(index, sub, data)
+            except SdoAbortedError as exc:
+                text = od.abort_text(int(exc.code))
+                raise SdoAbort(f"device refused write of {name}: {text}", int(exc.code)) from exc
+            except SdoCommunicationError as exc:
+                raise StoreTimeoutError(
+                    f"no SDO answer to write of {name} within {timeout_s:g} s: {exc}"
+                ) from exc
+            except can.CanError as exc:  # the request did not leave: nothing was stored
+                raise DeviceSilentError(f"cannot send the write of {name}: {exc}") from exc
+            finally:
+                self._sdo.RESPONSE_TIMEOUT = saved
 
     def _call(self, what: str, index: int, sub: int, op: Any) -> Any:
         name = od.format_key(index, sub)

@@ -30,6 +30,7 @@ from canimucal.device.events import (
     NodeMonitor,
     SerialChanged,
 )
+from canimucal.device.nmt_state import NmtFound, infer_nmt_state
 from canimucal.device.stream import SampleLayout, SamplePairer, layout_from_mapping
 from canimucal.device.stream_consumer import StreamConsumer
 from canimucal.errors import DeviceError, DeviceSilentError, NoDeviceError, SdoAbort
@@ -37,7 +38,11 @@ from canimucal.model.samples import SampleBlock, concat_blocks
 
 logger = logging.getLogger(__name__)
 
-NMT_START, NMT_PRE_OPERATIONAL = 0x01, 0x80
+NMT_START = 0x01
+SKEW_NOTICE_PPM = 1000.0
+"""Event-timer skew worth a warning when streaming stops (one sample in a thousand)."""
+DEFAULT_STORE_TIMEOUT_S = 10.0
+"""How long a 0x1010 store may take to answer (flash erase inside the SDO handler)."""
 NOTIFIER_CYCLE_S = 0.1
 """Receive-thread wake-up of a network the client makes itself (bounds :meth:`close`)."""
 
@@ -122,6 +127,11 @@ class ImuClient:
             network.notifier.add_listener(self.heartbeat)  # error frames
             network.notifier.add_listener(self.bus_meter)
         self._serial: int | None = None
+        self._original_odr: int | None = None
+        self.nmt_found: NmtFound | None = None
+        """The NMT state the node was found in (set by :meth:`observe_nmt_state`)."""
+        self._nmt_sent = False
+        self._closed = False
         self.sync_producer = sync_producer
         self.sync_period_s = sync_period_s
         self.samples: queue.SimpleQueue[SampleBlock] = queue.SimpleQueue()
@@ -196,6 +206,8 @@ class ImuClient:
         """Change the output data rate (only when the user asks: DESIGN §4 quiet bus)."""
         if rate_hz not in od.ODR_CHOICES_HZ:
             raise ValueError(f"output data rate must be one of {od.ODR_CHOICES_HZ}, got {rate_hz}")
+        if self._original_odr is None:
+            self._original_odr = self.output_data_rate()
         self.write_value(od.NOMINAL, 3, "u16", rate_hz)
 
     def pdo_mapping(self) -> SampleLayout:
@@ -234,7 +246,40 @@ class ImuClient:
 
     def store_calibration(self) -> None:
         """Persist the calibration objects: 0x1010:04 = 'save'."""
-        self.write_value(od.STORE, od.STORE_CALIBRATION_SUB, "u32", od.SAVE_SIGNATURE)
+        self.store(od.STORE_CALIBRATION_SUB)
+
+    def store_supported(self, sub: int) -> bool:
+        """Tell whether 0x1010:``sub`` exists and reports "save on command" (bit 0).
+
+        A missing object or sub-index (abort 0x06020000 / 0x06090011) is False; any other
+        abort or a silent node raises.
+        """
+        try:
+            value = int(self.read_value(od.STORE, sub, "u32"))
+        except SdoAbort as exc:
+            if exc.code in (od.ABORT_NO_OBJECT, od.ABORT_NO_SUBINDEX):
+                return False
+            raise
+        return bool(value & 1)
+
+    def store(self, sub: int, timeout_s: float = DEFAULT_STORE_TIMEOUT_S) -> None:
+        """Write 'save' to 0x1010:``sub`` once, waiting up to ``timeout_s`` for the answer.
+
+        Never retried: a device that stores inside its SDO handler (CANopenNode erases
+        flash there) may answer seconds late, and a second 'save' stores twice.
+        Raises :class:`~canimucal.errors.StoreTimeoutError` when no answer comes in time.
+        """
+        self.sdo.download_once(od.STORE, sub, od.encode("u32", od.SAVE_SIGNATURE), timeout_s)
+
+    def undo_ram_changes(self) -> None:
+        """Write back what this client changed in the node's RAM besides the calibration.
+
+        The output data rate (and with it the TPDO1/2 event timers), so that a store of
+        every parameter (0x1010:01) keeps only the calibration the tool was asked to write.
+        """
+        if self._original_odr is not None:
+            self.write_value(od.NOMINAL, 3, "u16", self._original_odr)
+            self._original_odr = None
 
     def bus_load(self, *, full_window: bool = False) -> BusLoad:
         """Load of the bus over the last second, all frames seen (:mod:`~.busload`).
@@ -272,8 +317,39 @@ class ImuClient:
             raise DeviceError("not streaming: call start_streaming() first")
         self._nmt(NMT_START)
 
+    def observe_nmt_state(self) -> NmtFound:
+        """Find out (once) the NMT state the node is in now, to leave it so (DESIGN §9)."""
+        if self.nmt_found is None:
+            self.nmt_found = infer_nmt_state(
+                self.read_value,
+                self.heartbeat.recent_state,
+                self.network.subscribe,
+                self.network.unsubscribe,
+            )
+            logger.info("node %d found %s", self.node_id, self.nmt_found.describe())
+        return self.nmt_found
+
+    def restore_nmt_state(self) -> None:
+        """Put the node back into the NMT state it was found in, if this client changed it.
+
+        Safe on every exit path (errors, Ctrl-C, SIGTERM, the TUI quitting): it sends at
+        most one NMT command, to the target node only, and none when the state was unknown
+        or this client never sent NMT. A failing bus is logged, not raised.
+        """
+        found = self.nmt_found
+        if not self._nmt_sent or found is None or found.command is None:
+            return
+        try:
+            self._nmt(found.command)
+        except DeviceError as exc:
+            logger.error("%s; node %d may not be %s", exc, self.node_id, found.state)
+            return
+        self._nmt_sent = False
+        logger.info("node %d left %s", self.node_id, found.state)
+
     def _nmt(self, command: int) -> None:
         """NMT command to the target node only; a failing bus is a DeviceError."""
+        self._nmt_sent = True
         try:
             self.node.nmt.send_command(command)
         except can.CanError as exc:
@@ -301,10 +377,13 @@ class ImuClient:
         """Read the layout and ODR, subscribe TPDO1–3, then NMT start the target node only.
 
         ``layout``/``rate_hz`` skip the SDO reads (a known device); ``nmt_start=False``
-        listens to a node someone else started.
+        listens to a node someone else started. The NMT state is observed first: a node
+        already OPERATIONAL gets no NMT, and one in an unknown state (SYNC-only TPDOs, no
+        heartbeat) none either; :meth:`stop_streaming` puts it back as found.
         """
         if self._stream is not None:
             return self._stream.pairer.layout
+        found = self.observe_nmt_state() if nmt_start else None  # before SYNC or NMT
         layout = self.pdo_mapping() if layout is None else layout
         rate = self.output_data_rate() if rate_hz is None else rate_hz
         period_s = 1.0 / max(rate, 1)
@@ -316,7 +395,7 @@ class ImuClient:
         self._stream.start()
         if self.sync_producer:
             self.network.sync.start(self.sync_period_s)
-        if nmt_start:
+        if found is not None and found.state not in (None, "OPERATIONAL"):
             try:
                 self._nmt(NMT_START)
             except DeviceError:
@@ -325,21 +404,38 @@ class ImuClient:
         return layout
 
     def stop_streaming(self, *, keep_operational: bool = False) -> None:
-        """Stop the node's TPDOs (NMT pre-operational, target only) and drain the stream."""
+        """Leave the node in the NMT state it was found in and drain the stream.
+
+        ``keep_operational``: send no NMT at all (the node stays as it is now).
+        """
         stream, self._stream = self._stream, None
         if stream is None:
             return
+        skew = stream.pairer.skew_ppm
+        if skew is not None and abs(skew) >= SKEW_NOTICE_PPM:
+            logger.warning(
+                "node %d: TPDO event timer %+.0f ppm off the sensor clock: the device %s",
+                self.node_id,
+                skew,
+                "skipped counters (lost samples)" if skew > 0 else "re-sent counters",
+            )
         if not keep_operational:
-            try:
-                self._nmt(NMT_PRE_OPERATIONAL)
-            except DeviceError as exc:
-                logger.error("%s; the node may still be streaming", exc)
+            self.restore_nmt_state()
         if self.sync_producer:
             self.network.sync.stop()
         for cob_id in stream.cob_ids():
             self.network.unsubscribe(cob_id, stream.on_frame)
         self.network.unsubscribe(HEARTBEAT_BASE + self.node_id, stream.on_boot)
         stream.stop()
+
+    @property
+    def skew_ppm(self) -> float | None:
+        """TPDO event timer against the sensor clock while streaming, ppm (None: not yet).
+
+        Positive: the timer is slow and the device skips counters (lost samples that no bus
+        fault caused); negative: it is fast and re-sends counters (duplicates, not losses).
+        """
+        return self._stream.pairer.skew_ppm if self._stream is not None else None
 
     @property
     def consumer_cpu_s(self) -> float:
@@ -370,8 +466,16 @@ class ImuClient:
         return concat_blocks(blocks)
 
     def close(self) -> None:
-        """Stop streaming, remove the node; stop our own notifier (the bus stays open)."""
+        """Stop streaming and leave the NMT state as found; stop our own notifier.
+
+        The node is removed from the network; the bus stays open. Idempotent (a signal
+        handler and the normal exit path may both call it).
+        """
+        if self._closed:
+            return
+        self._closed = True
         self.stop_streaming()
+        self.restore_nmt_state()
         self.heartbeat.unwatch()
         self.network.unsubscribe(HEARTBEAT_BASE + self.node_id, self.heartbeat.on_heartbeat)
         self.network.unsubscribe(EMCY_BASE + self.node_id, self.heartbeat.on_emergency)

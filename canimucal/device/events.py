@@ -81,6 +81,16 @@ class EmergencyReceived:
     time_s: float
 
     @property
+    def interrupts(self) -> bool:
+        """Whether it interrupts the attempt in progress (DESIGN §9).
+
+        No for 0x0000 (error reset; CANopenNode also sends it for a CAN bus warning) and
+        for 0x81xx/0x82xx (communication: overrun, error passive, heartbeat, protocol);
+        yes for every other code.
+        """
+        return self.code != 0x0000 and self.code >> 8 not in (0x81, 0x82)
+
+    @property
     def text(self) -> str:
         """``"0x5000 device hardware (error register 0x01)"``."""
         return f"{emcy_text(self.code)} (error register 0x{self.register:02X})"
@@ -189,6 +199,22 @@ class NodeMonitor(can.Listener):
         if self.state_code is None:
             return None
         return NMT_STATES.get(self.state_code, f"UNKNOWN {self.state_code}")
+
+    def recent_state(self, window_s: float) -> str | None:
+        """State of a heartbeat (not a boot-up) within the last ``window_s``, waiting for one.
+
+        Returns None when no heartbeat comes within ``window_s`` from now.
+        """
+        deadline = time.monotonic() + window_s
+        while True:
+            with self._lock:
+                fresh = time.monotonic() - self._last_mono <= window_s
+                code = self.state_code if self._last_mono else None
+            if fresh and code not in (None, 0):
+                return self.state
+            if time.monotonic() >= deadline:
+                return None
+            time.sleep(0.01)
 
     @property
     def lost(self) -> bool:

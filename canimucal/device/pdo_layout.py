@@ -1,7 +1,9 @@
 """PDO mappings as the client reads them from the node (0x1A00–0x1A02) and fast decoders.
 
-The client never assumes the EDS default: a device that maps INT32 raw values, or orders
-the objects differently, streams too (DESIGN §4).
+The client never assumes the EDS default: a device that orders the objects differently or
+maps them with other widths streams too, as long as each TPDO fits one classic CAN frame
+(8 bytes). INT32 raw values do not fit: x/y/z plus the counter would take 14 bytes, so such a
+mapping is refused with a clear error.
 """
 
 from __future__ import annotations
@@ -17,6 +19,9 @@ SIGNED_OBJECTS = {(ACCEL_RAW, 1), (ACCEL_RAW, 2), (ACCEL_RAW, 3), (GYRO_RAW, 1),
 SIGNED_OBJECTS |= {(GYRO_RAW, 3), (SAMPLE_INFO, 1)}
 TEMP_SCALE_C = 0.01
 """0x2002:01 is in 0.01 °C."""
+
+CLASSIC_CAN_BITS = 64
+"""Most data bits one classic CAN frame carries (8 bytes)."""
 
 
 @dataclass(frozen=True)
@@ -46,12 +51,21 @@ class PdoLayout:
 
     @classmethod
     def from_entries(cls, cob_id: int, entries: Sequence[int]) -> PdoLayout:
-        """Build from the raw 0x1A0x sub-index values (sub 1..n)."""
+        """Build from the raw 0x1A0x sub-index values (sub 1..n).
+
+        A mapping longer than one classic CAN frame (64 bits) is refused (``ValueError``):
+        x/y/z as INT32 plus the counter would need 14 bytes.
+        """
         fields, offset = [], 0
         for entry in entries:
             mapped = MappedField.from_entry(entry, offset)
             fields.append(mapped)
             offset += mapped.bits
+        if offset > CLASSIC_CAN_BITS:
+            raise ValueError(
+                f"PDO 0x{cob_id:X} maps {offset} bits ({(offset + 7) // 8} bytes); a classic "
+                "CAN frame holds 8 bytes (map x/y/z as INT16 with the counter)"
+            )
         return cls(cob_id, tuple(fields), _compile(fields))
 
     @property

@@ -10,6 +10,10 @@ everything here runs on the consumer thread. Rules:
 - A second copy of a half is a duplicate, a half arriving after its sample was given up is
   late: both are counted and dropped, never hidden.
 - Pairing starts at the first TPDO1, so a stream joined mid-sample does not count a loss.
+- A TPDO event timer that runs off the sensor clock re-sends a counter (timer fast: both
+  halves again, counted as duplicates, never as a loss) or skips one (timer slow: counted
+  as a lost sample, which it is for the recording). :attr:`SamplePairer.skew_ppm` estimates
+  that skew from TPDO1: counters advanced per event-timer interval, minus one, in ppm.
 
 The thread that feeds a :class:`SamplePairer` lives in :mod:`canimucal.device.stream_consumer`.
 """
@@ -109,6 +113,9 @@ class SamplePairer:
         self.status: int | None = None
         self.frames = 0
         self.malformed = 0
+        self._skew_first: tuple[float, int] | None = None  # (CAN time, seq) of a TPDO1
+        self._skew_last: tuple[float, int] | None = None
+        self._skew_intervals = 0
 
     @staticmethod
     def _info_positions(info: PdoLayout | None) -> tuple[int | None, int | None]:
@@ -134,6 +141,7 @@ class SamplePairer:
             v = self.layout.accel.decode(data)
             p = self._accel_pick
             self._half(v[p[3]], True, (v[p[0]], v[p[1]], v[p[2]]), timestamp)
+            self._skew_frame(v[p[3]], timestamp)
         elif can_id == self.layout.gyro.cob_id:
             v = self.layout.gyro.decode(data)
             p = self._gyro_pick
@@ -171,6 +179,39 @@ class SamplePairer:
         else:
             entry.gyro, entry.t_gyro = xyz, t
         self._finalize_ready()
+
+    def _skew_frame(self, counter: int, t: float) -> None:
+        """Count TPDO1 event-timer ticks: every frame one, plus the frames lost on the bus.
+
+        A frame is lost when the counter jumped by two or more *and* the time gap was
+        longer than 1.5 periods (a skipped counter alone is the skew itself; a long gap
+        alone is host jitter, followed by a burst). A same-counter copy within half a
+        period is a bus duplicate, not a tick.
+        """
+        if self._newest is None:
+            return
+        seq = self._sequence(counter)
+        if self._skew_last is None:
+            self._skew_first = self._skew_last = (t, seq)
+            return
+        gap, jump = t - self._skew_last[0], seq - self._skew_last[1]
+        if jump == 0 and gap < 0.5 * self.period_s:
+            return
+        lost = int(round(gap / self.period_s)) - 1 if jump >= 2 and gap > 1.5 * self.period_s else 0
+        self._skew_intervals += 1 + max(lost, 0)
+        self._skew_last = (t, seq)
+
+    @property
+    def skew_ppm(self) -> float | None:
+        """Event timer against sensor clock, ppm (+: timer slow, counters skipped; -: fast).
+
+        (counters advanced / event-timer intervals − 1)·10⁶ over the stream so far; None
+        before 200 intervals. Its resolution is 10⁶ / intervals.
+        """
+        if self._skew_first is None or self._skew_last is None or self._skew_intervals < 200:
+            return None
+        advanced = self._skew_last[1] - self._skew_first[1]
+        return (advanced / self._skew_intervals - 1.0) * 1e6
 
     def _sequence(self, counter: int) -> int:
         """Unwrapped sequence number of ``counter`` nearest the newest one seen."""
@@ -230,6 +271,8 @@ class SamplePairer:
         """Restart after a reboot: give up pending halves and pair afresh (counters restart)."""
         self.flush()
         self._newest = None
+        self._skew_first = self._skew_last = None
+        self._skew_intervals = 0
         self._recent.clear()
         self._recent_order.clear()
 

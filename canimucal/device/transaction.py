@@ -4,9 +4,17 @@
 checks before writing; (3) backup of the whole current block to a never-overwritten JSON;
 (4) clear valid; (5) write the block in CRC order; (6) read every value back, bytes compared
 bit-exactly; (7) write the CRC; (8) set valid; (9) verify valid and CRC; (10) store with
-0x1010:04 unless told not to, only after verification. Any failure after (4): the backup is
-written back (valid last) and verified; if that fails too, valid is left 0 if at all possible
-and :class:`RollbackIncompleteError` names the backup. Never valid = 1 over a mixed set.
+0x1010 unless told not to, only after verification. Any failure after (4) but before (10):
+the backup is written back (valid last) and verified; if that fails too, valid is left 0 if
+at all possible and :class:`RollbackIncompleteError` names the backup. Never valid = 1 over a
+mixed set.
+
+The store (DESIGN §9 "Device behaviour") uses 0x1010:04 when the node offers it, else
+0x1010:01 after the client undid its own RAM changes, 0x1010:03 only when asked (with a
+warning: CiA 301 gives sub 3 to 0x6000–0x9FFF). It is sent once with its own timeout: a node
+may erase flash inside its SDO handler for seconds, and a retried 'save' stores twice. On a
+store timeout nothing is rolled back (RAM holds a verified set; flash is unknown): the block
+is read again and :class:`StoreNotConfirmedError` says what RAM holds.
 """
 
 from __future__ import annotations
@@ -24,13 +32,19 @@ from canimucal.device.calibration_map import (
     block_from_record,
     record_from_readout,
 )
-from canimucal.device.client import CalibrationReadout, Identity, ImuClient
+from canimucal.device.client import (
+    DEFAULT_STORE_TIMEOUT_S,
+    CalibrationReadout,
+    Identity,
+    ImuClient,
+)
 from canimucal.errors import (
     DeviceError,
     InputError,
     NodeRebootedError,
     RollbackIncompleteError,
     SdoAbort,
+    StoreTimeoutError,
 )
 from canimucal.io.atomic import unique_path, write_text_atomic
 from canimucal.io.calibration import Calibration, calibration_to_json
@@ -41,6 +55,7 @@ ObjectKey = tuple[int, int]
 VALID_KEY: ObjectKey = (od.CAL_INFO, od.CAL_VALID_SUB)
 CRC_KEY: ObjectKey = (od.CAL_INFO, od.CAL_CRC_SUB)
 STORE_KEY: ObjectKey = (od.STORE, od.STORE_CALIBRATION_SUB)
+STORE_SUB_CHOICES = (od.STORE_ALL_SUB, od.STORE_APP_SUB, od.STORE_CALIBRATION_SUB)
 _BACKUP_ATTEMPTS = 20
 
 
@@ -75,6 +90,7 @@ class WriteReport:
     dry_run: bool
     serial_forced: bool
     restore: bool
+    store_sub: int | None = None
 
 
 def default_backup_dir(environ: Mapping[str, str] | None = None) -> Path:
@@ -89,15 +105,56 @@ def _planned(index: int, sub: int, code: str, value: float | int) -> PlannedWrit
 
 
 def plan_writes(
-    target: Mapping[ObjectKey, float | int], crc: int, final_valid: int, *, store: bool
+    target: Mapping[ObjectKey, float | int],
+    crc: int,
+    final_valid: int,
+    *,
+    store: bool,
+    store_sub: int = od.STORE_CALIBRATION_SUB,
 ) -> tuple[PlannedWrite, ...]:
     """List the SDO downloads of steps 4–10 in order: valid 0, block, CRC, valid, store."""
     writes = [_planned(*VALID_KEY, "u8", 0)]
     writes += [_planned(i, s, c, target[(i, s)]) for i, s, c in od.CRC_ORDER]
     writes += [_planned(*CRC_KEY, "u32", crc), _planned(*VALID_KEY, "u8", final_valid)]
     if store:
-        writes.append(_planned(*STORE_KEY, "u32", od.SAVE_SIGNATURE))
+        writes.append(_planned(od.STORE, store_sub, "u32", od.SAVE_SIGNATURE))
     return tuple(writes)
+
+
+class StoreNotConfirmedError(DeviceError):
+    """The store got no answer in time; nothing rolled back (exit 3, DESIGN §9)."""
+
+    title = "Store not confirmed"
+
+
+def choose_store_sub(client: ImuClient, requested: int | None) -> int:
+    """Pick the 0x1010 sub-index to store with (DESIGN §9): 4 if offered, else 1; 3 if asked.
+
+    Checked before anything is written: a node that offers neither is refused up front
+    (:class:`DeviceError`, nothing written).
+    """
+    if requested is not None:
+        if requested not in STORE_SUB_CHOICES:
+            raise InputError(f"--store-sub must be one of {STORE_SUB_CHOICES}, got {requested}")
+        if requested == od.STORE_APP_SUB:
+            logger.warning(
+                "storing with 0x1010:03 as asked: CiA 301 defines it for 0x6000-0x9FFF, "
+                "so this node must map the calibration there"
+            )
+        if not client.store_supported(requested):
+            raise DeviceError(
+                f"node {client.node_id} has no 0x1010:{requested:02X}; nothing written"
+            )
+        return requested
+    if client.store_supported(od.STORE_CALIBRATION_SUB):
+        return od.STORE_CALIBRATION_SUB
+    if client.store_supported(od.STORE_ALL_SUB):
+        logger.info("node has no 0x1010:04; storing every parameter with 0x1010:01")
+        return od.STORE_ALL_SUB
+    raise DeviceError(
+        f"node {client.node_id} offers neither 0x1010:04 nor 0x1010:01 (save on command); "
+        "nothing written (use --no-store to write RAM only, or --store-sub 3)"
+    )
 
 
 def _target(
@@ -136,12 +193,16 @@ def write_calibration_transaction(
     store: bool = True,
     backup_dir: str | os.PathLike[str] | None = None,
     dry_run: bool = False,
+    store_sub: int | None = None,
+    store_timeout_s: float = DEFAULT_STORE_TIMEOUT_S,
 ) -> WriteReport:
     """Write ``record`` (a calibration or a backup with ``objects``) to the node, DESIGN §4.
 
     Raises :class:`DeviceError` (exit 3) for a serial mismatch (nothing written) or a
     failure that was rolled back, :class:`RollbackIncompleteError` when the rollback failed,
+    :class:`StoreNotConfirmedError` when the store did not answer within ``store_timeout_s``,
     :class:`InputError` (exit 2) for values out of the device's ranges (nothing written).
+    ``store_sub`` forces the 0x1010 sub-index (see :func:`choose_store_sub`).
     """
     identity = client.identity()  # step 1
     forced = _check_serial(identity, record, force)
@@ -153,16 +214,57 @@ def write_calibration_transaction(
         raise InputError(f"calibration outside the device's ranges: {problems[0]}{more}")
     if final_valid == 1 and restore and od.block_crc(values) != crc:
         logger.warning("backup's CRC does not match its values: restoring it verbatim")
-    writes = plan_writes(values, crc, final_valid, store=store)
+    sub = choose_store_sub(client, store_sub) if store else None
+    writes = plan_writes(values, crc, final_valid, store=sub is not None, store_sub=sub or 0)
     report = WriteReport(
-        identity, accel_lsb, gyro_lsb, block, crc, writes, None, False, dry_run, forced, restore
+        identity,
+        accel_lsb,
+        gyro_lsb,
+        block,
+        crc,
+        writes,
+        None,
+        False,
+        dry_run,
+        forced,
+        restore,
+        sub,
     )
     if dry_run:
         return report
     before = client.read_calibration_block()  # step 3
     backup_path = save_backup(before, identity, client.node_id, backup_dir)
-    _run_with_rollback(client, writes, before, backup_path, identity.serial)
+    _run_with_rollback(client, writes, before, backup_path, identity.serial, store_timeout_s)
     return replace(report, backup_path=backup_path, stored=store)
+
+
+def _store(client: ImuClient, write: PlannedWrite, timeout_s: float, boots: int) -> None:
+    """Step 10: one 'save', its own timeout, never retried; a timeout rolls nothing back."""
+    if write.sub == od.STORE_ALL_SUB:
+        client.undo_ram_changes()
+    try:
+        client.store(write.sub, timeout_s)
+    except StoreTimeoutError as exc:
+        logger.error("%s", exc)
+        raise StoreNotConfirmedError(_store_timeout_message(client, timeout_s, boots)) from exc
+
+
+def _store_timeout_message(client: ImuClient, timeout_s: float, boots: int) -> str:
+    """DESIGN §9's message, with what a fresh read of the block shows."""
+    head = f"store not confirmed in {timeout_s:g} s"
+    tail = "what flash holds is known only after a power cycle"
+    if client.boots != boots:
+        return f"{head}; the node rebooted meanwhile and runs what its flash held; {tail}"
+    try:
+        readout = client.read_calibration_block()
+    except DeviceError as exc:
+        return f"{head}; the node does not answer ({exc}); {tail}"
+    if readout.valid == 1 and readout.crc_ok:
+        ram = "RAM holds the new set (valid, CRC ok)"
+    else:
+        crc = "CRC ok" if readout.crc_ok else "CRC mismatch"
+        ram = f"RAM holds valid = {readout.valid}, {crc}"
+    return f"{head}; {ram}; {tail}"
 
 
 def save_backup(
@@ -200,13 +302,23 @@ def _run_with_rollback(
     before: CalibrationReadout,
     backup_path: Path,
     serial: int,
+    store_timeout_s: float = DEFAULT_STORE_TIMEOUT_S,
 ) -> None:
-    """Run steps 4–10; on failure restore ``before`` or raise RollbackIncompleteError."""
+    """Run steps 4–10; on failure restore ``before`` or raise RollbackIncompleteError.
+
+    A store that does not answer in time is not a failure to roll back: RAM holds the new,
+    verified set and flash may too (:class:`StoreNotConfirmedError`).
+    """
     step = "clear valid"
     boots = client.boots
     try:
         for step, batch in _steps(writes):
-            _do_step(client, step, batch, boots)
+            if step == "store":
+                _store(client, batch[0], store_timeout_s, boots)
+            else:
+                _do_step(client, step, batch, boots)
+    except StoreNotConfirmedError:
+        raise
     except KeyboardInterrupt:
         logger.error("interrupted at %s; rolling back", step)
         _rollback(client, before, backup_path)

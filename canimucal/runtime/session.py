@@ -168,7 +168,8 @@ class Session:
     def _device_events(self, node_id: int, link: NodeLink) -> list[ev.Event]:
         """Turn what the node reported (``client.events``) into procedure events.
 
-        A reboot or an EMCY rejects the attempt being averaged (never averaged across); after
+        A reboot or an EMCY rejects the attempt being averaged (never averaged across), but
+        not an EMCY 0x0000 or 0x81xx/0x82xx (DESIGN §9: shown only); after
         a reboot the identity is read again and streaming resumed, unless another unit came
         back (``SerialChanged``: the procedure stops with :class:`ProcedureFailed`).
         """
@@ -207,6 +208,9 @@ class Session:
             ]
         if isinstance(event, EmergencyReceived):
             message = f"node {node_id} sent an emergency: {event.text}"
+            if not event.interrupts:  # error reset or communication: shown, pose goes on
+                message += " (communication or error reset: the pose goes on)"
+                return [ev.DeviceEventReported(node_id, "emergency", message)]
             out = [ev.DeviceEventReported(node_id, "emergency", message)]
             return out + proc.device_interrupted(node_id, message)
         if isinstance(event, HeartbeatLost):

@@ -48,8 +48,10 @@ DEFAULT_LATITUDE_DEG = 50.45
 _TILT_MODELS = ("rigid", "additive")
 _TOP_KEYS = tuple(
     "schema sample_rate_hz g latitude_deg height_m heading_deg serial tilt_model base_tilt_deg"
-    " accel gyro temperature faults".split()
+    " accel gyro temperature faults nmt_start heartbeat_ms store_delay_s storage_subs".split()
 )
+NMT_STARTS = ("pre-operational", "operational")
+DEFAULT_STORAGE_SUBS = (1, 2, 3, 4)
 
 
 @dataclass(frozen=True)
@@ -117,6 +119,14 @@ class Truth:
     gyro: GyroTruth = field(default_factory=lambda: GyroTruth.from_dict({}))
     temperature: TemperatureProfile = field(default_factory=TemperatureProfile)
     faults: Mapping[str, Any] = field(default_factory=dict)
+    nmt_start: str = "pre-operational"
+    """NMT state after boot-up (CANopenNode devices often start OPERATIONAL)."""
+    heartbeat_ms: int | None = None
+    """Producer heartbeat 0x1017 after boot (0: off); None keeps the EDS default."""
+    store_delay_s: float = 0.0
+    """A 0x1010 store blocks the SDO answer this long (flash erased in the SDO handler)."""
+    storage_subs: tuple[int, ...] = DEFAULT_STORAGE_SUBS
+    """0x1010/0x1011 sub-indices the node has (stock CANopenNode: no 4)."""
 
     @classmethod
     def from_dict(cls, d: Any) -> Truth:
@@ -168,6 +178,7 @@ class Truth:
             gyro=GyroTruth.from_dict(d.get("gyro", {})),
             temperature=TemperatureProfile.from_dict(d.get("temperature", {})),
             faults=copy.deepcopy(dict(faults)),
+            **_device_behaviour(d),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -190,7 +201,21 @@ class Truth:
             "gyro": self.gyro.to_dict(),
             "temperature": self.temperature.to_dict(),
             "faults": copy.deepcopy(dict(self.faults)),
+            **self._behaviour_dict(),
         }
+
+    def _behaviour_dict(self) -> dict[str, Any]:
+        """Return the device-behaviour keys that differ from their defaults."""
+        out: dict[str, Any] = {}
+        if self.nmt_start != "pre-operational":
+            out["nmt_start"] = self.nmt_start
+        if self.heartbeat_ms is not None:
+            out["heartbeat_ms"] = self.heartbeat_ms
+        if self.store_delay_s:
+            out["store_delay_s"] = self.store_delay_s
+        if self.storage_subs != DEFAULT_STORAGE_SUBS:
+            out["storage_subs"] = list(self.storage_subs)
+        return out
 
     @classmethod
     def random(
@@ -233,6 +258,31 @@ class Truth:
         }
         d.update(overrides)
         return cls.from_dict(d)
+
+
+def _device_behaviour(d: Mapping[str, Any]) -> dict[str, Any]:
+    """Read the node-behaviour keys (DESIGN §9): NMT start-up, heartbeat, store."""
+    nmt_start = d.get("nmt_start", "pre-operational")
+    if nmt_start not in NMT_STARTS:
+        fail("nmt_start", f"must be one of {', '.join(NMT_STARTS)}")
+    out: dict[str, Any] = {"nmt_start": nmt_start}
+    if "heartbeat_ms" in d:
+        hb = d["heartbeat_ms"]
+        if isinstance(hb, bool) or not isinstance(hb, int) or not 0 <= hb <= 0xFFFF:
+            fail("heartbeat_ms", "must be an integer within [0, 65535] (0: off)")
+        out["heartbeat_ms"] = hb
+    delay = read_number(d.get("store_delay_s", 0.0), "store_delay_s")
+    if not 0.0 <= delay <= 60.0:
+        fail("store_delay_s", "must be within [0, 60] s")
+    out["store_delay_s"] = delay
+    subs = d.get("storage_subs", list(DEFAULT_STORAGE_SUBS))
+    ok = isinstance(subs, list | tuple) and all(
+        isinstance(x, int) and not isinstance(x, bool) and 1 <= x <= 127 for x in subs
+    )
+    if not ok or len(set(subs)) != len(subs):
+        fail("storage_subs", "must be a list of distinct sub-indices 1..127 (e.g. [1, 2, 3])")
+    out["storage_subs"] = tuple(sorted(subs))
+    return out
 
 
 def _serial(value: Any) -> int:

@@ -1,9 +1,10 @@
 """Fault hooks of :class:`~canimucal.simnode.node.SimulatedImuNode`.
 
 The node routes SDO requests and responses, TPDO frames and its simulated clock through
-its :class:`~canimucal.simnode.faults.FaultInjector` (``node.faults``); this mixin holds
-the glue: serve / ignore / mute / abort / reboot an SDO request, run timed faults (reboot,
-EMCY, error frames, heartbeat loss) from the producer thread.
+its :class:`~canimucal.simnode.faults.FaultInjector` (``node.faults``). :class:`FaultActions`,
+a collaborator the node owns, holds the glue: serve / ignore / mute / abort / reboot an SDO
+request, run timed faults (reboot, EMCY, error frames, heartbeat loss) from the producer
+thread.
 """
 
 from __future__ import annotations
@@ -11,7 +12,6 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable
-from typing import Any
 
 import can
 import canopen
@@ -25,26 +25,36 @@ log = logging.getLogger(__name__)
 SdoHandler = Callable[[int, bytearray, float], None]
 
 
-class FaultHooks:
-    """Mixin: what the node does with the faults its injector decides."""
+class FaultActions:
+    """What the node does with the faults its injector decides.
 
-    node_id: int
-    faults: FaultInjector
-    _lock: threading.RLock
-    _node: canopen.LocalNode
-    _network: canopen.Network
-    _producer: SampleProducer
-    _serve_sdo: SdoHandler
-    _send_sdo: Callable[[bytes], None]
-    _mute_sdo: bool
+    ``reboot()`` power-cycles the node; ``heartbeat_ms()`` reads 0x1017 (to resume a lost
+    heartbeat). Call :meth:`wrap_sdo_server` before the node joins the network.
+    """
 
-    def reboot(self) -> None:  # implemented by the node
-        """Power-cycle the node."""
-        raise NotImplementedError
-
-    def od_value(self, index: int, sub: int = 0) -> Any:  # implemented by the node
-        """Return the current decoded value of an object."""
-        raise NotImplementedError
+    def __init__(
+        self,
+        node_id: int,
+        faults: FaultInjector,
+        lock: threading.RLock,
+        local_node: canopen.LocalNode,
+        network: canopen.Network,
+        producer: SampleProducer,
+        *,
+        reboot: Callable[[], None],
+        heartbeat_ms: Callable[[], int],
+    ) -> None:
+        self.node_id = node_id
+        self.faults = faults
+        self._lock = lock
+        self._node = local_node
+        self._network = network
+        self._producer = producer
+        self._reboot = reboot
+        self._heartbeat_ms = heartbeat_ms
+        self._serve_sdo: SdoHandler | None = None
+        self._send_sdo: Callable[[bytes], None] | None = None
+        self._mute_sdo = False
 
     def send_emergency(self, code: int, register: int = 0x01) -> None:
         """Send an EMCY frame (0x80 + node id) and set the error register 0x1001."""
@@ -62,7 +72,7 @@ class FaultHooks:
         if self._network.bus is not None:
             self._network.bus.send(msg)
 
-    def _wrap_sdo_server(self) -> None:
+    def wrap_sdo_server(self) -> None:
         """Route SDO requests through the fault injector (before the network subscribes)."""
         sdo = self._node.sdo
         self._serve_sdo = sdo.on_request
@@ -72,6 +82,7 @@ class FaultHooks:
         sdo.send_response = self._on_sdo_response  # type: ignore[method-assign]
 
     def _on_sdo_request(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        assert self._serve_sdo is not None and self._send_sdo is not None
         fate = self.faults.on_sdo_request(bytes(data))
         if fate == "serve":
             self._serve_sdo(can_id, data, timestamp)
@@ -83,23 +94,24 @@ class FaultHooks:
                 self._mute_sdo = False
         elif fate == "reboot":
             log.warning("simulated power cycle while serving an SDO request")
-            self.reboot()
+            self._reboot()
         elif fate.startswith("abort:"):
             code = int(fate.split(":")[1])
             head = bytes([0x80]) + bytes(data[1:4])
             self._send_sdo(head + code.to_bytes(4, "little"))
 
     def _on_sdo_response(self, response: bytes | bytearray) -> None:
+        assert self._send_sdo is not None
         if not self._mute_sdo:
             self._send_sdo(bytes(response))
 
-    def _on_sim_time(self, t_s: float) -> None:
+    def on_sim_time(self, t_s: float) -> None:
         """Run the timed faults due at simulated time ``t_s`` (producer thread)."""
         for kind, arg in self.faults.due(t_s):
             if kind == "reboot":
                 self.faults.stats.reboots += 1
                 log.warning("simulated power cycle at t = %.3f s", t_s)
-                self.reboot()
+                self._reboot()
             elif kind == "emergency" and isinstance(arg, Emergency):
                 self.send_emergency(arg.code, arg.register)
             elif kind == "error_frame":
@@ -110,7 +122,7 @@ class FaultHooks:
     def _set_heartbeat(self, on: bool) -> None:
         nmt = self._node.nmt
         if on:
-            nmt.start_heartbeat(int(self.od_value(od.HEARTBEAT, 0)))
+            nmt.start_heartbeat(self._heartbeat_ms())
             log.warning("simulated heartbeat resumed")
         else:
             nmt.stop_heartbeat()

@@ -20,19 +20,18 @@ from typing import Any
 import can
 import canopen
 import numpy as np
-from canopen.objectdictionary import ODVariable
 from numpy.typing import NDArray
 
 from canimucal.device import od
+from canimucal.device.client import NOTIFIER_CYCLE_S
 from canimucal.errors import InputError, NoDeviceError
 from canimucal.model.positions import Plan
 from canimucal.sim.imu import ImuSimulator
 from canimucal.sim.truth import Truth
 from canimucal.simnode.backlog import VirtualBusBacklog
-from canimucal.simnode.fault_hooks import FaultHooks
+from canimucal.simnode.fault_hooks import FaultActions
 from canimucal.simnode.faults import FaultInjector
-from canimucal.simnode.od_access import ImuLocalNode, ObjectAccessHooks
-from canimucal.simnode.pdo import TpdoLayout
+from canimucal.simnode.od_access import ImuLocalNode, ObjectAccess
 from canimucal.simnode.producer import SampleProducer
 from canimucal.simnode.store import COMM_PARAMETERS, NonVolatileStore, factory_values
 
@@ -42,14 +41,16 @@ NMT_START, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x81, 0x82
 SYNC_COB_ID = 0x80
 NMT_COB_ID = 0x000
 POSE_TRANSIENT_S = 1.0
-NOTIFIER_CYCLE_S = 0.1
-"""Receive-poll period of a network the node creates (how long ``stop()`` may wait)."""
 
 Key = tuple[int, int]
 
 
-class SimulatedImuNode(FaultHooks, ObjectAccessHooks):
+class SimulatedImuNode:
     """The simulated IMU on a CAN bus (python-can bus or canopen ``Network``).
+
+    Composed of collaborators: an :class:`ObjectAccess` (SDO callbacks, caches), a
+    :class:`SampleProducer` (samples and TPDOs), a :class:`NonVolatileStore` (0x1010/0x1011)
+    and a :class:`FaultActions` (what the :class:`FaultInjector` decides).
 
     ``truth`` defaults to a nominal unit; ``state_file`` is the node's non-volatile memory
     (JSON); ``time_scale`` is simulated seconds per wall second; ``seed`` seeds the noise.
@@ -80,25 +81,41 @@ class SimulatedImuNode(FaultHooks, ObjectAccessHooks):
         if not eds.is_file():
             raise InputError(f"object dictionary not found: {eds}")
         self._node = ImuLocalNode(self.node_id, canopen.import_od(str(eds), self.node_id))
-        self._wrap_sdo_server()
-        self._node.after_store = self._after_write
-        self._node.add_read_callback(self._on_read)
-        self._node.add_write_callback(self._on_write)
         self._store = NonVolatileStore(state_file)
         self._simulator = ImuSimulator(self.truth, seed=seed)
+        self._access = ObjectAccess(
+            self._node,
+            self.truth,
+            self._lock,
+            self._store,
+            live=lambda: self._producer.live,
+            set_rate=lambda hz: self._producer.set_rate(hz),
+        )
         self._producer = SampleProducer(
             self._simulator,
             self._lock,
             time_scale=self.time_scale,
-            layouts=self._layouts,
+            layouts=self._access.layouts,
             operational=self._operational,
             send=self._send,
-            cal_active=self.calibration_active,
-            on_time=self._on_sim_time,
+            cal_active=self._access.calibration_active,
+            on_time=lambda t_s: self._fault_actions.on_sim_time(t_s),
             backlog=VirtualBusBacklog(self._network.bus),
         )
-        self._layout_cache: tuple[TpdoLayout, ...] | None = None
-        self._cal_cache: bool | None = None
+        self._fault_actions = FaultActions(
+            self.node_id,
+            self.faults,
+            self._lock,
+            self._node,
+            self._network,
+            self._producer,
+            reboot=self.reboot,
+            heartbeat_ms=lambda: int(self.od_value(od.HEARTBEAT, 0)),
+        )
+        self._fault_actions.wrap_sdo_server()
+        self._node.after_store = self._access.after_write
+        self._node.add_read_callback(self._access.on_read)
+        self._node.add_write_callback(self._access.on_write)
         self._pending_plan: Plan | None = None
         self._started = False
         self._booting = False
@@ -205,9 +222,20 @@ class SimulatedImuNode(FaultHooks, ObjectAccessHooks):
 
     def od_value(self, index: int, sub: int = 0) -> Any:
         """Return the current decoded value of an object, as an SDO read would."""
-        entry = self._node.object_dictionary[index]
-        var = entry if isinstance(entry, ODVariable) else entry[sub]
-        return var.decode_raw(self._node.get_data(index, sub))
+        return self._access.value(index, sub)
+
+    def send_emergency(self, code: int, register: int = 0x01) -> None:
+        """Send an EMCY frame (0x80 + node id) and set the error register 0x1001."""
+        self._fault_actions.send_emergency(code, register)
+
+    def send_error_frame(self) -> None:
+        """Put a CAN error frame on the bus (as a controller reporting a bus error does)."""
+        self._fault_actions.send_error_frame()
+
+    @property
+    def store_log(self) -> list[int]:
+        """0x1010 sub-index of every store this node made, in order."""
+        return list(self._store.log)
 
     def stored_objects(self) -> dict[Key, bytes]:
         """Return the non-volatile memory: raw values a reboot reloads (0x1010 stored)."""
@@ -216,17 +244,11 @@ class SimulatedImuNode(FaultHooks, ObjectAccessHooks):
     def calibration_block(self) -> od.CalibrationBlock:
         """Return the calibration block the node holds now (0x2100–0x2121:04)."""
         with self._lock:
-            return od.CalibrationBlock.from_objects(self._calibration_values())
+            return od.CalibrationBlock.from_objects(self._access.calibration_values())
 
     def calibration_active(self) -> bool:
         """Tell whether valid = 1 and the stored CRC matches (the firmware applies it)."""
-        with self._lock:
-            if self._cal_cache is None:
-                values = self._calibration_values()
-                valid = self.od_value(od.CAL_INFO, od.CAL_VALID_SUB) == 1
-                crc = self.od_value(od.CAL_INFO, od.CAL_CRC_SUB)
-                self._cal_cache = valid and crc == od.block_crc(values)
-            return self._cal_cache
+        return self._access.calibration_active()
 
     def corrected_sample(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Return the latest sample as the firmware corrects it: (m/s², rad/s), §4."""
@@ -250,10 +272,15 @@ class SimulatedImuNode(FaultHooks, ObjectAccessHooks):
                 self._load_defaults(comm_only=reload == od.STORE_COMM_SUB)
                 self._producer.reset_counter()
                 self._producer.error_register = 0
-                self._invalidate()
+                self._access.invalidate()
             nmt = self._node.nmt
             nmt.send_command(NMT_RESET_NODE)  # INITIALISING: boot-up frame 0x700+id [0]
             nmt.send_command(0x80)  # PRE-OPERATIONAL; starts the producer heartbeat (0x1017)
+            if self.truth.nmt_start == "operational":
+                nmt.send_command(NMT_START)  # a node that starts itself (CANopenNode's habit)
+                period_ms = int(self.od_value(od.HEARTBEAT, 0))
+                if period_ms:  # a heartbeat at once on the state change, as CANopenNode
+                    nmt.start_heartbeat(period_ms)
         finally:
             self._booting = False
         if self._started:
@@ -307,13 +334,6 @@ class SimulatedImuNode(FaultHooks, ObjectAccessHooks):
 
     def _odr_hz(self) -> int:
         return int(self.od_value(od.NOMINAL, 3))
-
-    def _calibration_values(self) -> dict[Key, float | int]:
-        return {(i, s): self.od_value(i, s) for i, s, _ in od.CRC_ORDER}
-
-    def _invalidate(self) -> None:
-        self._layout_cache = None
-        self._cal_cache = None
 
     def _operational(self) -> bool:
         return not self._booting and self._node.nmt.state == "OPERATIONAL"

@@ -46,6 +46,8 @@ def factory_values(truth: Truth, comm_odr_hz: int | None = None) -> dict[Key, by
         (od.TPDO_COMM[1], 5): od.encode("u16", 1000 // odr),
         (od.IDENTITY, 4): od.encode("u32", truth.serial & 0xFFFFFFFF),
     }
+    if truth.heartbeat_ms is not None:
+        values[(od.HEARTBEAT, 0)] = od.encode("u16", truth.heartbeat_ms)
     if comm_odr_hz is not None:
         return values
     accel_lsb, gyro_lsb = truth.accel.nominal_lsb, truth.gyro.nominal_lsb
@@ -85,6 +87,8 @@ class NonVolatileStore:
         self.state_file = None if state_file is None else Path(state_file)
         self._lock = threading.Lock()
         self._values: dict[Key, bytes] = {}
+        self.log: list[int] = []
+        """0x1010 sub-index of every store since this object was made."""
         if self.state_file is not None and self.state_file.exists():
             self._values = _read_state(self.state_file)
             log.info("loaded %d stored objects from %s", len(self._values), self.state_file)
@@ -100,6 +104,7 @@ class NonVolatileStore:
         with self._lock:
             self._values.update(chosen)
             self._flush()
+            self.log.append(store_sub)
         log.info("stored %d objects (0x1010:%02X)", len(chosen), store_sub)
 
     def forget(self, store_sub: int) -> None:

@@ -20,7 +20,9 @@ I16, R32, VSTR = datatypes.INTEGER16, datatypes.REAL32, datatypes.VISIBLE_STRING
 TABLE = [
     (0x1000, [0], U32, "ro", False),
     (0x1001, [0], U8, "ro", True),
+    (0x1005, [0], U32, "rw", False),
     (0x1008, [0], VSTR, "const", False),
+    (0x1014, [0], U32, "ro", False),
     (0x1010, [1, 2, 3, 4], U32, "rw", False),
     (0x1011, [1, 2, 3, 4], U32, "rw", False),
     (0x1017, [0], U16, "rw", False),

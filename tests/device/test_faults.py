@@ -328,6 +328,7 @@ def test_bus_that_raises_on_send(
         assert client.read_value(od.IDENTITY, 4, "u32") == SERIAL
         assert faulty.failed_sends == 2
         layout = client.pdo_mapping()
+        client.observe_nmt_state()  # the state found, read before the bus goes off
         faulty.fail_sends(-1)  # bus off
         with pytest.raises(DeviceSilentError, match="bus-off"):
             client.read_value(od.IDENTITY, 4, "u32")

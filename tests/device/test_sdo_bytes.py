@@ -95,6 +95,7 @@ def test_transactional_write_byte_script(
         [upload(od.IDENTITY, sub) for sub in (1, 2, 3, 4)]
         + [upload(od.DEVICE_NAME, 0)]
         + [upload(od.NOMINAL, 1), upload(od.NOMINAL, 2)]
+        + [upload(od.STORE, 4)]  # 0x1010:04 offered ("save on command")? Before any write
         + [upload(i, s) for i, s, _ in od.CALIBRATION_OBJECTS]  # step 3: the backup
         + [bytes.fromhex("2f21210500000000")]  # step 4: valid = 0, first write
         + block_writes  # step 5, CRC order

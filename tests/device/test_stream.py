@@ -318,3 +318,32 @@ def test_design_layout_is_the_mapping_of_design_and_of_the_simulated_node(
     client = ImuClient(client_network, NODE)
     client.find_node(2.0)
     assert client.pdo_mapping() == design_layout(NODE)
+
+
+def test_mapping_longer_than_a_classic_frame_is_refused() -> None:
+    int32_xyz = [entry(0x2000, s, 32) for s in (1, 2, 3)] + [entry(0x2002, 2, 16)]
+    with pytest.raises(ValueError, match=r"112 bits \(14 bytes\); a classic CAN frame holds 8"):
+        layout_from_mapping(COB_IDS, {1: int32_xyz, 2: INT16_MAPPING[2]})
+
+
+@pytest.mark.parametrize("skew_ppm", [5000.0, -5000.0, 0.0])
+def test_skew_from_an_event_timer_off_the_sensor_clock(skew_ppm: float) -> None:
+    # each event-timer tick sends the sample current then: the counter of tick k is
+    # floor(k·(1 + skew)); jitter of ±20 % of a period and one frame pair lost on the bus
+    rng = np.random.default_rng(11)
+    pairer = make_pairer()
+    ticks = 2000
+    for k in range(ticks):
+        if k == 700:
+            continue  # lost on the bus
+        counter = int(np.floor(k * (1.0 + skew_ppm * 1e-6)))
+        t = 1.0 + k * PERIOD_S * (1.0 + skew_ppm * 1e-6) + rng.uniform(-0.2, 0.2) * PERIOD_S
+        pairer.feed(T1, accel_frame(counter), t)
+        pairer.feed(T2, gyro_frame(counter), t)
+    pairer.flush()
+    block = pairer.take()
+    assert pairer.skew_ppm is not None
+    assert pairer.skew_ppm == pytest.approx(skew_ppm, abs=1e6 / ticks)
+    if skew_ppm < 0:  # repeated counters: both halves again, duplicates, never losses
+        assert block.duplicates == 2 * round(-skew_ppm * 1e-6 * ticks)
+        assert block.lost_accel == block.lost_gyro == 0 and block.lost_samples <= 1

@@ -82,7 +82,11 @@ def _at_averaging(index: int, **faults: object) -> Hook:
                 keys["reboot_at_s"] = now + float(keys.pop("reboot_in_s"))  # type: ignore[arg-type]
             if "emcy_in_s" in keys:
                 at = now + float(keys.pop("emcy_in_s"))  # type: ignore[arg-type]
-                keys["emergency"] = [{"at_s": at, "code": 0x5000, "register": 0x01}]
+                codes = keys.pop("emcy_codes", [0x5000])
+                keys["emergency"] = [
+                    {"at_s": at + 0.01 * k, "code": code, "register": 0 if code == 0 else 0x11}
+                    for k, code in enumerate(codes)  # type: ignore[arg-type]
+                ]
             sim.faults.set(**keys)
 
     return hook
@@ -125,6 +129,28 @@ def test_emergency_while_averaging_is_a_notice_and_rejects_the_attempt(tmp_path:
         isinstance(e, ev.PositionRejected) and e.index == 0 and "emergency" in e.reason
         for e in history
     )
+    assert session.procedure.phase is Phase.DONE and set(session.procedure.accepted[NODE]) == {
+        0,
+        1,
+    }
+
+
+def test_error_reset_and_communication_emergencies_do_not_interrupt_the_pose(
+    tmp_path: Path,
+) -> None:
+    with _rig() as rig:
+        session = _session(rig, tmp_path)
+        codes = [0x0000, 0x8120, 0x8110, 0x8210]  # bus warning/reset, passive, overrun, PDO
+        _drive(rig, session, _at_averaging(0, emcy_in_s=0.3, emcy_codes=codes))
+        history = session.history
+    notices = _notices(history, "emergency")
+    assert {n.message.split(": ")[1][:6] for n in notices} == {
+        "0x0000",
+        "0x8120",
+        "0x8110",
+        "0x8210",
+    }
+    assert not any(isinstance(e, ev.PositionRejected) for e in history)
     assert session.procedure.phase is Phase.DONE and set(session.procedure.accepted[NODE]) == {
         0,
         1,

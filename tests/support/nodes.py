@@ -1,0 +1,113 @@
+"""Device tests against two IMU nodes: the simulated one and an independent stack's.
+
+``device_kind`` is parametrized over :data:`NODE_KINDS`; ``make_device(**behaviour)`` builds
+a started node of that kind on its own bus of ``bus_channel`` and wraps it in a
+:class:`DeviceUnderTest`, so one test body runs against python-canopen's responder
+(:class:`~canimucal.simnode.node.SimulatedImuNode`) and durand's
+(:class:`~tests.support.independent_node.IndependentImuNode`). Behaviour keys are those of
+the truth JSON (DESIGN §9: ``nmt_start``, ``heartbeat_ms``, ``store_delay_s``,
+``storage_subs``) plus the independent node's extras (``store_pdo_mode``, ``sync_pdos``,
+``timer_skew_ppm``); a behaviour one node does not have skips the test for that node.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import can
+import pytest
+
+from canimucal.device import od
+from canimucal.sim.truth import Truth
+from canimucal.simnode.node import SimulatedImuNode
+from tests.support.canbus import NODE_ID
+from tests.support.independent_node import Behaviour, IndependentImuNode
+
+NODE_KINDS = ("simulated", "independent")
+SIM_TRUTH_KEYS = ("nmt_start", "heartbeat_ms", "store_delay_s", "storage_subs")
+"""Behaviours the simulated node takes from its truth JSON."""
+
+
+@dataclass
+class DeviceUnderTest:
+    """One started node of either kind, seen the same way by the tests."""
+
+    kind: str
+    node: SimulatedImuNode | IndependentImuNode
+
+    @property
+    def node_id(self) -> int:
+        return self.node.node_id
+
+    @property
+    def nmt_state(self) -> str:
+        return self.node.nmt_state
+
+    def value(self, index: int, sub: int = 0) -> Any:
+        return self.node.od_value(index, sub)
+
+    @property
+    def store_log(self) -> list[int]:
+        """0x1010 sub-index of every completed store."""
+        return list(self.node.store_log)
+
+    def calibration_valid(self) -> bool:
+        return int(self.value(od.CAL_INFO, od.CAL_VALID_SUB)) == 1
+
+    def power_cycle(self) -> None:
+        if isinstance(self.node, SimulatedImuNode):
+            self.node.reboot()
+        else:
+            self.node.power_cycle()
+
+    def emcy(self, code: int) -> None:
+        if isinstance(self.node, SimulatedImuNode):
+            self.node.send_emergency(code, 0 if code == 0 else 0x11)
+        else:
+            self.node.emcy(code)
+
+
+@pytest.fixture(params=NODE_KINDS)
+def device_kind(request: pytest.FixtureRequest) -> str:
+    """Which IMU node the test runs against."""
+    return str(request.param)
+
+
+@pytest.fixture
+def make_independent_node(
+    open_bus: Callable[[], can.BusABC],
+) -> Iterator[Callable[..., IndependentImuNode]]:
+    """Factory: ``make_independent_node(node_id=0x10, **behaviour)``, started; stopped after."""
+    nodes: list[IndependentImuNode] = []
+
+    def make(node_id: int = NODE_ID, **behaviour: Any) -> IndependentImuNode:
+        behaviour.setdefault("seed", 1)
+        node = IndependentImuNode(open_bus(), node_id, Behaviour(**behaviour))
+        nodes.append(node)
+        return node.start()
+
+    yield make
+    for node in nodes:
+        node.stop()
+
+
+@pytest.fixture
+def make_device(
+    device_kind: str,
+    make_sim_node: Callable[..., SimulatedImuNode],
+    make_independent_node: Callable[..., IndependentImuNode],
+) -> Callable[..., DeviceUnderTest]:
+    """Factory: ``make_device(**behaviour)`` of kind ``device_kind`` (node 0x10, started)."""
+
+    def make(**behaviour: Any) -> DeviceUnderTest:
+        if device_kind == "independent":
+            return DeviceUnderTest(device_kind, make_independent_node(**behaviour))
+        unknown = sorted(set(behaviour) - set(SIM_TRUTH_KEYS))
+        if unknown:
+            pytest.skip(f"the simulated node has no {', '.join(unknown)}")
+        truth = {k: list(v) if isinstance(v, tuple) else v for k, v in behaviour.items()}
+        return DeviceUnderTest(device_kind, make_sim_node(truth=Truth.from_dict(truth)))
+
+    return make
