@@ -136,6 +136,17 @@ def test_slow_store_dropping_frames_ends_exit_0_stored_once(
     assert device.nmt_state == "OPERATIONAL"  # write-params sends no NMT
 
 
+def test_slow_store_queueing_frames_ends_exit_0_stored_once(
+    make_device: MakeDevice, capsys: pytest.CaptureFixture[str], bus_channel: str, cal_file: Path
+) -> None:
+    # frames held back during the store and sent as a burst after it (independent node only)
+    device = make_device(store_delay_s=1.0, store_pdo_mode="queue", nmt_start="operational")
+    code, out, err = write_params(capsys, bus_channel, cal_file)
+    assert code == 0, err
+    assert "stored (0x1010:04)" in out and "restored" not in out + err
+    assert device.store_log == [od.STORE_CALIBRATION_SUB]
+
+
 def test_node_without_sub_4_is_stored_through_sub_1(
     make_device: MakeDevice, capsys: pytest.CaptureFixture[str], bus_channel: str, cal_file: Path
 ) -> None:
