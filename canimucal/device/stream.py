@@ -181,12 +181,13 @@ class SamplePairer:
         self._finalize_ready()
 
     def _skew_frame(self, counter: int, t: float) -> None:
-        """Count TPDO1 event-timer ticks: every frame one, plus the frames lost on the bus.
+        """Count TPDO1 event-timer ticks: every frame one, plus the frames lost meanwhile.
 
-        A frame is lost when the counter jumped by two or more *and* the time gap was
-        longer than 1.5 periods (a skipped counter alone is the skew itself; a long gap
-        alone is host jitter, followed by a burst). A same-counter copy within half a
-        period is a bus duplicate, not a tick.
+        By the gap since the last frame: about one period is one tick, whatever the counter
+        did (a skipped counter there *is* the skew); a longer gap is as many ticks as
+        periods, but no more than the counter advanced (a host stall followed by a burst);
+        a burst frame (under half a period) is as many ticks as the counter advanced, and a
+        same-counter copy in a burst is a bus duplicate, not a tick.
         """
         if self._newest is None:
             return
@@ -194,11 +195,17 @@ class SamplePairer:
         if self._skew_last is None:
             self._skew_first = self._skew_last = (t, seq)
             return
-        gap, jump = t - self._skew_last[0], seq - self._skew_last[1]
-        if jump == 0 and gap < 0.5 * self.period_s:
-            return
-        lost = int(round(gap / self.period_s)) - 1 if jump >= 2 and gap > 1.5 * self.period_s else 0
-        self._skew_intervals += 1 + max(lost, 0)
+        periods = (t - self._skew_last[0]) / self.period_s
+        jump = seq - self._skew_last[1]
+        if periods < 0.5:
+            if jump <= 0:
+                return
+            ticks = jump
+        elif periods <= 1.5:
+            ticks = 1
+        else:
+            ticks = max(1, min(jump, int(round(periods))))
+        self._skew_intervals += ticks
         self._skew_last = (t, seq)
 
     @property

@@ -119,6 +119,25 @@ def test_write_params_stores_with_sub_4_and_survives_power_cycle(
     assert device.value(od.ACCEL_BIAS, 1) == pytest.approx(3.0)
 
 
+def test_serial_refusal_and_backup_restore(
+    make_device: MakeDevice, capsys: pytest.CaptureFixture[str], bus_channel: str, cal_file: Path
+) -> None:
+    device = make_device()
+    other = cal_file.with_name("other.json")
+    document = json.loads(cal_file.read_text())
+    other.write_text(json.dumps(document | {"device": {"serial": 99}}))
+    code, _, err = write_params(capsys, bus_channel, other)
+    assert code == 3 and "differs from the calibration file's 99; nothing written" in err
+    assert device.store_log == [] and not device.calibration_valid()
+    code, out, err = write_params(capsys, bus_channel, cal_file)
+    assert code == 0, err
+    backup = next((cal_file.parent / "backups").glob("*.json"))  # the factory set
+    code, out, err = write_params(capsys, bus_channel, backup)
+    assert code == 0, err
+    assert "restore of a backup" in out and not device.calibration_valid()
+    assert device.value(od.ACCEL_BIAS, 1) == 0.0 and device.store_log == [4, 4]
+
+
 def test_slow_store_dropping_frames_ends_exit_0_stored_once(
     make_device: MakeDevice, capsys: pytest.CaptureFixture[str], bus_channel: str, cal_file: Path
 ) -> None:
@@ -134,6 +153,17 @@ def test_slow_store_dropping_frames_ends_exit_0_stored_once(
     if isinstance(device.node, IndependentImuNode):
         assert device.node.stats["dropped"] > 100  # 2.5 s of samples and TPDOs lost
     assert device.nmt_state == "OPERATIONAL"  # write-params sends no NMT
+
+
+def test_slow_store_queueing_frames_ends_exit_0_stored_once(
+    make_device: MakeDevice, capsys: pytest.CaptureFixture[str], bus_channel: str, cal_file: Path
+) -> None:
+    # frames held back during the store and sent as a burst after it (independent node only)
+    device = make_device(store_delay_s=1.0, store_pdo_mode="queue", nmt_start="operational")
+    code, out, err = write_params(capsys, bus_channel, cal_file)
+    assert code == 0, err
+    assert "stored (0x1010:04)" in out and "restored" not in out + err
+    assert device.store_log == [od.STORE_CALIBRATION_SUB]
 
 
 def test_node_without_sub_4_is_stored_through_sub_1(
