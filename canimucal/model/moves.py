@@ -22,10 +22,15 @@ Earth rate; ``T`` the move's duration).
 uncertainty and the angle random walk of the gyro's white noise over the move,
 ``σ_arw² = σ_rate² Δt² (n − 1.5)`` for the trapezoid weights. ``S`` (3×3, counts per rad/s)
 minimises ``Σ |e_k / σ_k|²`` (Gauss–Newton, Jacobian in :func:`move_residual`); its
-covariance is ``(Jᵀ W J)⁻¹`` at the solution. Column ``j`` of ``S`` is the response to a
-rate about body axis ``j``: only moves that turn about axis ``j`` see it. A column whose
-moves turn less than ``min_turn_deg`` in total about its axis is not identifiable; it is
-held at its prior and reported as such (``None``), never as a number.
+covariance is ``(Jᵀ W J)⁻¹`` at the solution.
+
+**Identifiability.** Column ``j`` of ``S`` is the response to a rate about body axis ``j``:
+only moves that turn about axis ``j`` see it. A column is not identifiable when the moves
+turn less than ``min_turn_deg`` about its axis along the way (:func:`path_turn`), or when
+its σ would exceed ``max_relative_sigma`` of its scale (moves that cancel each other's
+view of it). It is held at its prior and reported as such (``None``), never as a number;
+the prior's own 1σ (:data:`PRIOR_SCALE_SIGMA`) enters the covariance of the entries
+fitted beside it.
 """
 
 from __future__ import annotations
@@ -43,6 +48,14 @@ Array = NDArray[np.float64]
 AXES = "xyz"
 S_NAMES = tuple(f"S_{AXES[i]}{AXES[j]}" for i in range(3) for j in range(3))
 """Names of S's entries in row-major order: ``S_xy`` is axis x's response to a rate about y."""
+
+DEFAULT_MAX_RELATIVE_SIGMA = 0.02
+"""A column of S whose σ would exceed this fraction of its scale factor is not identifiable."""
+
+PRIOR_SCALE_SIGMA = 0.03
+PRIOR_CROSS_SIGMA = 0.01
+"""1σ of a held column of S about its prior, as fractions of the scale factor: a scale
+error (diagonal) and a cross-axis term (off-diagonal) of a MEMS gyro's data sheet."""
 
 DEFAULT_MIN_TURN_DEG = 20.0
 """Total turn about a body axis below which that column of S is not identifiable."""
@@ -111,7 +124,18 @@ def matrix_to_rotvec(r: Array) -> Array:
     )
     sin = np.sin(angle)[..., None]
     k = np.where(sin > 1e-8, angle[..., None] / np.where(sin > 1e-8, 2.0 * sin, 1.0), 0.5)
-    return np.asarray(k * v, dtype=np.float64)
+    out = k * v
+    near_pi = angle > np.pi - 1e-3  # the antisymmetric part vanishes: axis from R + I
+    if np.any(near_pi):
+        c = cos[near_pi][:, None, None]
+        rn = r[near_pi]
+        sym = (0.5 * (rn + np.swapaxes(rn, -1, -2)) - c * np.eye(3)) / (1.0 - c)  # u uᵀ
+        col = np.argmax(np.diagonal(sym, axis1=-2, axis2=-1), axis=-1)
+        u = np.take_along_axis(sym, col[:, None, None], axis=-1)[..., 0]
+        u /= np.linalg.norm(u, axis=-1, keepdims=True)
+        sign = np.where(np.sum(u * v[near_pi], axis=-1, keepdims=True) < 0.0, -1.0, 1.0)
+        out[near_pi] = sign * u * angle[near_pi][:, None]
+    return np.asarray(out, dtype=np.float64)
 
 
 def _reduce_product(q: Array) -> Array:
@@ -171,11 +195,13 @@ class Move:
 
     ``gyro`` ``(n, 3)`` counts, from the last still sample before to the first after;
     ``rotation`` the known ``M`` (``f_end = M f_start``); ``turn_rad`` the rotation vector
-    the move is known to turn through (body axes; used for identifiability and held-out
-    angles: a 360° turn has ``M = I`` but ``turn_rad = ±2π e_j``); ``sigma_rad`` the 1σ per
-    axis of the known attitude change; ``earth_rate_body`` the Earth rate in the start body
+    the move is known to turn through (body axes; a 360° turn has ``M = I`` but
+    ``turn_rad = ±2π e_j``); ``sigma_rad`` the 1σ per axis of the known attitude change;
+    ``earth_rate_body`` the Earth rate in the start body
     frame (rad/s), ``None`` when it stays in the bias; ``specific_force`` ``(n, 3)`` m/s² for
-    the G term, ``None`` to skip it.
+    the G term, ``None`` to skip it. ``fixed_axis``: the body turns about one fixed axis
+    throughout, so the integral of the rate vector itself is known (``turn_rad``); the
+    residual is then that integral's error (see :func:`move_residual`).
     """
 
     gyro: Array
@@ -186,6 +212,7 @@ class Move:
     label: str = ""
     earth_rate_body: Array | None = None
     specific_force: Array | None = None
+    fixed_axis: bool = False
 
     @property
     def duration_s(self) -> float:
@@ -229,7 +256,12 @@ def turn_move(
     label: str = "",
     earth_rate_body: ArrayLike | None = None,
 ) -> Move:
-    """Build a turn of known angle about body axis ``axis`` (0, 1, 2), ending where it began."""
+    """Build a turn of known angle about the fixed body axis ``axis`` (0, 1, 2).
+
+    The rate vector stays along the axis, so its integral is ``angle_rad e_axis``: this sees
+    the axis's misalignment, which the attitude after a full turn (``M = I`` whatever the
+    axis) does not.
+    """
     turn = np.zeros(3)
     turn[axis] = angle_rad
     return Move(
@@ -240,6 +272,7 @@ def turn_move(
         sigma_rad=float(sigma_rad),
         label=label,
         earth_rate_body=None if earth_rate_body is None else np.asarray(earth_rate_body, float),
+        fixed_axis=True,
     )
 
 
@@ -257,14 +290,31 @@ def predicted_rotation(move: Move, S: Array, bias: Array, G: Array | None = None
     return move_rotation(w, move.dt_s, move.earth_rate_body)
 
 
+def path_turn(move: Move, S: Array, bias: Array, G: Array | None = None) -> Array:
+    """Angle (rad) turned about each body axis along the way: ``∫ |w_j| dt``.
+
+    What a column of S is seen through: a move that tilts about z and back turns 0° net
+    but still excites column z.
+    """
+    w = np.abs(corrected_rates(move, S, bias, G))
+    return _rate_integral(w, move.dt_s)
+
+
 def integrated_turn(move: Move, S: Array, bias: Array, G: Array | None = None) -> Array:
     """Return the turn (rotation vector, rad, body axes) the corrected gyro integrates to.
 
     For a turn beyond 180° (a full turn) the rotation vector of ``M`` wraps; this is the
     known turn plus the rotation vector of ``ΔR`` relative to the known one.
     """
+    if move.fixed_axis:
+        return _rate_integral(corrected_rates(move, S, bias, G), move.dt_s)
     error = matrix_to_rotvec(predicted_rotation(move, S, bias, G) @ move.rotation.T)
     return np.asarray(move.turn_rad - error, dtype=np.float64)
+
+
+def _rate_integral(w: Array, dt_s: float) -> Array:
+    """Trapezoid integral of the rate vector (rad)."""
+    return np.asarray((w.sum(axis=0) - 0.5 * (w[0] + w[-1])) * dt_s, dtype=np.float64)
 
 
 # ------------------------------------------------------------------------------------- fit
@@ -276,8 +326,10 @@ class MovesFit:
 
     ``S`` and ``S_sigma`` are 3×3 with ``nan`` in columns that are not identifiable
     (``identifiable[j]`` false; ``prior`` holds the value used for them while fitting).
-    ``covariance`` is over :attr:`names` (the free entries, row-major). ``residuals_rad`` the
-    ``(m, 3)`` rotation-vector residuals; ``chi2`` and ``dof`` of the whitened fit.
+    ``covariance`` is over :attr:`names` (the free entries, row-major), and includes the
+    error the held columns' prior (:data:`PRIOR_SCALE_SIGMA`) can leave in them;
+    ``residuals_rad`` the ``(m, 3)`` rotation-vector residuals; ``chi2`` and ``dof`` of the
+    whitened fit.
     """
 
     S: Array
@@ -314,6 +366,7 @@ def solve_moves(
     *,
     G: ArrayLike | None = None,
     min_turn_deg: float = DEFAULT_MIN_TURN_DEG,
+    max_relative_sigma: float = DEFAULT_MAX_RELATIVE_SIGMA,
     max_iterations: int = 20,
 ) -> MovesFit:
     """Fit S (counts per rad/s) to the moves by Gauss–Newton (module doc).
@@ -327,7 +380,7 @@ def solve_moves(
     s0 = np.asarray(S0, dtype=float).reshape(3, 3)
     g = None if G is None else np.asarray(G, dtype=float).reshape(3, 3)
     noise = np.asarray(rate_sigma_counts, dtype=float).reshape(3)
-    turned = np.rad2deg(np.sum([np.abs(m.turn_rad) for m in moves], axis=0))
+    turned = np.rad2deg(np.sum([path_turn(m, s0, b, g) for m in moves], axis=0))
     free_cols = turned >= min_turn_deg
     notes = [
         f"S column {AXES[j]} not identifiable: the moves turn {turned[j]:.1f}° about body "
@@ -335,10 +388,11 @@ def solve_moves(
         for j in range(3)
         if not free_cols[j]
     ]
+    sigmas = np.array([move_sigma(m, noise, s0) for m in moves])
+    free_cols = _precise_columns(moves, s0, b, g, sigmas, free_cols, max_relative_sigma, notes)
     if not free_cols.any():
         return _unidentified(s0, turned, notes)
     free = np.repeat(free_cols[None, :], 3, axis=0).reshape(9)
-    sigmas = np.array([move_sigma(m, noise, s0) for m in moves])
     s = s0.reshape(9).copy()
     for _ in range(max_iterations):  # Gauss–Newton on the whitened residuals
         r, jac = _whitened(moves, s.reshape(3, 3), b, g, sigmas)
@@ -351,10 +405,7 @@ def solve_moves(
     else:
         notes.append(f"gyro from moves: Gauss–Newton stopped after {max_iterations} steps")
     r, jac = _whitened(moves, s.reshape(3, 3), b, g, sigmas)
-    info = jac[:, free].T @ jac[:, free]
-    if np.linalg.matrix_rank(info) < info.shape[0]:
-        raise InputError("gyro from moves: the moves do not determine S (rank-deficient)")
-    cov = np.asarray(np.linalg.inv(info), dtype=np.float64)
+    cov = _free_covariance(jac, free, s0)
     out = np.where(free, s, np.nan)
     sig = np.full(9, np.nan)
     sig[free] = np.sqrt(np.diag(cov))
@@ -372,6 +423,69 @@ def solve_moves(
         turned_deg=turned,
         notes=tuple(notes),
     )
+
+
+def _prior_covariance(s0: Array, held: NDArray[np.bool_]) -> Array:
+    """Diagonal covariance of the held entries (row-major) of S about the prior ``s0``."""
+    rel = np.full((3, 3), PRIOR_CROSS_SIGMA)
+    np.fill_diagonal(rel, PRIOR_SCALE_SIGMA)
+    sd = (rel * np.abs(np.diag(s0))[None, :]).reshape(9)[held]
+    return np.diag(sd**2)
+
+
+def _free_covariance(jac: Array, free: NDArray[np.bool_], s0: Array) -> Array:
+    """Covariance of the free entries: noise, plus the held entries' prior through the fit.
+
+    ``Σ = A⁻¹ + K Σ_h Kᵀ`` with ``A = J_fᵀ J_f`` and ``K = A⁻¹ J_fᵀ J_h``: the error a
+    held column's prior leaves in the free ones (a tilt move that also turns about z
+    carries S's z column into the estimate of its x column).
+    """
+    jf, jh = jac[:, free], jac[:, ~free]
+    a_inv = np.linalg.inv(jf.T @ jf)
+    if not (~free).any():
+        return np.asarray(a_inv, dtype=np.float64)
+    k = a_inv @ jf.T @ jh
+    return np.asarray(a_inv + k @ _prior_covariance(s0, ~free) @ k.T, dtype=np.float64)
+
+
+def _precise_columns(
+    moves: Sequence[Move],
+    s0: Array,
+    bias: Array,
+    G: Array | None,
+    sigmas: Array,
+    cols: NDArray[np.bool_],
+    max_relative_sigma: float,
+    notes: list[str],
+) -> NDArray[np.bool_]:
+    """Drop, worst first, columns whose predicted σ exceeds ``max_relative_sigma`` · scale.
+
+    The σ are those of the linearised fit at ``s0`` over the columns still free, with the
+    held columns' prior (:func:`_free_covariance`); a column
+    the moves see only through a cancelling path (a turn about y during a tilt about x)
+    has a σ too large to be a calibration.
+    """
+    cols = cols.copy()
+    _, jac = _whitened(moves, s0, bias, G, sigmas)
+    scale = np.abs(np.diag(s0))
+    while cols.any():
+        free = np.repeat(cols[None, :], 3, axis=0).reshape(9)
+        info = jac[:, free].T @ jac[:, free]
+        if np.linalg.matrix_rank(info) < info.shape[0]:
+            var = np.full(info.shape[0], np.inf)
+        else:
+            var = np.diag(_free_covariance(jac, free, s0))
+        col_sigma = np.full(3, -np.inf)
+        col_sigma[cols] = np.sqrt(var).reshape(3, -1).max(axis=0) / scale[cols]
+        worst = int(np.argmax(col_sigma))
+        if col_sigma[worst] <= max_relative_sigma:
+            break
+        cols[worst] = False
+        notes.append(
+            f"S column {AXES[worst]} not identifiable: the moves would give it a σ of "
+            f"{col_sigma[worst]:.2g} of its scale (limit {max_relative_sigma:g}); held at its prior"
+        )
+    return cols
 
 
 def _unidentified(s0: Array, turned: Array, notes: list[str]) -> MovesFit:
@@ -409,9 +523,16 @@ def move_residual(move: Move, S: Array, bias: Array, G: Array | None = None) -> 
     the rates by ``δw_k = −S⁻¹ δS w_k`` and the end attitude by
     ``δθ = Σ_k c_k Δt (ΔRᵀ P_k) δw_k`` (trapezoid weights ``c_k``), so ``e`` changes by
     ``−δθ`` to first order in the (small) residual.
+
+    A fixed-axis move's residual is ``e = ∫ w dt − turn`` (trapezoid), linear in ``S⁻¹``:
+    ``∂e/∂S_ij = −(S⁻¹)_ai (∫ w dt)_j`` (imucal's eq. 13–15 in rotation-vector form).
     """
     w = corrected_rates(move, S, bias, G)
     dt = move.dt_s
+    if move.fixed_axis:
+        integral = _rate_integral(w, dt)
+        jac_axis = -np.einsum("ai,j->aij", np.linalg.inv(S), integral).reshape(3, 9)
+        return integral - move.turn_rad, np.asarray(jac_axis, dtype=np.float64)
     a, b = w[:-1], w[1:]
     phi = 0.5 * (a + b) * dt + cross(a, b) * (dt * dt / 12.0)
     prefix = quat_to_matrix(_prefix_products(rotvec_to_quat(phi)))
