@@ -10,13 +10,15 @@ from typing import Any
 import numpy as np
 
 from canimucal.analysis.calibrate import SiteConditions, Solution, solve_positions, solve_scalar
+from canimucal.analysis.gyro_moves import solve_gyro_moves
 from canimucal.cli.conditions import recording_conditions
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.cli.spec_options import add_model_options, spec_from_args
 from canimucal.errors import InputError
 from canimucal.io.calibration import Device, RecordingRef, calibration_to_dict, sha256_of
 from canimucal.io.grouping import has_angles, position_averages
-from canimucal.io.recording import Recording, read_recording
+from canimucal.io.importers import FORMATS, detect_format, load_any
+from canimucal.io.recording import Recording
 from canimucal.model.positions import Pose, PositionAverage, average_position
 from canimucal.model.static import detect_static_intervals
 
@@ -30,7 +32,10 @@ def add_subparser(subparsers: Any) -> None:
         "angles, the scalar |f| = g fit otherwise. Prints every parameter with its σ; "
         "--json writes the calibration JSON.",
     )
-    p.add_argument("recording", help="recording CSV (canimucal.recording/1)")
+    p.add_argument("recording", help="recording CSV, imu_tk accelerometer file or imucal CSV")
+    p.add_argument("second", nargs="?", help="imu_tk gyro file, or imucal section JSON (optional)")
+    p.add_argument("--format", choices=FORMATS, help="input format (default: from content)")
+    p.add_argument("--sample-rate-hz", type=float, help="sample rate when the input has none")
     add_model_options(p, default_tilt=False)
     p.add_argument("--g", type=float, help="local gravity, m/s² (default: header, latitude)")
     add_json_option(p)
@@ -40,7 +45,10 @@ def add_subparser(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Solve and report."""
     check_outputs(args)
-    rec = read_recording(args.recording)
+    fmt = args.format or (
+        detect_format(args.recording) if Path(args.recording).is_file() else "recording"
+    )  # a missing file: the recording reader says "cannot read"
+    rec = load_any(args.recording, args.second, fmt=fmt, sample_rate_hz=args.sample_rate_hz)
     cond = recording_conditions(rec, args.g)
     latitude = cond.latitude_rad
     if args.latitude_deg is not None:
@@ -61,7 +69,11 @@ def run(args: argparse.Namespace) -> int:
         has_gyro = all(a.mean_gyro is not None for a in averages)
         spec = spec_from_args(args, has_gyro=has_gyro)
         solution = solve_positions(averages, spec, site, device, recording=ref)
+        if args.gyro == "moves":  # imucal's poses leave the turn about the vertical free
+            solution, _ = solve_gyro_moves(rec, solution, site, pose_moves=fmt != "imucal")
     else:
+        if args.gyro == "moves":
+            raise InputError("--gyro moves needs labelled positions with angles")
         averages = _unlabelled_averages(rec)
         solution = solve_scalar(averages, site, device, full=args.model == "full", recording=ref)
     for warning in solution.warnings:

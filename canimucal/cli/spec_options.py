@@ -33,9 +33,10 @@ def add_model_options(parser: argparse.ArgumentParser, *, default_tilt: bool) ->
     )
     parser.add_argument(
         "--gyro",
-        choices=("none", "mems", "nav"),
+        choices=("none", "mems", "moves", "nav"),
         default=None,
-        help="gyro model: bias only (mems) or bias and scale from Earth rate (nav)",
+        help="gyro model: bias only (mems), bias and full S from the moves (moves), or bias "
+        "and scale from Earth rate (nav)",
     )
     parser.add_argument("--gyro-g", action="store_true", help="estimate the gyro g-sensitivity")
     parser.add_argument(
@@ -45,7 +46,9 @@ def add_model_options(parser: argparse.ArgumentParser, *, default_tilt: bool) ->
 
 def spec_from_args(args: argparse.Namespace, *, has_gyro: bool = False) -> JointSpec:
     """Build the :class:`JointSpec` the flags ask for."""
-    gyro: GyroSpec = args.gyro or ("mems" if has_gyro else "none")
+    gyro: GyroSpec = (
+        "mems" if args.gyro == "moves" else args.gyro or ("mems" if has_gyro else "none")
+    )
     if gyro == "nav" and args.latitude_deg is None:
         raise InputError("--gyro nav needs --latitude-deg (the gyro scale comes from Earth rate)")
     return JointSpec(
