@@ -138,7 +138,7 @@ def matrix_to_rotvec(r: Array) -> Array:
     return np.asarray(out, dtype=np.float64)
 
 
-def _reduce_product(q: Array) -> Array:
+def quat_chain(q: Array) -> Array:
     """Ordered product ``q_0 ⊗ q_1 ⊗ …`` along axis -2 of ``(..., n, 4)`` (pairwise)."""
     while q.shape[-2] > 1:
         if q.shape[-2] % 2:
@@ -161,7 +161,7 @@ def integrate_rates(rates: ArrayLike, dt_s: float) -> Array:
         raise InputError("integrate_rates: need at least two (n, 3) rate samples")
     a, b = w[..., :-1, :], w[..., 1:, :]
     phi = 0.5 * (a + b) * dt_s + cross(a, b) * (dt_s * dt_s / 12.0)
-    return quat_to_matrix(_reduce_product(rotvec_to_quat(phi)))
+    return quat_to_matrix(quat_chain(rotvec_to_quat(phi)))
 
 
 def move_rotation(rates: ArrayLike, dt_s: float, earth_rate_body: ArrayLike | None = None) -> Array:
