@@ -16,28 +16,9 @@ from canimucal.io.grouping import position_averages
 from canimucal.io.recording import Recording
 from canimucal.model.layout import JointSpec
 from canimucal.model.plan import builtin_plan
-from canimucal.model.positions import Plan, PlannedPosition
+from canimucal.model.positions import Plan
 from canimucal.sim.truth import Truth
-
-TURN_POSES_DEG = [
-    (0, 0, 0),
-    (90, 0, 0),
-    (0, 0, 0),
-    (0, 90, 0),
-    (0, 0, 0),
-    (0, 0, 90),
-    (0, 0, 0),
-    (-90, 0, 0),
-    (0, -90, 0),
-]
-"""Level, then a 90° turn about each body axis and back: every column of S is seen."""
-
-
-def turns_plan(seconds: float = 5.0) -> Plan:
-    positions = tuple(
-        PlannedPosition(*np.deg2rad(p), np.deg2rad(0.1), seconds) for p in TURN_POSES_DEG
-    )
-    return Plan("custom", positions)
+from tests.support.moves import TURN_POSES_DEG, turns_plan
 
 
 def site_of(truth: Truth) -> SiteConditions:
