@@ -6,11 +6,12 @@ Moves come from two sources:
   first row of the next, both with known angles. The known change is ``C_next C_prevᵀ``
   (``position_dcm``), uncertain by the plan's angle tolerance at both ends (1σ per axis
   ``√2 · tolerance``; moves sharing a position are treated as independent). A move with
-  lost samples (time steps longer than 1.5 sample intervals, or NaN gyro rows) up to 1 % of
-  its samples is filled by linear interpolation; one with more, or with a gap longer than
-  :data:`MAX_GAP_S`, is dropped with a note.
+  lost samples (counter jumps, else time steps beyond one sample interval, or NaN gyro
+  rows) up to 1 % of its samples is filled by linear interpolation; one with more, or with
+  a gap longer than :data:`MAX_GAP_S`, is dropped with a note.
 - **Known turns** (:class:`KnownTurn`, imucal's ``*_rot`` sections): the turn's rows plus
-  the still sample on each side, exact known angle.
+  the still sample on each side, the known angle about the fixed axis, uncertain by the
+  same ``√2 · tolerance``.
 
 The gyro bias is the one the static fit found. Around a move between positions, the local
 bias is the mean of the two positions' gyro means (drift removed), less the Earth rate each
@@ -106,28 +107,38 @@ def _position_runs(rec: Recording) -> list[tuple[int, int, int]]:
 def _uniform_rows(
     rec: Recording, start: int, stop: int, label: str, notes: list[str]
 ) -> Array | None:
-    """Gyro rows ``start:stop`` on a uniform time grid, lost samples interpolated (or None)."""
+    """Gyro rows ``start:stop`` on the sample clock, lost samples interpolated (or None).
+
+    Sample positions come from the counter (mod 65536) when the recording has one, else
+    from the time column: CAN timestamps of a node run faster than real time are not the
+    sample clock, its counter is.
+    """
     fs = rec.sample_rate_hz
-    t = rec.t[start:stop]
     g = rec.gyro[start:stop]
-    ok = np.all(np.isfinite(g), axis=1) & np.isfinite(t)
+    counter = rec.counter[start:stop]
+    if np.all(np.isfinite(counter)):
+        steps = np.diff(counter) % 65536
+        clock = np.concatenate([[0.0], np.cumsum(steps)])
+    else:
+        clock = np.round((rec.t[start:stop] - rec.t[start]) * fs)
+    ok = np.all(np.isfinite(g), axis=1) & np.isfinite(clock)
     if ok.sum() < 2:
         notes.append(f"{label}: dropped, no gyro samples")
         return None
-    t, g = t[ok], g[ok]
-    steps = np.diff(t)
-    if np.any(steps > MAX_GAP_S):
-        notes.append(f"{label}: dropped, a time gap of {steps.max():.3f} s")
+    clock, g = clock[ok], g[ok]
+    gap = float(np.max(np.diff(clock))) / fs
+    if gap > MAX_GAP_S or np.any(np.diff(clock) <= 0):
+        notes.append(f"{label}: dropped, a time gap of {gap:.3f} s")
         return None
-    n = int(round((t[-1] - t[0]) * fs)) + 1
-    lost = n - t.size
+    n = int(clock[-1] - clock[0]) + 1
+    lost = n - clock.size
     if lost > MAX_LOST_FRACTION * n:
         notes.append(f"{label}: dropped, {lost} of {n} samples lost (more than 1 %)")
         return None
     if lost == 0:
         return g
-    grid = t[0] + np.arange(n) / fs
-    return np.column_stack([np.interp(grid, t, g[:, j]) for j in range(3)])
+    grid = clock[0] + np.arange(n)
+    return np.column_stack([np.interp(grid, clock, g[:, j]) for j in range(3)])
 
 
 def _pose_move(
