@@ -51,8 +51,29 @@ def test_hidden_s_recovered_within_4_sigma() -> None:
     assert 0.6 < np.std(z) < 1.5
 
 
+def _alternating() -> Plan:
+    """The recommended poses with the stands alternating: level, tilted, turned, level, …"""
+    positions = builtin_plan("recommended").with_total_seconds(40.0).positions
+    return Plan("custom", tuple(positions[i] for i in (0, 4, 5, 1, 2, 6, 7, 3)))
+
+
+def test_recommended_poses_alternating_give_the_full_s_in_the_record() -> None:
+    truth, rec = simulated(4, _alternating())
+    site = site_of(truth)
+    spec = JointSpec(accel_k="full", tilt="rigid", gyro="mems")
+    static = solve_positions(position_averages(rec), spec, site, Device(serial=1))
+    solution, fit = solve_gyro_moves(rec, static, site)
+    assert fit.identifiable.all()
+    gyro = solution.record.gyro
+    assert gyro is not None and gyro.S is not None and gyro.S_sigma is not None
+    s, sigma = np.array(gyro.S, dtype=float), np.array(gyro.S_sigma, dtype=float)
+    assert np.all(np.abs(s - truth.gyro.S) < 4.0 * sigma), (s - truth.gyro.S) / sigma
+    assert np.all(sigma * truth.gyro.nominal_lsb < 0.005)
+
+
 def test_recommended_plan_sees_only_column_y_and_says_so() -> None:
-    """Its turns are about y; its one tilt move mixes x and z too little to fix them."""
+    """Its level and tilted turns are about y; the one move between the stands mixes x and z
+    too little to fix them."""
     truth, rec = simulated(1, builtin_plan("recommended").with_total_seconds(40.0))
     site = site_of(truth)
     spec = JointSpec(accel_k="full", tilt="rigid", gyro="mems")

@@ -7,17 +7,22 @@ import numpy as np
 import pytest
 
 from canimucal.model.plan import builtin_plan
-from canimucal.model.positions import Pose
+from canimucal.model.positions import Plan, PlannedPosition, Pose
 from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase
 from canimucal.sim.truth import Truth
 from tests.support.procedure_bench import Bench, of
 
-RECOMMENDED = builtin_plan("recommended")  # position 2 is the level pose turned 90° about y
+LEVEL_TURNS = Plan(
+    "custom",
+    tuple(PlannedPosition(0.0, 0.0, np.deg2rad(p), seconds=30.0) for p in (0, 90, 180, 270)),
+)
+"""Level, then turned 90° about y at a time: turns the accelerometer cannot see."""
+RECOMMENDED = builtin_plan("recommended")
 
 
 def _after_level(truth: Truth) -> Bench:
-    bench = Bench([truth], RECOMMENDED)
+    bench = Bench([truth], LEVEL_TURNS)
     bench.position()
     bench.do("accept")
     target = bench.proc.target
@@ -77,7 +82,7 @@ def test_moves_as_planned_pass_with_an_uncalibrated_gyro(truth: Truth) -> None:
 
 
 def test_move_check_can_be_switched_off(truth: Truth) -> None:
-    bench = Bench([truth], RECOMMENDED, move_tolerance_deg=None)
+    bench = Bench([truth], LEVEL_TURNS, move_tolerance_deg=None)
     bench.position()
     bench.do("accept")
     bench.run(1.0)
