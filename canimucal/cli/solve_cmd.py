@@ -76,10 +76,21 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--gyro moves needs labelled positions with angles")
         averages = _unlabelled_averages(rec)
         solution = solve_scalar(averages, site, device, full=args.model == "full", recording=ref)
-    for warning in solution.warnings:
+    for warning in (*solution.warnings, *_unchecked_gyro(solution)):
         print(f"warning: {warning}", file=sys.stderr)
     emit(args, calibration_to_dict(solution.record), solution_report(solution, cond.g_source))
     return 0
+
+
+def _unchecked_gyro(solution: Solution) -> tuple[str, ...]:
+    """Say so when the gyro's scale went unchecked (no S from moves or Earth rate)."""
+    gyro = solution.record.gyro
+    if gyro is None or (gyro.S is not None and any(v is not None for r in gyro.S for v in r)):
+        return ()
+    return (
+        "gyro scale and misalignment were not checked (bias only); --gyro moves estimates "
+        "them from the moves between positions",
+    )
 
 
 def _serial(rec: Recording) -> int:

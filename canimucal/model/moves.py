@@ -405,7 +405,10 @@ def solve_moves(
     else:
         notes.append(f"gyro from moves: Gauss–Newton stopped after {max_iterations} steps")
     r, jac = _whitened(moves, s.reshape(3, 3), b, g, sigmas)
-    cov = _free_covariance(jac, free, s0)
+    try:
+        cov = _free_covariance(jac, free, s0)
+    except np.linalg.LinAlgError:
+        raise InputError("gyro from moves: the moves do not determine S (singular)") from None
     out = np.where(free, s, np.nan)
     sig = np.full(9, np.nan)
     sig[free] = np.sqrt(np.diag(cov))

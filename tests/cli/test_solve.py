@@ -355,3 +355,9 @@ def test_gyro_moves_on_a_recording_without_angles_is_refused(
     run = cli(["solve", path, "--gyro", "moves"])
     assert run.code == 2
     assert "--gyro moves needs labelled positions with angles" in run.err
+
+
+def test_gyro_scale_left_unchecked_is_said(cli: Cli, simulated: Sim) -> None:
+    run = cli(["solve", simulated("two", "level").path])
+    assert run.code == 0
+    assert "warning: gyro scale and misalignment were not checked" in run.err
