@@ -20,37 +20,43 @@ import numpy as np
 from canimucal.analysis.acceptance import AcceptanceLimits, acceptance_block, check_acceptance
 from canimucal.analysis.calibrate import SiteConditions, Solution, solve_positions, solve_scalar
 from canimucal.analysis.conditions import recording_conditions
+from canimucal.analysis.gyro_moves import solve_gyro_moves
 from canimucal.errors import InputError
 from canimucal.io.calibration import Calibration, Device, RecordingRef, sha256_of
 from canimucal.io.grouping import average_rows, has_angles, position_averages, position_rows
-from canimucal.io.recording import Recording, read_recording
+from canimucal.io.importers import read_any
+from canimucal.io.recording import Recording
 from canimucal.model.layout import GyroSpec, JointSpec
 from canimucal.model.positions import PositionAverage
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, STANDARD_GRAVITY
 
 ModelName = Literal["diag", "full"]
 TiltModel = Literal["rigid", "additive"]
+GyroChoice = Literal["none", "mems", "moves", "nav"]
 
 
 @dataclass(frozen=True)
 class ModelChoice:
     """Which model to solve: the options of ``canimucal solve`` (same names, same defaults).
 
-    ``gyro`` None means ``mems`` when every position has gyro data, else ``none``.
+    ``gyro`` None means ``mems`` when every position has gyro data, else ``none``; ``moves``
+    adds S from the moves (:mod:`canimucal.analysis.gyro_moves`) to the ``mems`` fit.
     ``latitude_deg`` and ``g`` override the recording's header.
     """
 
     model: ModelName = "diag"
     tilt: bool = False
     tilt_model: TiltModel = "rigid"
-    gyro: GyroSpec | None = None
+    gyro: GyroChoice | None = None
     gyro_g: bool = False
     latitude_deg: float | None = None
     g: float | None = None
 
     def spec(self, *, has_gyro: bool) -> JointSpec:
         """Build the :class:`JointSpec` of this choice (InputError: ``nav`` without latitude)."""
-        gyro: GyroSpec = self.gyro or ("mems" if has_gyro else "none")
+        gyro: GyroSpec = (
+            "mems" if self.gyro == "moves" else self.gyro or ("mems" if has_gyro else "none")
+        )
         if gyro == "nav" and self.latitude_deg is None:
             raise InputError(
                 "--gyro nav needs --latitude-deg (the gyro scale comes from Earth rate)"
@@ -111,7 +117,11 @@ def solve_recording(
         averages = position_averages(rec)
         spec = choice.spec(has_gyro=all(a.mean_gyro is not None for a in averages))
         solution = solve_positions(averages, spec, site, device, recording=recording)
+        if choice.gyro == "moves":  # imucal's turns are known; its poses leave psi free
+            solution, _ = solve_gyro_moves(rec, solution, site, pose_moves=not rec.turns)
     else:
+        if choice.gyro == "moves":
+            raise InputError("--gyro moves needs labelled positions with angles")
         solution = solve_scalar(
             _unknown_pose_averages(rec),
             site,
@@ -119,8 +129,20 @@ def solve_recording(
             full=choice.model == "full",
             recording=recording,
         )
+    solution = replace(solution, warnings=solution.warnings + _unchecked_gyro(solution))
     return RecordingSolution(
         _with_acceptance(solution, site, limits or AcceptanceLimits()), g_source
+    )
+
+
+def _unchecked_gyro(solution: Solution) -> tuple[str, ...]:
+    """Say so when the gyro's scale went unchecked (no S from moves or Earth rate)."""
+    gyro = solution.record.gyro
+    if gyro is None or (gyro.S is not None and any(v is not None for r in gyro.S for v in r)):
+        return ()
+    return (
+        "gyro scale and misalignment were not checked (bias only); --gyro moves estimates "
+        "them from the moves between positions",
     )
 
 
@@ -153,7 +175,7 @@ def calibrate(
     *,
     model: ModelName | None = None,
     tilt: bool | None = None,
-    gyro: GyroSpec | None = None,
+    gyro: GyroChoice | None = None,
     tilt_model: TiltModel = "rigid",
     gyro_g: bool = False,
     g: float | None = None,
@@ -179,7 +201,7 @@ def calibrate(
     if isinstance(source, str | os.PathLike):
         path = Path(source)
         ref = RecordingRef(file=path.name, sha256=sha256_of(path))
-        return solve_recording(read_recording(path), choice, recording=ref).record
+        return solve_recording(read_any(path), choice, recording=ref).record
     if isinstance(source, Recording):
         return solve_recording(source, choice).record
     return _calibrate_averages(list(source), choice)

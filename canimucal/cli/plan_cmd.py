@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from canimucal.analysis.gyro_bounds import GyroMoveBounds, gyro_move_bounds
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.cli.spec_options import add_model_options, spec_from_args
 from canimucal.io.plans import resolve_plan
@@ -57,8 +58,41 @@ def run(args: argparse.Namespace) -> int:
         latitude=latitude,
         include_tolerance=args.with_tolerance,
     )
-    emit(args, bound_document(table, plan.total_seconds), bound_report(table, plan.total_seconds))
+    document = bound_document(table, plan.total_seconds)
+    report = bound_report(table, plan.total_seconds)
+    if args.gyro == "moves":
+        moves = gyro_move_bounds(plan)
+        document["gyro_moves"] = moves_document(moves)
+        report += moves_report(moves)
+    emit(args, document, report)
     return 0
+
+
+def moves_document(bounds: GyroMoveBounds) -> dict[str, Any]:
+    """Return the JSON form of the gyro bounds from the plan's moves."""
+    sigma = [[None if np.isnan(v) else float(v) for v in row] for row in bounds.relative_sigma]
+    return {
+        "S_relative_sigma": sigma,
+        "identifiable_columns": {a: bool(bounds.identifiable[j]) for j, a in enumerate("xyz")},
+        "seen_by": {a: list(bounds.seen_by[j]) for j, a in enumerate("xyz")},
+        "moves": list(bounds.moves),
+        "notes": list(bounds.notes),
+    }
+
+
+def moves_report(bounds: GyroMoveBounds) -> str:
+    """Format the gyro bounds from the moves: which moves identify which S entries."""
+    lines = ["gyro S from the moves (σ as a fraction of the scale factor):"]
+    lines += [f"  move {m}" for m in bounds.moves]
+    for j, axis in enumerate("xyz"):
+        column = bounds.relative_sigma[:, j]
+        if not bounds.identifiable[j]:
+            lines.append(f"  column {axis} (S_x{axis}, S_y{axis}, S_z{axis}): not identifiable")
+            continue
+        sig = ", ".join(f"{v:.2g}" for v in column)
+        lines.append(f"  column {axis}: σ {sig}; seen by moves {', '.join(bounds.seen_by[j])}")
+    lines += [f"  {note}" for note in bounds.notes]
+    return "\n".join(lines) + "\n"
 
 
 def bound_document(table: BoundTable, total_seconds: float) -> dict[str, Any]:

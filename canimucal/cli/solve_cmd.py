@@ -12,7 +12,7 @@ from canimucal.analysis.solve import solve_recording
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.cli.spec_options import add_model_options, choice_from_args
 from canimucal.io.calibration import RecordingRef, sha256_of
-from canimucal.io.recording import read_recording
+from canimucal.io.importers import FORMATS, detect_format, load_any
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -24,7 +24,10 @@ def add_subparser(subparsers: Any) -> None:
         "angles, the scalar |f| = g fit otherwise. Prints every parameter with its σ; "
         "--json writes the calibration JSON.",
     )
-    p.add_argument("recording", help="recording CSV (canimucal.recording/1)")
+    p.add_argument("recording", help="recording CSV, imu_tk accelerometer file or imucal CSV")
+    p.add_argument("second", nargs="?", help="imu_tk gyro file, or imucal section JSON (optional)")
+    p.add_argument("--format", choices=FORMATS, help="input format (default: from content)")
+    p.add_argument("--sample-rate-hz", type=float, help="sample rate when the input has none")
     add_model_options(p, default_tilt=False)
     p.add_argument("--g", type=float, help="local gravity, m/s² (default: header, latitude)")
     add_json_option(p)
@@ -34,7 +37,10 @@ def add_subparser(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Solve and report."""
     check_outputs(args)
-    rec = read_recording(args.recording)
+    fmt = args.format or (
+        detect_format(args.recording) if Path(args.recording).is_file() else "recording"
+    )  # a missing file: the recording reader says "cannot read"
+    rec = load_any(args.recording, args.second, fmt=fmt, sample_rate_hz=args.sample_rate_hz)
     ref = RecordingRef(file=Path(args.recording).name, sha256=sha256_of(args.recording))
     solved = solve_recording(rec, choice_from_args(args), recording=ref)
     for warning in solved.solution.warnings:

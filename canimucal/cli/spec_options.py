@@ -33,9 +33,10 @@ def add_model_options(parser: argparse.ArgumentParser, *, default_tilt: bool) ->
     )
     parser.add_argument(
         "--gyro",
-        choices=("none", "mems", "nav"),
+        choices=("none", "mems", "moves", "nav"),
         default=None,
-        help="gyro model: bias only (mems) or bias and scale from Earth rate (nav)",
+        help="gyro model: bias only (mems), bias and full S from the moves (moves), or bias "
+        "and scale from Earth rate (nav)",
     )
     parser.add_argument("--gyro-g", action="store_true", help="estimate the gyro g-sensitivity")
     parser.add_argument(

@@ -9,8 +9,10 @@
   m/s², the sensor's nominal units) and a section JSON ``{name: {"start", "end"}}`` of
   sample indices. The values are kept in their units, which become the "counts" of the
   recording: ``accel_lsb: 1`` (m/s² per unit) and ``gyro_lsb: π/180`` (rad/s per deg/s).
-  Sections whose name ends in ``_rot`` (rotations) are left unlabelled; the static ones
-  become positions 0, 1, … in file order. The six Ferraris poses carry their angles
+  Sections whose name ends in ``_rot`` are left unlabelled and become known turns
+  (:class:`KnownTurn`): −360° about the body axis their name starts with (imucal's own
+  default, ``expected_angle = −360``: the operator turns clockwise); the static ones become
+  positions 0, 1, … in file order. The six Ferraris poses carry their angles
   (:data:`FERRARIS_POSES`: ``x_p`` = +x up, ``x_a`` = +x down, …); other static sections
   have none. The CSV has no time column: ``sample_rate_hz`` must be given.
 
@@ -19,6 +21,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import os
@@ -29,7 +32,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.errors import InputError
-from canimucal.io.recording import HeaderValue, Recording, read_recording, recording_from_columns
+from canimucal.io.recording import (
+    HeaderValue,
+    KnownTurn,
+    Recording,
+    read_recording,
+    recording_from_columns,
+)
 
 log = logging.getLogger(__name__)
 
@@ -152,11 +161,15 @@ def read_imucal(
     n = data[:, 0].astype(np.int64)
     position = np.full(n.size, -1, dtype=np.int64)
     angles = np.full((n.size, 3), np.nan)
-    if sections_path is not None:
-        for label, (name, start, end) in enumerate(_static_sections(sections_path)):
-            rows = (n >= start) & (n < end)
-            position[rows] = label
-            angles[rows] = FERRARIS_POSES.get(name, (np.nan, np.nan, np.nan))
+    sections = _sections(sections_path) if sections_path is not None else []
+    static = [sec for sec in sections if not sec[0].endswith("_rot")]
+    for label, (name, start, end) in enumerate(static):
+        rows = (n >= start) & (n < end)
+        position[rows] = label
+        angles[rows] = FERRARIS_POSES.get(name, (np.nan, np.nan, np.nan))
+    turns = tuple(
+        turn for sec in sections if sec[0].endswith("_rot") if (turn := _turn(sec, n)) is not None
+    )
     header: dict[str, HeaderValue] = {
         "sample_rate_hz": float(sample_rate_hz),
         "accel_units": "m/s^2",
@@ -164,7 +177,7 @@ def read_imucal(
         "accel_lsb": 1.0,
         "gyro_lsb": float(np.pi / 180.0),
     }
-    return recording_from_columns(
+    recording = recording_from_columns(
         header,
         t=n / float(sample_rate_hz),
         accel=data[:, 4:7],
@@ -174,10 +187,26 @@ def read_imucal(
         beta_deg=angles[:, 1],
         psi_deg=angles[:, 2],
     )
+    return dataclasses.replace(recording, turns=turns)
 
 
-def _static_sections(path: _PathLike) -> list[tuple[str, int, int]]:
-    """``(name, start, end)`` of each static section of an imucal section JSON, in file order."""
+IMUCAL_TURN_DEG = -360.0
+"""The angle of imucal's ``*_rot`` sections (its ``expected_angle`` default)."""
+
+
+def _turn(section: tuple[str, int, int], n: NDArray[np.int64]) -> KnownTurn | None:
+    """Return the known turn of an ``x_rot``/``y_rot``/``z_rot`` section (rows by index)."""
+    name, start, end = section
+    axis = "xyz".find(name[:1])
+    rows = np.flatnonzero((n >= start) & (n < end))
+    if axis < 0 or name != f"{name[:1]}_rot" or rows.size < 2:
+        log.warning("imucal: section %r is not a turn about x, y or z; ignored", name)
+        return None
+    return KnownTurn(name, int(rows[0]), int(rows[-1]) + 1, axis, IMUCAL_TURN_DEG)
+
+
+def _sections(path: _PathLike) -> list[tuple[str, int, int]]:
+    """``(name, start, end)`` of each section of an imucal section JSON, in file order."""
     try:
         doc = json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
@@ -190,8 +219,7 @@ def _static_sections(path: _PathLike) -> list[tuple[str, int, int]]:
             raise InputError(f"{path}: section {name!r} needs integer 'start' and 'end'")
         if not isinstance(sec.get("end"), int) or sec["end"] <= sec["start"]:
             raise InputError(f"{path}: section {name!r} needs an integer 'end' after 'start'")
-        if not str(name).endswith("_rot"):
-            out.append((str(name), int(sec["start"]), int(sec["end"])))
+        out.append((str(name), int(sec["start"]), int(sec["end"])))
     return out
 
 

@@ -31,6 +31,7 @@ __all__ = [
     "COLUMN_LINE",
     "SCHEMA",
     "HeaderValue",
+    "KnownTurn",
     "Recording",
     "read_recording",
     "recording_from_columns",
@@ -44,13 +45,30 @@ DEVICE_RATES_HZ = (50, 100, 200, 250, 500, 1000)
 # ------------------------------------------------------------------------------- recording
 
 
+@dataclass(frozen=True)
+class KnownTurn:
+    """A turn of known angle about a known body axis, rows ``start`` to ``stop`` (exclusive).
+
+    The unit is still at both ends and the start and end attitudes are the same (imucal's
+    ``*_rot`` sections: a full turn). ``axis`` is 0, 1, 2 for body x, y, z; ``angle_deg``
+    is signed, right hand about the axis.
+    """
+
+    label: str
+    start: int
+    stop: int
+    axis: int
+    angle_deg: float
+
+
 @dataclass(frozen=True, eq=False)
 class Recording:
     """A parsed recording: typed header and one numpy array per column (see module doc).
 
     ``accel``/``gyro`` are ``(n, 3)`` counts; ``position`` is int with -1 for "no position".
     ``sample_rate_inferred`` is true when the header had no ``sample_rate_hz`` and the
-    value in ``header`` is the median sample interval's inverse.
+    value in ``header`` is the median sample interval's inverse. ``turns`` are the known
+    turns an importer found (gyro moves beside the labelled positions).
     """
 
     header: dict[str, HeaderValue]
@@ -65,6 +83,7 @@ class Recording:
     temp_c: FloatArray
     sample_rate_inferred: bool = False
     source: str = field(default="", compare=False)
+    turns: tuple[KnownTurn, ...] = field(default=(), compare=False)
 
     @property
     def n_rows(self) -> int:

@@ -45,6 +45,8 @@ class ProcedureConfig:
     settle_s: float = 2.0
     pose_tolerance_deg: float = 3.0
     first_pose_tolerance_deg: float = 5.0
+    move_tolerance_deg: float | None = 15.0
+    """Largest attitude error the gyro may see over a move (None: moves are not checked)."""
     disturbance_k: float = 6.0
     chunk_s: float = 0.5
     verify_seconds: float = 10.0

@@ -120,6 +120,20 @@ class PoseRefused(Event):
 
 
 @dataclass(frozen=True)
+class MoveRefused(PoseRefused):
+    """The gyro saw a different turn from the last accepted position than the plan's.
+
+    A :class:`PoseRefused` (displays and operators treat it as one): ``measured_deg`` and
+    ``target_deg`` hold the target's (alpha, beta), which the accelerometer confirmed;
+    ``error_deg`` is the attitude error the gyro measured. ``turn_measured_deg`` and
+    ``turn_target_deg`` are the turns as rotation vectors (degrees, body axes).
+    """
+
+    turn_measured_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    turn_target_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
 class AveragingStarted(Event):
     """The pose was checked and averaging of position ``index`` began."""
 

@@ -28,6 +28,7 @@ from canimucal.procedure.averaging import choose_time
 from canimucal.procedure.config import LEVEL, ProcedureConfig
 from canimucal.procedure.events import Phase
 from canimucal.procedure.level import level_check
+from canimucal.procedure.movecheck import MoveTracker
 from canimucal.procedure.posecheck import (
     PoseCheck,
     check_pose,
@@ -52,6 +53,9 @@ class Procedure:
         self.tracks = {
             n: NodeTrack(n, config.sample_rate_hz, site.accel_lsb, site.gyro_lsb)
             for n in config.node_ids
+        }
+        self.move_trackers = {
+            n: MoveTracker(config.sample_rate_hz, site.gyro_lsb) for n in config.node_ids
         }
         self.warmups = {
             n: WarmupTracker(
@@ -129,6 +133,7 @@ class Procedure:
         step = track.advance(block)
         averaging = self.phase is Phase.AVERAGING and track.attempt is not None
         track.record(block, undecided=averaging)
+        self.move_trackers[node_id].add(block.gyro)
         out: list[ev.Event] = []
         out += self._live(track, block)
         if self.phase is Phase.WARMUP:
@@ -189,13 +194,40 @@ class Procedure:
                     result.message(),
                 )
             ]
+        assert worst is not None
+        moved = self._check_moves(worst.target_deg)
+        if moved is not None:
+            self._set_phase(Phase.INSTRUCT)
+            return [moved]
         for track in self.tracks.values():
             track.attempt = Attempt()
         self._last_progress_s = -np.inf
-        assert worst is not None
         events: list[ev.Event] = self._set_phase(Phase.AVERAGING)
         seconds = self.seconds_for(self.index)
         return events + [ev.AveragingStarted(self.index, seconds, worst.tilt_error_deg)]
+
+    def _check_moves(self, tilt_deg: tuple[float, float]) -> ev.MoveRefused | None:
+        """Return the refusal of the first node whose gyro saw another move than the plan's."""
+        tol = self.config.move_tolerance_deg
+        if tol is None or self.verifying:
+            return None
+        for node_id, tracker in self.move_trackers.items():
+            result = tracker.check(self.target, tol)
+            if result is None or result.passed:
+                continue
+            logger.info("node %d: move refused: %s", node_id, result.message())
+            return ev.MoveRefused(
+                self.index,
+                node_id,
+                tilt_deg,
+                tilt_deg,
+                result.error_deg,
+                tol,
+                result.message(),
+                result.measured_deg,
+                result.target_deg,
+            )
+        return None
 
     def _averaging(self, track: NodeTrack, block: SampleBlock, step: int) -> list[ev.Event]:
         cfg = self.config
@@ -261,6 +293,7 @@ class Procedure:
             track.decide(index, (angles[0], angles[1], angles[2]))
             track.attempt = None
             learn_from_average(track, average, pose, self.config.site.g)
+            self.move_trackers[node_id].start(pose, average.mean_gyro)
         events: list[ev.Event] = [ev.PositionAccepted(index), *chosen]
         return events + self._next_position()
 
@@ -294,6 +327,8 @@ class Procedure:
         if self.phase not in (Phase.INSTRUCT, Phase.SETTLING) or self.index == 0:
             return []
         self.skipped.add(self.index)
+        for tracker in self.move_trackers.values():
+            tracker.clear()  # the unit is somewhere the plan does not say: next move unchecked
         return self._next_position()
 
     def cancel(self) -> list[ev.Event]:

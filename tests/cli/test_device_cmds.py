@@ -29,6 +29,7 @@ from canimucal.io.recording import read_recording
 from canimucal.io.truth import write_truth
 from canimucal.schema import to_plain
 from canimucal.sim.truth import Truth
+from tests.support.moves import TURN_POSES_DEG
 
 Cli = Callable[[list[Any]], Any]  # the ``cli`` fixture of tests/cli/conftest.py
 SERIAL = 4242
@@ -345,3 +346,41 @@ def test_record_interrupted_keeps_what_was_recorded(tmp_path: Path) -> None:
     assert proc.returncode == 130, err
     assert out.exists() and not partial.exists()
     assert read_recording(out).n_rows > 100
+
+
+def test_hidden_gyro_s_recovered_through_the_canopen_path(cli: Cli, tmp_path: Path) -> None:
+    """The simulated node's S off nominal (scales ±3 %, cross-axis ±1 %): the turns plan
+    recorded over the bus, ``solve --gyro moves``, then S⁻¹ written to 0x2111 and read back.
+    """
+    d = Truth.random(np.random.default_rng(TRUTH_SEED + 1), cross_axis_max=0.01).to_dict()
+    d["serial"] = SERIAL
+    truth = Truth.from_dict(d)
+    truth_path = write_truth(tmp_path / "truth.json", truth, overwrite=False)
+    plan = tmp_path / "turns.json"
+    positions = [
+        {"alpha_deg": a, "beta_deg": b, "psi_deg": p, "seconds": 3.0} for a, b, p in TURN_POSES_DEG
+    ]
+    plan.write_text(json.dumps({"positions": positions}))
+    flags = sim_flags(truth_path, tmp_path / "state.json", scale=25.0)
+    out = tmp_path / "turns.csv"
+    assert cli(["record", out, "--plan", plan, *flags]).code == 0
+    cal = tmp_path / "cal.json"
+    run = cli(["solve", out, "--gyro", "moves", "--model", "full", "--tilt", "--json", cal])
+    assert run.code == 0, run.err
+    record = read_calibration(cal)
+    assert record.gyro is not None and record.gyro.S is not None
+    s = np.array(record.gyro.S, dtype=float)
+    sigma = np.array(record.gyro.S_sigma, dtype=float)
+    z = (s - truth.gyro.S) / sigma
+    # 9 entries within 4σ: P(any beyond | Gaussian) ≈ 6e-4 per run (fixed seeds)
+    assert np.all(np.abs(z) < 4.0), z
+    assert np.all(sigma * truth.gyro.nominal_lsb < 0.005)
+    run = cli(["write-params", cal, *flags])
+    assert run.code == 0, run.err  # read back bit-exactly inside the transaction
+    after = read_params(cli, flags, tmp_path / "read.json")  # a new process: from its store
+    nominal = after["nominal"]
+    block = block_from_record(record, nominal["accel_lsb"], nominal["gyro_lsb"])
+    expected = readback_of(od.CalibrationBlock.from_objects(block.to_objects()), 1, True)
+    assert after["readback"] == to_plain(expected)  # S⁻¹ (0x2111) and G (0x2112) bit-exact
+    held = np.linalg.inv(np.array(after["readback"]["gyro_correction"], dtype=float))
+    np.testing.assert_allclose(held, s, rtol=1e-5)  # float32 of S⁻¹, inverted back

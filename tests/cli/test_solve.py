@@ -294,3 +294,70 @@ def test_python_dash_m_runs_solve(simulated: Sim) -> None:
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["plan"] == "two"
     assert "Traceback" not in proc.stderr
+
+
+DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
+IMUCAL_CSV = DATA / "imucal_example_ferraris_session.csv"
+IMUCAL_SECTIONS = DATA / "imucal_example_ferraris_session_list.json"
+IMUCAL_KG_RG = np.array(
+    [
+        [1.0279030921108503, -0.00046689722733542574, -0.006590606955485163],
+        [-0.00021830076271155843, 0.982423943314377, -0.0027347345695309115],
+        [0.009697592565938506, 0.0076281835698891395, 0.9982342394732935],
+    ]
+)
+"""imucal 2.6.0's own K_g·R_g on its example session (FerrarisCalibration defaults, 102.4 Hz)."""
+
+
+@pytest.mark.skipif(not IMUCAL_CSV.is_file(), reason=f"imucal example absent at {DATA}")
+def test_imucal_session_gyro_moves_agree_with_imucal(cli: Cli, tmp_path: Path) -> None:
+    """``|ΔS_ij| · 3 / tr S ≤ 0.005``, each matrix normalised by its own trace."""
+    out = tmp_path / "imucal.json"
+    run = cli(
+        [
+            "solve",
+            "--format",
+            "imucal",
+            IMUCAL_CSV,
+            IMUCAL_SECTIONS,
+            "--sample-rate-hz",
+            "102.4",
+            "--gyro",
+            "moves",
+            "--model",
+            "full",
+            "--json",
+            out,
+        ]
+    )
+    assert run.code == 0, run.err
+    doc = json.loads(out.read_text())
+    s = np.array(doc["gyro"]["S"]) * np.pi / 180.0  # counts are deg/s: S per (deg/s)
+    ours = s * 3.0 / np.trace(s)
+    theirs = IMUCAL_KG_RG * 3.0 / np.trace(IMUCAL_KG_RG)
+    assert np.max(np.abs(ours - theirs)) <= 0.005, ours - theirs
+    assert all(v is not None for row in doc["gyro"]["S_sigma"] for v in row)
+
+
+def _drop_angles(head: list[str], rows: list[str]) -> list[str]:
+    def plain(row: str) -> str:
+        f = row.split(",")
+        f[3] = f[4] = f[5] = ""
+        return ",".join(f)
+
+    return head + [plain(r) for r in rows]
+
+
+def test_gyro_moves_on_a_recording_without_angles_is_refused(
+    cli: Cli, simulated: Sim, tmp_path: Path
+) -> None:
+    path = _rewrite(simulated("two", "level").path, tmp_path / "plain.csv", _drop_angles)
+    run = cli(["solve", path, "--gyro", "moves"])
+    assert run.code == 2
+    assert "--gyro moves needs labelled positions with angles" in run.err
+
+
+def test_gyro_scale_left_unchecked_is_said(cli: Cli, simulated: Sim) -> None:
+    run = cli(["solve", simulated("two", "level").path])
+    assert run.code == 0
+    assert "warning: gyro scale and misalignment were not checked" in run.err

@@ -76,6 +76,16 @@ def test_imucal_sections_label_static_positions(tmp_path: Path) -> None:
     assert rec.gyro[0, 2] == pytest.approx(0.3)
 
 
+def test_imucal_rotation_sections_become_known_turns(tmp_path: Path) -> None:
+    csv, sections = _imucal(tmp_path)
+    rec = read_imucal(csv, sections, 102.4)
+    assert len(rec.turns) == 1
+    turn = rec.turns[0]
+    assert (turn.label, turn.start, turn.stop, turn.axis) == ("x_rot", 100, 160, 0)
+    assert turn.angle_deg == -360.0
+    assert np.all(rec.position[turn.start : turn.stop] == -1)
+
+
 def test_imucal_needs_a_sample_rate(tmp_path: Path) -> None:
     csv, sections = _imucal(tmp_path)
     with pytest.raises(InputError, match="sample-rate"):
@@ -121,5 +131,10 @@ def test_real_imucal_set_loads() -> None:
         sample_rate_hz=102.4,
     )
     assert sorted(set(rec.position.tolist())) == [-1, 0, 1, 2, 3, 4, 5]
+    assert [(t.label, t.start, t.stop, t.axis) for t in rec.turns] == [
+        ("x_rot", 6770, 7093, 0),
+        ("y_rot", 8081, 8405, 1),
+        ("z_rot", 9205, 9512, 2),
+    ]
     x_p = rec.accel[rec.position == 0].mean(axis=0)
     assert x_p[0] == pytest.approx(9.8, abs=0.6)

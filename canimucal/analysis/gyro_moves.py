@@ -1,0 +1,238 @@
+"""Gyro S from the moves of a recording, folded into a solved calibration (DESIGN §9).
+
+Moves come from two sources:
+
+- **Between labelled positions**: the samples from the last row of one position to the
+  first row of the next, both with known angles. The known change is ``C_next C_prevᵀ``
+  (``position_dcm``), uncertain by the plan's angle tolerance at both ends (1σ per axis
+  ``√2 · tolerance``; moves sharing a position are treated as independent). A move with
+  lost samples (counter jumps, else time steps beyond one sample interval, or NaN gyro
+  rows) up to 1 % of its samples is filled by linear interpolation; one with more, or with
+  a gap longer than :data:`MAX_GAP_S`, is dropped with a note.
+- **Known turns** (:class:`KnownTurn`, imucal's ``*_rot`` sections): the turn's rows plus
+  the still sample on each side, the known angle about the fixed axis, uncertain by the
+  same ``√2 · tolerance``.
+
+The gyro bias is the one the static fit found. Around a move between positions, the local
+bias is the mean of the two positions' gyro means (drift removed), less the Earth rate each
+pose sees when the latitude is known; the Earth rate is then removed in the integration
+(:func:`canimucal.model.moves.move_rotation`). Without a latitude, and for known turns, the
+Earth rate stays in the bias (as imucal does), an error of at most Ω·T per move.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from canimucal.analysis.calibrate import SiteConditions, Solution
+from canimucal.errors import InputError
+from canimucal.io.calibration import record_from_estimates
+from canimucal.io.recording import Recording
+from canimucal.model.frames import earth_rate_level, position_dcm
+from canimucal.model.moves import AXES, Move, MovesFit, pose_move, solve_moves, turn_move
+
+Array = NDArray[np.float64]
+
+MAX_LOST_FRACTION = 0.01
+"""A move may lose at most this fraction of its samples."""
+MAX_GAP_S = 0.1
+"""A move with a time gap longer than this is dropped."""
+
+
+@dataclass(frozen=True)
+class RecordingMoves:
+    """The moves found in a recording, the bias used for each, and notes on dropped ones."""
+
+    moves: tuple[Move, ...]
+    biases: tuple[Array, ...]
+    rate_sigma_counts: Array
+    notes: tuple[str, ...]
+
+
+def recording_moves(
+    rec: Recording,
+    site: SiteConditions,
+    *,
+    tolerance_deg: float = 0.1,
+    pose_moves: bool = True,
+) -> RecordingMoves:
+    """Collect the moves of ``rec`` (module doc); ``pose_moves`` false keeps known turns only."""
+    runs = _position_runs(rec)
+    if not runs:
+        raise InputError(f"{rec.source or 'recording'}: gyro moves need labelled positions")
+    fs = rec.sample_rate_hz
+    s0 = np.eye(3) / site.gyro_lsb
+    static = np.concatenate([rec.gyro[a : b + 1] for _, a, b in runs])
+    static = static[np.all(np.isfinite(static), axis=1)]
+    sigma = np.median([np.nanstd(rec.gyro[a : b + 1], axis=0, ddof=1) for _, a, b in runs], 0)
+    moves: list[Move] = []
+    biases: list[Array] = []
+    notes: list[str] = []
+    sigma_pose = float(np.sqrt(2.0) * np.deg2rad(tolerance_deg))
+    for turn in rec.turns:
+        start, stop = max(turn.start - 1, 0), min(turn.stop + 1, rec.n_rows)
+        rows = _uniform_rows(rec, start, stop, turn.label, notes)
+        if rows is None:
+            continue
+        moves.append(
+            turn_move(rows, 1.0 / fs, turn.axis, np.deg2rad(turn.angle_deg), sigma_pose, turn.label)
+        )
+        biases.append(static.mean(axis=0))  # imucal's bias: all static samples stacked
+    if pose_moves:
+        for (la, _, a_end), (lb, b_start, _) in zip(runs, runs[1:], strict=False):
+            label = f"position {la} → {lb}"
+            pair = _pose_move(rec, site, s0, (la, a_end), (lb, b_start), sigma_pose, label, notes)
+            if pair is not None:
+                moves.append(pair[0])
+                biases.append(pair[1])
+    return RecordingMoves(tuple(moves), tuple(biases), sigma, tuple(notes))
+
+
+def _position_runs(rec: Recording) -> list[tuple[int, int, int]]:
+    """``(label, first_row, last_row)`` of each unbroken run of one position label."""
+    pos = rec.position
+    change = np.flatnonzero(np.diff(pos) != 0) + 1
+    starts = np.concatenate([[0], change])
+    stops = np.concatenate([change, [pos.size]])
+    return [
+        (int(pos[a]), int(a), int(b) - 1) for a, b in zip(starts, stops, strict=True) if pos[a] >= 0
+    ]
+
+
+def _uniform_rows(
+    rec: Recording, start: int, stop: int, label: str, notes: list[str]
+) -> Array | None:
+    """Gyro rows ``start:stop`` on the sample clock, lost samples interpolated (or None).
+
+    Sample positions come from the counter (mod 65536) when the recording has one, else
+    from the time column: CAN timestamps of a node run faster than real time are not the
+    sample clock, its counter is.
+    """
+    fs = rec.sample_rate_hz
+    g = rec.gyro[start:stop]
+    counter = rec.counter[start:stop]
+    if np.all(np.isfinite(counter)):
+        steps = np.diff(counter) % 65536
+        clock = np.concatenate([[0.0], np.cumsum(steps)])
+    else:
+        clock = np.round((rec.t[start:stop] - rec.t[start]) * fs)
+    ok = np.all(np.isfinite(g), axis=1) & np.isfinite(clock)
+    if ok.sum() < 2:
+        notes.append(f"{label}: dropped, no gyro samples")
+        return None
+    clock, g = clock[ok], g[ok]
+    gap = float(np.max(np.diff(clock))) / fs
+    if gap > MAX_GAP_S or np.any(np.diff(clock) <= 0):
+        notes.append(f"{label}: dropped, a time gap of {gap:.3f} s")
+        return None
+    n = int(clock[-1] - clock[0]) + 1
+    lost = n - clock.size
+    if lost > MAX_LOST_FRACTION * n:
+        notes.append(f"{label}: dropped, {lost} of {n} samples lost (more than 1 %)")
+        return None
+    if lost == 0:
+        return g
+    grid = clock[0] + np.arange(n)
+    return np.column_stack([np.interp(grid, clock, g[:, j]) for j in range(3)])
+
+
+def _pose_move(
+    rec: Recording,
+    site: SiteConditions,
+    s0: Array,
+    start: tuple[int, int],
+    end: tuple[int, int],
+    sigma_pose: float,
+    label: str,
+    notes: list[str],
+) -> tuple[Move, Array] | None:
+    (la, a_end), (lb, b_start) = start, end
+    angles = np.deg2rad(np.column_stack([rec.alpha_deg, rec.beta_deg, rec.psi_deg]))
+    pa, pb = angles[a_end], angles[b_start]
+    if not (np.all(np.isfinite(pa)) and np.all(np.isfinite(pb))):
+        notes.append(f"{label}: dropped, a position without angles")
+        return None
+    rows = _uniform_rows(rec, a_end, b_start + 1, label, notes)
+    if rows is None:
+        return None
+    ca, cb = position_dcm(*pa), position_dcm(*pb)
+    mean_a = np.nanmean(rec.gyro[rec.position == la], axis=0)
+    mean_b = np.nanmean(rec.gyro[rec.position == lb], axis=0)
+    earth = None
+    if site.latitude is not None:
+        w_level = earth_rate_level(site.latitude, site.heading)
+        mean_a = mean_a - s0 @ (ca @ w_level)
+        mean_b = mean_b - s0 @ (cb @ w_level)
+        earth = ca @ w_level
+    move = pose_move(rows, 1.0 / rec.sample_rate_hz, ca, cb, sigma_pose, label, earth)
+    return move, 0.5 * (mean_a + mean_b)
+
+
+def fit_recording_moves(found: RecordingMoves, site: SiteConditions) -> MovesFit:
+    """Fit S to the moves, each with its own bias (counts)."""
+    if not found.moves:
+        raise InputError("gyro moves: the recording has no usable move; " + "; ".join(found.notes))
+    shifted = [
+        dataclasses.replace(m, gyro=m.gyro - b + found.biases[0])
+        for m, b in zip(found.moves, found.biases, strict=True)
+    ]
+    return solve_moves(shifted, found.biases[0], np.eye(3) / site.gyro_lsb, found.rate_sigma_counts)
+
+
+def with_moves(solution: Solution, fit: MovesFit, notes: Sequence[str]) -> Solution:
+    """Return the solution with gyro S from the moves (unseen columns held, with the reason)."""
+    joint = solution.joint
+    if joint is None:
+        raise InputError("gyro moves need positions with known angles (the joint fit)")
+    keep = [
+        i
+        for i, n in enumerate(joint.names)
+        if n not in joint.undetermined and not n.startswith("gyro.S")
+    ]
+    names = [joint.names[i] for i in keep]
+    cov_joint = joint.covariance[np.ix_(keep, keep)]
+    s_names = [f"gyro.S[{i}][{j}]" for i in range(3) for j in range(3) if fit.identifiable[j]]
+    s_values = [fit.S[i, j] for i in range(3) for j in range(3) if fit.identifiable[j]]
+    k = len(names)
+    cov = np.zeros((k + len(s_names), k + len(s_names)))
+    cov[:k, :k] = cov_joint
+    cov[k:, k:] = fit.covariance
+    held = {n: r for n, r in joint.undetermined.items() if not n.startswith("gyro.S")}
+    for j in np.flatnonzero(~fit.identifiable):
+        for i in range(3):
+            held[f"gyro.S[{i}][{j}]"] = (
+                f"the moves turn {fit.turned_deg[j]:.1f}° about body {AXES[j]}: not identifiable"
+            )
+    old = solution.record
+    record = record_from_estimates(
+        [*names, *s_names],
+        np.concatenate([joint.values[keep], s_values]),
+        cov,
+        device=old.device,
+        held_fixed=held,
+        plan=old.plan,
+        conditions=old.conditions,
+        positions=old.positions,
+        fit=old.fit,
+        recording=old.recording,
+    )
+    undetermined = {n: r for n, r in solution.undetermined.items() if not n.startswith("gyro.S")}
+    undetermined.update({n: r for n, r in held.items() if n.startswith("gyro.S")})
+    warnings = (*solution.warnings, *notes, *fit.notes)
+    return dataclasses.replace(
+        solution, record=record, undetermined=undetermined, warnings=warnings
+    )
+
+
+def solve_gyro_moves(
+    rec: Recording, solution: Solution, site: SiteConditions, *, pose_moves: bool = True
+) -> tuple[Solution, MovesFit]:
+    """Estimate S from the recording's moves and put it in the solution's record."""
+    found = recording_moves(rec, site, pose_moves=pose_moves)
+    fit = fit_recording_moves(found, site)
+    return with_moves(solution, fit, found.notes), fit

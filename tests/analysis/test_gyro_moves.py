@@ -1,0 +1,123 @@
+"""Gyro S from a recording's moves: simulated sessions with a hidden S, lost samples, plans."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from canimucal.analysis.calibrate import SiteConditions, solve_positions
+from canimucal.analysis.gyro_moves import fit_recording_moves, recording_moves, solve_gyro_moves
+from canimucal.analysis.simulated import simulate_plan_recording
+from canimucal.errors import InputError
+from canimucal.io.calibration import Device
+from canimucal.io.grouping import position_averages
+from canimucal.io.recording import Recording
+from canimucal.model.layout import JointSpec
+from canimucal.model.plan import builtin_plan
+from canimucal.model.positions import Plan
+from canimucal.sim.truth import Truth
+from tests.support.moves import TURN_POSES_DEG, turns_plan
+
+
+def site_of(truth: Truth) -> SiteConditions:
+    return SiteConditions(
+        g=truth.g,
+        latitude=truth.latitude,
+        heading=truth.heading,
+        accel_lsb=truth.accel.nominal_lsb,
+        gyro_lsb=truth.gyro.nominal_lsb,
+    )
+
+
+def simulated(seed: int, plan: Plan) -> tuple[Truth, Recording]:
+    truth = Truth.random(np.random.default_rng(seed), sample_rate_hz=100)
+    return truth, simulate_plan_recording(truth, plan, seed=seed, transient_s=2.0)
+
+
+def test_hidden_s_recovered_within_4_sigma() -> None:
+    """Six sessions, each with its own S (scales ±3 %, cross-axis ±1 %) and pose errors."""
+    z = []
+    for seed in range(6):
+        truth, rec = simulated(seed, turns_plan())
+        found = recording_moves(rec, site_of(truth))
+        assert len(found.moves) == len(TURN_POSES_DEG) - 1 and not found.notes
+        fit = fit_recording_moves(found, site_of(truth))
+        assert fit.identifiable.all() and not fit.notes
+        z.append(((fit.S - truth.gyro.S) / fit.S_sigma).reshape(9))
+        assert np.all(fit.S_sigma / np.abs(truth.gyro.S[0, 0]) < 0.002)  # σ below 0.2 %
+    assert np.all(np.abs(z) < 4.0), np.round(z, 2)
+    assert 0.6 < np.std(z) < 1.5
+
+
+def _alternating() -> Plan:
+    """The recommended poses with the stands alternating: level, tilted, turned, level, …"""
+    positions = builtin_plan("recommended").with_total_seconds(40.0).positions
+    return Plan("custom", tuple(positions[i] for i in (0, 4, 5, 1, 2, 6, 7, 3)))
+
+
+def test_recommended_poses_alternating_give_the_full_s_in_the_record() -> None:
+    truth, rec = simulated(4, _alternating())
+    site = site_of(truth)
+    spec = JointSpec(accel_k="full", tilt="rigid", gyro="mems")
+    static = solve_positions(position_averages(rec), spec, site, Device(serial=1))
+    solution, fit = solve_gyro_moves(rec, static, site)
+    assert fit.identifiable.all()
+    gyro = solution.record.gyro
+    assert gyro is not None and gyro.S is not None and gyro.S_sigma is not None
+    s, sigma = np.array(gyro.S, dtype=float), np.array(gyro.S_sigma, dtype=float)
+    assert np.all(np.abs(s - truth.gyro.S) < 4.0 * sigma), (s - truth.gyro.S) / sigma
+    assert np.all(sigma * truth.gyro.nominal_lsb < 0.005)
+
+
+def test_recommended_plan_sees_only_column_y_and_says_so() -> None:
+    """Its level and tilted turns are about y; the one move between the stands mixes x and z
+    too little to fix them."""
+    truth, rec = simulated(1, builtin_plan("recommended").with_total_seconds(40.0))
+    site = site_of(truth)
+    spec = JointSpec(accel_k="full", tilt="rigid", gyro="mems")
+    static = solve_positions(position_averages(rec), spec, site, Device(serial=1))
+    solution, fit = solve_gyro_moves(rec, static, site)
+    assert fit.identifiable.tolist() == [False, True, False]
+    assert np.all(np.abs(fit.S[:, 1] - truth.gyro.S[:, 1]) < 4.0 * fit.S_sigma[:, 1])
+    gyro = solution.record.gyro
+    assert gyro is not None and gyro.S is not None and gyro.S_sigma is not None
+    for i in range(3):
+        assert gyro.S[i][0] is None and gyro.S[i][2] is None
+        assert gyro.S[i][1] == pytest.approx(fit.S[i, 1]) and gyro.S_sigma[i][1] is not None
+    assert "not identifiable" in solution.undetermined["gyro.S[0][2]"]
+    assert any("column z not identifiable" in w for w in solution.warnings)
+
+
+def _lose_rows(rec: Recording, rows: np.ndarray) -> Recording:
+    keep = np.ones(rec.n_rows, dtype=bool)
+    keep[rows] = False
+    fields = ("t", "counter", "position", "alpha_deg", "beta_deg", "psi_deg", "accel", "gyro")
+    cut = {name: getattr(rec, name)[keep] for name in (*fields, "temp_c")}
+    return dataclasses.replace(rec, **cut)
+
+
+def test_move_with_lost_samples_is_filled_or_dropped() -> None:
+    truth, rec = simulated(2, turns_plan())
+    site = site_of(truth)
+    moving = np.flatnonzero(rec.position < 0)
+    first_move = moving[(moving > 100) & (moving < moving[0] + 400)]
+    n = first_move.size
+    few = _lose_rows(rec, first_move[10:11])  # one sample of ~200: below 1 %
+    found = recording_moves(few, site)
+    assert len(found.moves) == len(TURN_POSES_DEG) - 1 and not found.notes
+    spread = first_move[5 : n - 5 : max(n // 8, 1)][:4]  # four lost of ~200: 2 %
+    many = _lose_rows(rec, spread)
+    found = recording_moves(many, site)
+    assert len(found.moves) == len(TURN_POSES_DEG) - 2
+    assert any("lost (more than 1 %)" in note for note in found.notes), found.notes
+    gap = _lose_rows(rec, first_move[20:40])  # 0.2 s without samples
+    assert any("time gap" in note for note in recording_moves(gap, site).notes)
+
+
+def test_without_labelled_positions_moves_are_refused() -> None:
+    truth, rec = simulated(3, turns_plan(seconds=2.0))
+    unlabelled = dataclasses.replace(rec, position=np.full(rec.n_rows, -1, dtype=np.int64))
+    with pytest.raises(InputError, match="labelled positions"):
+        recording_moves(unlabelled, site_of(truth))
