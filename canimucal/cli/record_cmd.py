@@ -175,8 +175,11 @@ def run(args: argparse.Namespace) -> int:
         try:
             _record(args, session, recorder, plan)
         finally:
-            recorder.stop()
-            print(report(recorder.tallies, [w.path for _, w, _ in channels]), end="")
+            try:
+                recorder.stop()
+            finally:
+                if not any(w.failed for _, w, _ in channels):
+                    print(report(recorder.tallies, [w.path for _, w, _ in channels]), end="")
     return 0
 
 

@@ -179,6 +179,15 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
         raw = Path(path).read_bytes()
     except OSError as exc:
         raise InputError(f"cannot read {source}: {exc.strerror or exc}") from exc
+    return parse_recording(raw, source)
+
+
+def parse_recording(raw: bytes, source: str) -> Recording:
+    """Parse and validate the bytes of a recording CSV read from ``source``.
+
+    A UTF-8 byte-order mark (written by some spreadsheet programs) is skipped.
+    """
+    raw = raw.removeprefix(b"\xef\xbb\xbf")
     if b"\r" in raw:
         raw = raw.replace(b"\r\n", b"\n")
     header, data_start, first_line = _read_head(raw, source)
