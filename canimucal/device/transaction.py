@@ -34,6 +34,7 @@ from canimucal.errors import (
 )
 from canimucal.io.atomic import unique_path, write_text_atomic
 from canimucal.io.calibration import Calibration, calibration_to_json
+from canimucal.signals import deferred_signals
 
 logger = logging.getLogger(__name__)
 
@@ -207,20 +208,28 @@ def _run_with_rollback(
     try:
         for step, batch in _steps(writes):
             _do_step(client, step, batch, boots)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM (canimucal.signals.Terminated)
         logger.error("interrupted at %s; rolling back", step)
-        _rollback(client, before, backup_path)
+        with deferred_signals():  # a second interrupt must not skip the rollback
+            _rollback(client, before, backup_path)
+        exc.add_note(f"previous calibration restored from {backup_path}")
         raise
     except DeviceError as exc:
         verb = "refused" if isinstance(exc, SdoAbort) else "failed"
         if isinstance(exc, NodeRebootedError):
             _refuse_other_unit(client, serial, exc)
         logger.error("calibration write %s at %s: %s; rolling back", verb, step, exc)
-        _rollback(client, before, backup_path)
-        raise DeviceError(
+        with deferred_signals() as held:
+            _rollback(client, before, backup_path)
+        message = (
             f"calibration write {verb} at {step}: {exc}; previous calibration restored from "
             f"{backup_path}"
-        ) from exc
+        )
+        interrupt = held.interrupt()
+        if interrupt is not None:
+            interrupt.add_note(message)
+            raise interrupt from exc
+        raise DeviceError(message) from exc
 
 
 def _refuse_other_unit(client: ImuClient, serial: int, exc: DeviceError) -> None:
