@@ -49,6 +49,10 @@ class _DuplicateKey(ValueError):
     pass
 
 
+class _TooLong(ValueError):
+    pass
+
+
 # ------------------------------------------------------------------------- text and JSON
 
 
@@ -72,15 +76,34 @@ def read_text(path: str | os.PathLike[str]) -> str:
 def parse_json(text: str, source: str) -> Any:
     """Parse JSON text; syntax errors, non-finite literals and duplicate keys are refused."""
     try:
-        return json.loads(text, parse_constant=_refuse_constant, object_pairs_hook=_no_dupes)
+        return json.loads(
+            text,
+            parse_constant=_refuse_constant,
+            parse_int=_bounded_int,
+            object_pairs_hook=_no_dupes,
+        )
     except json.JSONDecodeError as exc:
         raise InputError(f"{source}:{exc.lineno}:{exc.colno}: invalid JSON ({exc.msg})") from None
+    except _TooLong as exc:
+        raise InputError(f"{source}: integer of {exc} digits (at most {MAX_INT_DIGITS})") from None
     except _NotFinite as exc:
         raise InputError(f"{source}: {exc} is not allowed (numbers must be finite)") from None
     except _DuplicateKey as exc:
         raise InputError(f"{source}: duplicate key {exc}") from None
     except RecursionError:
         raise InputError(f"{source}: JSON nested too deeply") from None
+
+
+MAX_INT_DIGITS = 4300
+"""Longest JSON integer parsed (Python's own limit for ``int(str)``); shorter ones that are
+too large for their key are refused by the schema checks, which name the key."""
+
+
+def _bounded_int(text: str) -> int:
+    digits = len(text.lstrip("-"))
+    if digits > MAX_INT_DIGITS:
+        raise _TooLong(str(digits))
+    return int(text)
 
 
 def _refuse_constant(name: str) -> Any:

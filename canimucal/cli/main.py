@@ -107,6 +107,9 @@ def _main(argv: list[str]) -> int:
         return error.exit_code
     except BrokenPipeError:
         return 0
+    except MemoryError:  # an input too large for this machine: say so, never a traceback
+        print("error: out of memory (input too large for this machine?)", file=sys.stderr)
+        return 2
     except Exception as error:  # a bug: say so, in one line unless --debug
         _report(error, args.debug, prefix="internal error: ")
         return 1
