@@ -34,6 +34,7 @@ from canimucal.device.stream import SampleLayout, SamplePairer, layout_from_mapp
 from canimucal.device.stream_consumer import StreamConsumer
 from canimucal.errors import DeviceError, DeviceSilentError, NoDeviceError, SdoAbort
 from canimucal.model.samples import SampleBlock, concat_blocks
+from canimucal.untrusted import DEVICE_TEXT_MAX_BYTES, device_text
 
 logger = logging.getLogger(__name__)
 
@@ -43,13 +44,19 @@ NOTIFIER_CYCLE_S = 0.1
 
 
 class Identity(NamedTuple):
-    """0x1018:01–04 and 0x1008."""
+    """0x1018:01–04, 0x1008 and 0x1009/0x100A.
+
+    The strings are the device's, made printable (:func:`canimucal.untrusted.printable`)
+    and cut at 256 bytes; empty when the node does not have the object.
+    """
 
     vendor_id: int
     product_code: int
     revision: int
     serial: int
     device_name: str
+    hardware_version: str = ""
+    software_version: str = ""
 
 
 class CalibrationReadout(NamedTuple):
@@ -175,11 +182,22 @@ class ImuClient:
             logger.warning("node %d serial changed: %d -> %d", self.node_id, self._serial, serial)
             self.events.put(SerialChanged(self.node_id, self._serial, serial))
         self._serial = serial
+        name, hardware, software = (
+            self.device_string(index)
+            for index in (od.DEVICE_NAME, od.HARDWARE_VERSION, od.SOFTWARE_VERSION)
+        )
+        return Identity(vendor, product, revision, serial, name, hardware, software)
+
+    def device_string(self, index: int) -> str:
+        """Read a VISIBLE_STRING object (sub 0): at most 256 bytes, made printable.
+
+        ``""`` when the node does not have the object.
+        """
         try:
-            name = self.sdo.upload(od.DEVICE_NAME, 0).decode("ascii", "replace").rstrip("\0")
+            raw, cut = self.sdo.upload_bounded(index, 0, DEVICE_TEXT_MAX_BYTES)
         except SdoAbort:
-            name = ""
-        return Identity(vendor, product, revision, serial, name)
+            return ""
+        return device_text(raw, cut)
 
     def nominal_lsb(self) -> tuple[float, float]:
         """Nominal accel (m/s² per count) and gyro (rad/s per count) LSB, signed (0x2010)."""

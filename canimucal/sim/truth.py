@@ -46,9 +46,12 @@ Vector = NDArray[np.float64]
 SCHEMA = "canimucal.truth/1"
 DEFAULT_LATITUDE_DEG = 50.45
 _TILT_MODELS = ("rigid", "additive")
+DEFAULT_DEVICE_NAME = "canimucal IMU"
+DEFAULT_HARDWARE_VERSION = "sim 1"
+DEFAULT_SOFTWARE_VERSION = "sim 1"
 _TOP_KEYS = tuple(
     "schema sample_rate_hz g latitude_deg height_m heading_deg serial tilt_model base_tilt_deg"
-    " accel gyro temperature faults".split()
+    " accel gyro temperature faults device_name hardware_version software_version".split()
 )
 
 
@@ -117,6 +120,10 @@ class Truth:
     gyro: GyroTruth = field(default_factory=lambda: GyroTruth.from_dict({}))
     temperature: TemperatureProfile = field(default_factory=TemperatureProfile)
     faults: Mapping[str, Any] = field(default_factory=dict)
+    device_name: str = DEFAULT_DEVICE_NAME
+    """0x1008, any text (tests present hostile names); 0x1009/0x100A likewise."""
+    hardware_version: str = DEFAULT_HARDWARE_VERSION
+    software_version: str = DEFAULT_SOFTWARE_VERSION
 
     @classmethod
     def from_dict(cls, d: Any) -> Truth:
@@ -168,11 +175,30 @@ class Truth:
             gyro=GyroTruth.from_dict(d.get("gyro", {})),
             temperature=TemperatureProfile.from_dict(d.get("temperature", {})),
             faults=copy.deepcopy(dict(faults)),
+            device_name=_text(d.get("device_name", DEFAULT_DEVICE_NAME), "device_name"),
+            hardware_version=_text(
+                d.get("hardware_version", DEFAULT_HARDWARE_VERSION), "hardware_version"
+            ),
+            software_version=_text(
+                d.get("software_version", DEFAULT_SOFTWARE_VERSION), "software_version"
+            ),
         )
 
     def to_dict(self) -> dict[str, Any]:
-        """Return the truth JSON document (degrees; ``g`` always recorded)."""
+        """Return the truth JSON document (degrees; ``g`` always recorded).
+
+        The identity strings appear only when they differ from the defaults.
+        """
         rate = self.sample_rate_hz
+        identity = {
+            key: value
+            for key, value, default in (
+                ("device_name", self.device_name, DEFAULT_DEVICE_NAME),
+                ("hardware_version", self.hardware_version, DEFAULT_HARDWARE_VERSION),
+                ("software_version", self.software_version, DEFAULT_SOFTWARE_VERSION),
+            )
+            if value != default
+        }
         return {
             "schema": SCHEMA,
             "sample_rate_hz": int(rate) if float(rate).is_integer() else rate,
@@ -190,6 +216,7 @@ class Truth:
             "gyro": self.gyro.to_dict(),
             "temperature": self.temperature.to_dict(),
             "faults": copy.deepcopy(dict(self.faults)),
+            **identity,
         }
 
     @classmethod
@@ -233,6 +260,12 @@ class Truth:
         }
         d.update(overrides)
         return cls.from_dict(d)
+
+
+def _text(value: Any, key: str) -> str:
+    if not isinstance(value, str):
+        fail(key, "must be a string")
+    return value
 
 
 def _serial(value: Any) -> int:

@@ -25,7 +25,7 @@ class ConfirmWrite(ModalScreen[bool]):
         """Question and two buttons."""
         with Vertical(id="dialog"):
             yield Static("Write the calibration?", classes="dialog-title")
-            yield Static(self.text, id="confirm-text")
+            yield Static(self.text, id="confirm-text", markup=False)
             with Horizontal(classes="buttons"):
                 yield Button("Write (y)", variant="warning", id="yes")
                 yield Button("Cancel (n)", variant="primary", id="no")
@@ -57,7 +57,7 @@ class ErrorModal(ModalScreen[None]):
         """Title, message and an OK button."""
         with Vertical(id="dialog", classes="error"):
             yield Static(self.error_title, classes="dialog-title", id="error-title")
-            yield Static(self.message, id="error-message")
+            yield Static(self.message, id="error-message", markup=False)
             with Horizontal(classes="buttons"):
                 yield Button("OK (enter)", variant="error", id="ok")
 
