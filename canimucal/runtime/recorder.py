@@ -98,6 +98,7 @@ class _Track:
         self.was_operational = False
         self.pending: list[SampleBlock] = []
         self.pending_rows = 0
+        self.malformed = 0
         self.last_write = time.monotonic()
 
     def unwrap(self, counter: NDArray[np.int64]) -> NDArray[np.int64]:
@@ -247,17 +248,26 @@ class Recorder:
                 now = time.monotonic()
                 if block is not None:
                     track.pending.append(block)
+                    track.malformed += block.malformed
                     if block.n:
                         track.last_data = now
                         track.pending_rows += block.n
-                elif now - track.last_data > self._idle_timeout_s:
-                    raise DeviceError(
-                        f"node {track.client.node_id} sent no sample for {self._idle_timeout_s:g} s"
-                    )
+                if now - track.last_data > self._idle_timeout_s:  # frames that pair nothing too
+                    raise DeviceError(self._stalled(track))
                 if track.pending_rows >= WRITE_ROWS or now - track.last_write > WRITE_INTERVAL_S:
                     self._flush(track, labeller)
         for track in self._tracks:
             self._flush(track, labeller)
+
+    def _stalled(self, track: _Track) -> str:
+        """Say that a node gave no sample, and why when its frames did not fit the mapping."""
+        message = f"node {track.client.node_id} sent no sample for {self._idle_timeout_s:g} s"
+        if track.malformed:
+            message += (
+                f"; {track.malformed} frames did not match the node's PDO mapping (wrong "
+                "length): check 0x1A00-0x1A02"
+            )
+        return message
 
     def _device_events(self, track: _Track, labeller: Labeller) -> None:
         """React to what the node reported: a reboot resumes streaming (see ``_rebooted``)."""
