@@ -83,5 +83,6 @@ def report(result: WriteReport, node: int) -> str:
         return "\n".join(lines) + "\n"
     lines.append(f"backup of the previous calibration: {result.backup_path}")
     stored = "stored (0x1010:04)" if result.stored else "not stored (--no-store)"
-    lines.append(f"wrote {len(result.writes)} objects, read back bit-exactly, valid, {stored}")
+    valid = "valid" if result.valid else "left invalid (valid = 0: nominal values apply)"
+    lines.append(f"wrote {len(result.writes)} objects, read back bit-exactly, {valid}, {stored}")
     return "\n".join(lines) + "\n"

@@ -39,6 +39,8 @@ from canimucal.untrusted import DEVICE_TEXT_MAX_BYTES, device_text
 logger = logging.getLogger(__name__)
 
 NMT_START, NMT_PRE_OPERATIONAL = 0x01, 0x80
+SDO_REQUEST_BASE = 0x600
+"""COB-ID base of SDO requests (client to server) of the default SDO channel."""
 NOTIFIER_CYCLE_S = 0.1
 """Receive-thread wake-up of a network the client makes itself (bounds :meth:`close`)."""
 
@@ -123,6 +125,9 @@ class ImuClient:
         )
         network.subscribe(HEARTBEAT_BASE + node_id, self.heartbeat.on_heartbeat)
         network.subscribe(EMCY_BASE + node_id, self.heartbeat.on_emergency)
+        self.foreign_sdo_requests = 0
+        """SDO requests to the node that this client did not send (another SDO client)."""
+        network.subscribe(SDO_REQUEST_BASE + node_id, self._on_foreign_sdo_request)
         self.bus_meter = BusLoadMeter(bitrate_bps)
         """Every frame the network receives (``bitrate_bps=None``: 500 kbit/s assumed)."""
         if network.notifier is not None:
@@ -262,6 +267,10 @@ class ImuClient:
         return self.bus_meter.load(full_window=full_window)
 
     # ----------------------------------------------------------------------- streaming
+    def _on_foreign_sdo_request(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        """Count a request on 0x600+id: the bus never echoes our own, so it is not ours."""
+        self.foreign_sdo_requests += 1
+
     def _boots(self) -> int:
         return self.heartbeat.boots
 
@@ -393,6 +402,7 @@ class ImuClient:
         self.heartbeat.unwatch()
         self.network.unsubscribe(HEARTBEAT_BASE + self.node_id, self.heartbeat.on_heartbeat)
         self.network.unsubscribe(EMCY_BASE + self.node_id, self.heartbeat.on_emergency)
+        self.network.unsubscribe(SDO_REQUEST_BASE + self.node_id, self._on_foreign_sdo_request)
         if self.network.notifier is not None:
             for listener in (self.heartbeat, self.bus_meter):
                 try:

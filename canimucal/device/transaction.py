@@ -27,6 +27,7 @@ from canimucal.device.calibration_map import (
 from canimucal.device.client import CalibrationReadout, Identity, ImuClient
 from canimucal.errors import (
     DeviceError,
+    ForeignSdoClientError,
     InputError,
     NodeRebootedError,
     RollbackIncompleteError,
@@ -76,6 +77,8 @@ class WriteReport:
     dry_run: bool
     serial_forced: bool
     restore: bool
+    valid: int = 1
+    """The valid flag written last: 0 for a backup that was invalid or whose CRC mismatched."""
 
 
 def default_backup_dir(environ: Mapping[str, str] | None = None) -> Path:
@@ -144,6 +147,7 @@ def write_calibration_transaction(
     failure that was rolled back, :class:`RollbackIncompleteError` when the rollback failed,
     :class:`InputError` (exit 2) for values out of the device's ranges (nothing written).
     """
+    foreign = client.foreign_sdo_requests  # any request we did not send from now on aborts
     identity = client.identity()  # step 1
     forced = _check_serial(identity, record, force)
     accel_lsb, gyro_lsb = client.nominal_lsb()  # step 2
@@ -153,16 +157,35 @@ def write_calibration_transaction(
         more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
         raise InputError(f"calibration outside the device's ranges: {problems[0]}{more}")
     if final_valid == 1 and restore and od.block_crc(values) != crc:
-        logger.warning("backup's CRC does not match its values: restoring it verbatim")
+        # edited, or taken while another client wrote: never valid = 1 over such a set
+        logger.warning(
+            "backup's CRC 0x%08X does not match its values (0x%08X): restored with valid = 0, "
+            "nominal values apply",
+            crc,
+            od.block_crc(values),
+        )
+        final_valid = 0
     writes = plan_writes(values, crc, final_valid, store=store)
     report = WriteReport(
-        identity, accel_lsb, gyro_lsb, block, crc, writes, None, False, dry_run, forced, restore
+        identity,
+        accel_lsb,
+        gyro_lsb,
+        block,
+        crc,
+        writes,
+        None,
+        False,
+        dry_run,
+        forced,
+        restore,
+        final_valid,
     )
     if dry_run:
         return report
     before = client.read_calibration_block()  # step 3
+    _check_alone(client, foreign, "nothing written")
     backup_path = save_backup(before, identity, client.node_id, backup_dir)
-    _run_with_rollback(client, writes, before, backup_path, identity.serial)
+    _run_with_rollback(client, writes, before, backup_path, identity.serial, foreign)
     return replace(report, backup_path=backup_path, stored=store)
 
 
@@ -201,13 +224,20 @@ def _run_with_rollback(
     before: CalibrationReadout,
     backup_path: Path,
     serial: int,
+    foreign: int,
 ) -> None:
-    """Run steps 4–10; on failure restore ``before`` or raise RollbackIncompleteError."""
+    """Run steps 4–10; on failure restore ``before`` or raise RollbackIncompleteError.
+
+    A request from another SDO client (``client.foreign_sdo_requests`` past ``foreign``)
+    is a failure like any other: its writes may interleave with ours.
+    """
     step = "clear valid"
     boots = client.boots
     try:
         for step, batch in _steps(writes):
+            _check_alone(client, foreign)
             _do_step(client, step, batch, boots)
+            _check_alone(client, foreign)
     except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM (canimucal.signals.Terminated)
         logger.error("interrupted at %s; rolling back", step)
         with deferred_signals():  # a second interrupt must not skip the rollback
@@ -230,6 +260,15 @@ def _run_with_rollback(
             interrupt.add_note(message)
             raise interrupt from exc
         raise DeviceError(message) from exc
+
+
+def _check_alone(client: ImuClient, foreign: int, consequence: str = "") -> None:
+    """Raise ForeignSdoClientError when another SDO client has spoken to the node."""
+    if client.foreign_sdo_requests != foreign:
+        error = ForeignSdoClientError(client.node_id)
+        if consequence:
+            raise DeviceError(f"{error}; {consequence}") from error
+        raise error
 
 
 def _refuse_other_unit(client: ImuClient, serial: int, exc: DeviceError) -> None:
