@@ -417,6 +417,24 @@ def objects() -> dict[str, Checker]:
     return _meta(check)
 
 
+def raw_objects() -> dict[str, Checker]:
+    """Field metadata: ``{"0x2100:01": "0000c07f"}``, an object's SDO bytes in hex (1–8 bytes)."""
+
+    def check(value: Any, path: str) -> dict[str, str]:
+        if not isinstance(value, dict):
+            fail(path, "must be an object")
+        out: dict[str, str] = {}
+        for key, raw in value.items():
+            if not OBJECT_KEY.fullmatch(key):
+                fail(path, f"malformed object key {key[:40]!r} (want 0x2100:01)")
+            if not isinstance(raw, str) or not re.fullmatch(r"(?:[0-9a-fA-F]{2}){1,8}", raw):
+                fail(f"{path}.{key}", "must be 1 to 8 bytes in hex, e.g. '0000c07f'")
+            out[key] = raw.lower()
+        return out
+
+    return _meta(check)
+
+
 def number_map() -> dict[str, Checker]:
     """Field metadata: an object of ``name: number`` pairs (names are identifiers)."""
 

@@ -69,7 +69,7 @@ def read_document(client: ImuClient) -> dict[str, Any]:
     odr = client.output_data_rate()
     readout = client.read_calibration_block()
     calibration = record_from_block(
-        readout.block, identity, node_id=client.node_id, objects=readout.objects
+        readout.block, identity, node_id=client.node_id, objects=readout.objects, raw=readout.raw
     ).to_dict()
     return {
         "schema": SCHEMA,

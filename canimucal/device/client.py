@@ -65,8 +65,8 @@ class CalibrationReadout(NamedTuple):
     """The calibration block as read: values, valid flag, stored CRC and whether it matches.
 
     ``objects`` holds every :data:`od.CALIBRATION_OBJECTS` value (valid and CRC included);
-    ``raw`` re-encodes them: the bytes the node returned (decode/encode is exact for every
-    finite value, and the node refuses non-finite ones).
+    ``raw`` their bytes: as the node returned them when read (``read_bytes``), else
+    re-encoded (exact for every finite value; a NaN keeps its payload only when read).
     """
 
     block: od.CalibrationBlock
@@ -74,10 +74,13 @@ class CalibrationReadout(NamedTuple):
     crc_stored: int
     crc_ok: bool
     objects: dict[tuple[int, int], float | int]
+    read_bytes: dict[tuple[int, int], bytes] | None = None
 
     @property
     def raw(self) -> dict[tuple[int, int], bytes]:
         """Little-endian SDO bytes of every object."""
+        if self.read_bytes is not None:
+            return dict(self.read_bytes)
         return {key: od.encode(od.OBJECT_CODES[key], v) for key, v in self.objects.items()}
 
 
@@ -246,13 +249,15 @@ class ImuClient:
     def read_calibration_block(self) -> CalibrationReadout:
         """Read every calibration object (DESIGN §4), the valid flag and the stored CRC."""
         objects: dict[tuple[int, int], float | int] = {}
+        read: dict[tuple[int, int], bytes] = {}
         for index, sub, code in od.CALIBRATION_OBJECTS:
-            objects[(index, sub)] = od.decode(code, self.read_raw(index, sub, code))
+            read[(index, sub)] = self.read_raw(index, sub, code)
+            objects[(index, sub)] = od.decode(code, read[(index, sub)])
         crc_stored = int(objects[(od.CAL_INFO, od.CAL_CRC_SUB)])
         valid = int(objects[(od.CAL_INFO, od.CAL_VALID_SUB)])
         crc_ok = od.block_crc(objects) == crc_stored
         return CalibrationReadout(
-            od.CalibrationBlock.from_objects(objects), valid, crc_stored, crc_ok, objects
+            od.CalibrationBlock.from_objects(objects), valid, crc_stored, crc_ok, objects, read
         )
 
     def store_calibration(self) -> None:

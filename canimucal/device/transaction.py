@@ -12,6 +12,7 @@ and :class:`RollbackIncompleteError` names the backup. Never valid = 1 over a mi
 from __future__ import annotations
 
 import logging
+import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
@@ -21,6 +22,7 @@ from pathlib import Path
 from canimucal.device import od
 from canimucal.device.calibration_map import (
     backup_objects,
+    backup_raw,
     block_from_record,
     record_from_readout,
 )
@@ -93,11 +95,25 @@ def _planned(index: int, sub: int, code: str, value: float | int) -> PlannedWrit
 
 
 def plan_writes(
-    target: Mapping[ObjectKey, float | int], crc: int, final_valid: int, *, store: bool
+    target: Mapping[ObjectKey, float | int],
+    crc: int,
+    final_valid: int,
+    *,
+    store: bool,
+    raw: Mapping[ObjectKey, bytes] | None = None,
 ) -> tuple[PlannedWrite, ...]:
-    """List the SDO downloads of steps 4–10 in order: valid 0, block, CRC, valid, store."""
+    """List the SDO downloads of steps 4–10 in order: valid 0, block, CRC, valid, store.
+
+    ``raw`` gives the exact bytes of objects a backup kept as bytes (a NaN's payload).
+    """
+    raw = raw or {}
     writes = [_planned(*VALID_KEY, "u8", 0)]
-    writes += [_planned(i, s, c, target[(i, s)]) for i, s, c in od.CRC_ORDER]
+    writes += [
+        PlannedWrite(i, s, c, target[(i, s)], raw[(i, s)])
+        if (i, s) in raw
+        else _planned(i, s, c, target[(i, s)])
+        for i, s, c in od.CRC_ORDER
+    ]
     writes += [_planned(*CRC_KEY, "u32", crc), _planned(*VALID_KEY, "u8", final_valid)]
     if store:
         writes.append(_planned(*STORE_KEY, "u32", od.SAVE_SIGNATURE))
@@ -115,7 +131,17 @@ def _target(
         return block, values, od.block_crc(values), 1, False
     values = {(i, s): objects[(i, s)] for i, s, _ in od.CRC_ORDER}
     block = od.CalibrationBlock.from_objects(values)
-    return block, values, int(objects[CRC_KEY]), int(objects[VALID_KEY]), True
+    valid = int(objects[VALID_KEY])
+    bad = _non_finite(values)
+    if bad and valid == 1:
+        logger.warning("backup holds non-finite values in %s: restored with valid = 0", bad)
+        valid = 0
+    return block, values, int(objects[CRC_KEY]), valid, True
+
+
+def _non_finite(values: Mapping[ObjectKey, float | int]) -> str:
+    """Name the keys holding NaN or ±inf, comma-separated ("" when none)."""
+    return ", ".join(od.format_key(*key) for key, v in values.items() if not math.isfinite(v))
 
 
 def _check_serial(identity: Identity, record: Calibration, force: bool) -> bool:
@@ -152,7 +178,12 @@ def write_calibration_transaction(
     forced = _check_serial(identity, record, force)
     accel_lsb, gyro_lsb = client.nominal_lsb()  # step 2
     block, values, crc, final_valid, restore = _target(record, accel_lsb, gyro_lsb)
-    problems = od.block_range_problems(block, accel_lsb, gyro_lsb)
+    # a backup of what the device held is written back as it was, non-finite values too
+    problems = (
+        []
+        if restore and _non_finite(values)
+        else od.block_range_problems(block, accel_lsb, gyro_lsb)
+    )
     if problems:
         more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
         raise InputError(f"calibration outside the device's ranges: {problems[0]}{more}")
@@ -165,7 +196,7 @@ def write_calibration_transaction(
             od.block_crc(values),
         )
         final_valid = 0
-    writes = plan_writes(values, crc, final_valid, store=store)
+    writes = plan_writes(values, crc, final_valid, store=store, raw=backup_raw(record))
     report = WriteReport(
         identity,
         accel_lsb,
@@ -359,6 +390,10 @@ def restore_readout(client: ImuClient, before: CalibrationReadout) -> None:
         data = raw[(index, sub)]
         writes.append(PlannedWrite(index, sub, code, od.decode(code, data), data))
     crc_raw, valid_raw = raw[CRC_KEY], raw[VALID_KEY]
+    bad = _non_finite(before.objects)
+    if bad and valid_raw != od.encode("u8", 0):
+        logger.warning("the previous set holds non-finite values in %s: left valid = 0", bad)
+        valid_raw = od.encode("u8", 0)
     crc_write = PlannedWrite(*CRC_KEY, "u32", od.decode("u32", crc_raw), crc_raw)
     valid_write = PlannedWrite(*VALID_KEY, "u8", od.decode("u8", valid_raw), valid_raw)
     for write in writes + [crc_write]:

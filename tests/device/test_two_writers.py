@@ -8,6 +8,7 @@ with both told. Back-to-back writes both succeed.
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 from collections.abc import Iterator
@@ -22,8 +23,8 @@ from canimucal.device import od
 from canimucal.device.calibration_map import record_from_readout
 from canimucal.device.client import ImuClient
 from canimucal.device.transaction import WriteReport, write_calibration_transaction
-from canimucal.errors import DeviceError
-from canimucal.io.calibration import Calibration, calibration_to_dict
+from canimucal.errors import DeviceError, RollbackIncompleteError
+from canimucal.io.calibration import Calibration, calibration_to_dict, calibration_to_json
 from canimucal.sim.truth import Truth
 from canimucal.simnode.node import SimulatedImuNode
 from tests.device.test_write_faults import (
@@ -188,3 +189,60 @@ def test_backup_with_mismatched_crc_is_restored_invalid(
         client, Calibration.from_dict(invalid), backup_dir=tmp_path, store=False
     )
     assert report.valid == 0 and client.read_calibration_block().raw == after.raw
+
+
+def test_device_holding_nan_is_backed_up_raw_and_recalibrated(
+    two_clients: tuple[SimulatedImuNode, list[ImuClient]], tmp_path: Path
+) -> None:
+    node, (client, _) = two_clients
+    write_calibration_transaction(
+        client, Calibration.from_dict(calibration(1.02, 3.0)), backup_dir=tmp_path, store=False
+    )
+    nan = bytes.fromhex("0100c0ff")  # a NaN with a payload and the sign bit
+    node.local_node.data_store.setdefault(0x2100, {})[1] = nan  # past the node's own checks
+    readout = client.read_calibration_block()
+    backup = record_from_readout(readout, client.identity(), NODE_ID)
+    assert backup.objects_raw == {"0x2100:01": "0100c0ff"}
+    assert backup.objects is not None and "0x2100:01" not in backup.objects
+    again = Calibration.from_dict(json.loads(calibration_to_json(backup)))  # JSON holds it
+    assert again.objects_raw == backup.objects_raw
+    # recalibration works: the backup (with the NaN's bytes) is written first
+    report = write_calibration_transaction(
+        client, Calibration.from_dict(calibration(0.99, -2.0)), backup_dir=tmp_path, store=False
+    )
+    assert report.valid == 1 and _holds(node, report)
+    assert report.backup_path is not None
+    saved = json.loads(report.backup_path.read_text())
+    assert saved["objects_raw"] == {"0x2100:01": "0100c0ff"}
+    # its restore plan writes the NaN's exact bytes and ends valid = 0
+    planned = write_calibration_transaction(
+        client, Calibration.from_dict(saved), backup_dir=tmp_path, dry_run=True
+    )
+    assert planned.valid == 0
+    assert [w.data for w in planned.writes if (w.index, w.sub) == (0x2100, 1)] == [nan]
+
+
+def test_rollback_to_non_finite_values_ends_invalid(
+    two_clients: tuple[SimulatedImuNode, list[ImuClient]],
+    tmp_path: Path,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    node, (client, _) = two_clients
+    write_calibration_transaction(
+        client, Calibration.from_dict(calibration(1.02, 3.0)), backup_dir=tmp_path, store=False
+    )
+    nan = bytes.fromhex("0100c0ff")
+    node.local_node.data_store.setdefault(0x2100, {})[1] = nan
+    node.faults.set(abort_at_sdo_request=70)  # inside "write block", after the backup
+    with caplog.at_level(logging.WARNING), pytest.raises(DeviceError) as raised:
+        write_calibration_transaction(
+            client, Calibration.from_dict(calibration(0.99, -2.0)), backup_dir=tmp_path, store=False
+        )
+    node.faults.clear()
+    after = client.read_calibration_block()
+    assert after.valid == 0, raised.value
+    assert "non-finite values in 0x2100:01: left valid = 0" in caplog.text
+    # this node refuses NaN downloads (range check), so the rollback cannot finish: it says
+    # so and names the backup; a device taking them back would end valid = 0 all the same
+    assert isinstance(raised.value, RollbackIncompleteError), raised.value
+    assert "restore with canimucal write-params" in str(raised.value)
