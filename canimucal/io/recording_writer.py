@@ -32,6 +32,7 @@ from canimucal.io.atomic import (
     move_into_place,
     read_bytes_nofollow,
     refuse_existing,
+    temporary_sibling,
     write_text_atomic,
 )
 from canimucal.io.recording import (
@@ -84,6 +85,9 @@ class RecordingWriter:
         self.rows_written = 0
         self.failed: InputError | None = None
         """The write error that stopped this writer (its ``.partial`` is kept, not renamed)."""
+        self._header: dict[str, HeaderValue] | None = None  # None: appending, header not ours
+        self._head_size = 0
+        self._header_fix: dict[str, HeaderValue] = {}
 
     @classmethod
     def open(
@@ -113,6 +117,8 @@ class RecordingWriter:
         head = format_header(header) + COLUMN_LINE + "\n"
         writer = cls(target, _create_exclusive(partial), overwrite=overwrite)
         writer._write(head)
+        writer._header = dict(header)
+        writer._head_size = len(head.encode("utf-8"))
         return writer
 
     @classmethod
@@ -207,6 +213,40 @@ class RecordingWriter:
         )
         return self.failed
 
+    def correct_header(self, **values: HeaderValue) -> None:
+        """Replace header values (e.g. a measured ``sample_rate_hz``) when the file is closed.
+
+        Appending, the header is the existing file's and is left alone (a warning says so).
+        """
+        if self._header is None:
+            logger.warning("%s: header kept as it was (appending): %s", self.path, values)
+            return
+        self._header_fix.update(values)
+
+    def _rewrite_header(self) -> None:
+        """Copy the ``.partial`` under the corrected header, then swap it in (streamed)."""
+        assert self._header is not None
+        head = format_header({**self._header, **self._header_fix}) + COLUMN_LINE + "\n"
+        tmp = temporary_sibling(self.partial_path)
+        src = os.open(self.partial_path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+        try:
+            dst = _create_exclusive(tmp)
+            try:
+                os.write(dst, head.encode("utf-8"))
+                os.lseek(src, self._head_size, os.SEEK_SET)
+                while chunk := os.read(src, 1 << 20):
+                    view = memoryview(chunk)
+                    while view:
+                        view = view[os.write(dst, view) :]
+                os.fsync(dst)
+            finally:
+                os.close(dst)
+            os.replace(tmp, self.partial_path)
+        finally:
+            os.close(src)
+            if os.path.lexists(tmp):
+                os.unlink(tmp)
+
     def close(self) -> Path:
         """Fsync and rename ``path.partial`` to ``path``; idempotent.
 
@@ -221,6 +261,14 @@ class RecordingWriter:
             self._fd = fd
             raise self._fail(exc) from exc
         os.close(fd)
+        if self._header_fix:
+            try:
+                self._rewrite_header()
+            except OSError as exc:
+                raise InputError(
+                    f"cannot correct the header of {self.partial_path}: {exc.strerror or exc}; "
+                    f"{self.rows_written} rows kept in it"
+                ) from exc
         try:
             move_into_place(self.partial_path, self.path, overwrite=self._overwrite)
         except OSError as exc:

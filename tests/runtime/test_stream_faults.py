@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import time
 from pathlib import Path
 
@@ -17,6 +18,7 @@ from canimucal.device.pdo_layout import (
     mapping_entry,
 )
 from canimucal.errors import DeviceError
+from canimucal.io.recording import read_recording
 from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.plan import builtin_plan
 from canimucal.runtime.demo_rig import DemoRig
@@ -85,3 +87,28 @@ def test_frames_one_byte_short_fail_within_the_stall_timeout(tmp_path: Path) -> 
     assert time.monotonic() - started < 5.0
     assert "sent no sample for 1 s" in str(raised.value)
     assert "frames did not match the node's PDO mapping" in str(raised.value)
+
+
+def test_claimed_rate_is_checked_against_the_timestamps(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    truth = Truth.random(np.random.default_rng(8), cross_axis_max=0.0, tilt_max_deg=0.0)
+    position = builtin_plan("two").with_total_seconds(2.0).positions[0]  # 1 s
+    path = tmp_path / "r.csv"
+    with DemoRig([truth], time_scale=1.0, seed=3) as rig:
+        rig.identities()
+        client = rig.clients[NODE]
+        assert client.output_data_rate() == 200
+        claimed = 50.0  # what a device might claim in 0x2010:03 while sending 200 Hz
+        with RecordingWriter.open(path, {"sample_rate_hz": claimed}) as writer:
+            recorder = Recorder([(client, writer, claimed)], check_rate=True)
+            with caplog.at_level(logging.WARNING):
+                recorder.start()
+            try:
+                recorder.record_pose(0, position, settle_s=0.2)
+            finally:
+                recorder.stop()
+    assert "claims 50 Hz (0x2010:03) but its samples arrive at 200 Hz" in caplog.text
+    rec = read_recording(path)
+    assert rec.sample_rate_hz == 200.0
+    assert (rec.position == 0).sum() == 200  # 1 s counted at the measured rate
