@@ -19,6 +19,10 @@ fixed seed). The tool's side is the real chain: :class:`ImuClient` (pairing, los
 
 Exit status 0 when all three hold. ``--bus loopback`` delivers frames synchronously in the
 producer's thread (no virtual-bus queue): use it when the machine cannot keep up.
+
+``--signals N`` and ``--writers N`` run the write-transaction storms of
+:mod:`benchmarks.soak_writes` instead (SIGTERM/SIGINT/double interrupts at random write
+steps; two overlapping writers), print their counts and exit 0 when every run held.
 """
 
 from __future__ import annotations
@@ -294,7 +298,22 @@ def main() -> int:
     parser.add_argument("--loss", type=float, default=0.01)
     parser.add_argument("--bus", choices=("virtual", "loopback"), default="virtual")
     parser.add_argument("--keep-csv", metavar="DIR", help="keep the recording in DIR")
-    return run(parser.parse_args())
+    parser.add_argument("--signals", type=int, metavar="N", help="N interrupted writes instead")
+    parser.add_argument("--writers", type=int, metavar="N", help="N two-writer rounds instead")
+    parser.add_argument("--seed", type=int, default=SEED)
+    args = parser.parse_args()
+    if args.signals or args.writers:
+        from benchmarks.soak_writes import signal_storm, two_writers
+
+        with tempfile.TemporaryDirectory() as backups:
+            ok = True
+            if args.signals:
+                ok &= signal_storm(args.signals, args.seed, Path(backups))
+            if args.writers:
+                ok &= two_writers(args.writers, Path(backups))
+        print("PASS" if ok else "FAIL")
+        return 0 if ok else 1
+    return run(args)
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ failed / rollback incomplete, 4 no device or no bus. The tree::
     CanimucalError
     ├── InputError (2)        ModelError, SchemaError
     ├── DeviceError (3)       SdoAbort, DeviceSilentError, NodeRebootedError,
-    │                         RollbackIncompleteError
+    │                         ForeignSdoClientError, RollbackIncompleteError
     └── NoDeviceError (4)
 """
 
@@ -68,6 +68,16 @@ class StoreTimeoutError(DeviceSilentError):
 
 class NodeRebootedError(DeviceError):
     """The node booted during an SDO transfer: its unsaved values are gone (never retried)."""
+
+
+class ForeignSdoClientError(DeviceError):
+    """Another SDO client sent requests to the node during a write transaction (exit 3)."""
+
+    title = "Another SDO client"
+
+    def __init__(self, node_id: int) -> None:
+        super().__init__(f"another SDO client is using node {node_id}")
+        self.node_id = node_id
 
 
 class RollbackIncompleteError(DeviceError):

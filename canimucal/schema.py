@@ -49,6 +49,10 @@ class _DuplicateKey(ValueError):
     pass
 
 
+class _TooLong(ValueError):
+    pass
+
+
 # ------------------------------------------------------------------------- text and JSON
 
 
@@ -72,15 +76,34 @@ def read_text(path: str | os.PathLike[str]) -> str:
 def parse_json(text: str, source: str) -> Any:
     """Parse JSON text; syntax errors, non-finite literals and duplicate keys are refused."""
     try:
-        return json.loads(text, parse_constant=_refuse_constant, object_pairs_hook=_no_dupes)
+        return json.loads(
+            text,
+            parse_constant=_refuse_constant,
+            parse_int=_bounded_int,
+            object_pairs_hook=_no_dupes,
+        )
     except json.JSONDecodeError as exc:
         raise InputError(f"{source}:{exc.lineno}:{exc.colno}: invalid JSON ({exc.msg})") from None
+    except _TooLong as exc:
+        raise InputError(f"{source}: integer of {exc} digits (at most {MAX_INT_DIGITS})") from None
     except _NotFinite as exc:
         raise InputError(f"{source}: {exc} is not allowed (numbers must be finite)") from None
     except _DuplicateKey as exc:
         raise InputError(f"{source}: duplicate key {exc}") from None
     except RecursionError:
         raise InputError(f"{source}: JSON nested too deeply") from None
+
+
+MAX_INT_DIGITS = 4300
+"""Longest JSON integer parsed (Python's own limit for ``int(str)``); shorter ones that are
+too large for their key are refused by the schema checks, which name the key."""
+
+
+def _bounded_int(text: str) -> int:
+    digits = len(text.lstrip("-"))
+    if digits > MAX_INT_DIGITS:
+        raise _TooLong(str(digits))
+    return int(text)
 
 
 def _refuse_constant(name: str) -> Any:
@@ -389,6 +412,24 @@ def objects() -> dict[str, Checker]:
                 fail(path, f"malformed object key {key[:40]!r} (want 0x2100:01)")
             read_number(raw, f"{path}.{key}")
             out[key] = raw
+        return out
+
+    return _meta(check)
+
+
+def raw_objects() -> dict[str, Checker]:
+    """Field metadata: ``{"0x2100:01": "0000c07f"}``, an object's SDO bytes in hex (1–8 bytes)."""
+
+    def check(value: Any, path: str) -> dict[str, str]:
+        if not isinstance(value, dict):
+            fail(path, "must be an object")
+        out: dict[str, str] = {}
+        for key, raw in value.items():
+            if not OBJECT_KEY.fullmatch(key):
+                fail(path, f"malformed object key {key[:40]!r} (want 0x2100:01)")
+            if not isinstance(raw, str) or not re.fullmatch(r"(?:[0-9a-fA-F]{2}){1,8}", raw):
+                fail(f"{path}.{key}", "must be 1 to 8 bytes in hex, e.g. '0000c07f'")
+            out[key] = raw.lower()
         return out
 
     return _meta(check)

@@ -56,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
     for name, data in (("accel", rec.accel), ("gyro", rec.gyro)):
         x = data[start:stop]
         if np.sum(np.all(np.isfinite(x), axis=1)) >= 3 * fs:
+            _refuse_constant(x, name, where)
             allan = allan_deviation(x, fs)
             sensors[name] = (allan, fit_noise(allan))
     if not sensors:
@@ -64,6 +65,16 @@ def run(args: argparse.Namespace) -> int:
     doc = _document(sensors, lsb, best, where, (stop - start) / fs)
     emit(args, doc, _report(sensors, lsb, best, where, (stop - start) / fs))
     return 0
+
+
+def _refuse_constant(x: NDArray[np.float64], name: str, where: str) -> None:
+    """Refuse an axis that never changes: it has no noise to analyse (a stuck sensor)."""
+    spread = np.nanmax(x, axis=0) - np.nanmin(x, axis=0)
+    for axis in np.flatnonzero(~(spread > 0)):
+        raise InputError(
+            f"{name} {'xyz'[axis]} is constant ({x[0, axis]:g}) over {where}: no noise to "
+            "analyse (a stuck sensor?)"
+        )
 
 
 def _lsb(rec: Recording, key: str, default: float) -> float:

@@ -14,6 +14,13 @@ import traceback
 from collections.abc import Sequence
 
 from canimucal.errors import CanimucalError
+from canimucal.signals import (
+    EXIT_INTERRUPTED,
+    EXIT_TERMINATED,
+    Terminated,
+    handle_sigterm,
+    ignore_signals,
+)
 from canimucal.version import __version__
 
 # verb -> (module under canimucal.cli providing `add_subparser` and `run`, one-line help)
@@ -29,8 +36,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "analyze": ("analyze_cmd", "what the sensor model gets wrong on measured data"),
     "tui": ("tui_cmd", "the guided calibration in the terminal UI (the default)"),
 }
-
-EXIT_INTERRUPTED = 130
 
 
 def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
@@ -70,8 +75,23 @@ def _verb_of(argv: Sequence[str]) -> str | None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run one command; return its exit status."""
+    """Run one command; return its exit status.
+
+    Ctrl-C gives 130 and SIGTERM 143 (``sim``: 0, its normal stop) at any moment, imports
+    and argument parsing included, with one line naming what was done (never a traceback).
+    """
     argv = list(sys.argv[1:] if argv is None else argv)
+    restore = handle_sigterm()
+    try:
+        return _main(argv)
+    except KeyboardInterrupt as interrupt:
+        ignore_signals()  # a second interrupt must not cut the report short
+        return _interrupted(interrupt, _verb_of(argv))
+    finally:
+        restore()
+
+
+def _main(argv: list[str]) -> int:
     parser = build_parser(_verb_of(argv))
     args = parser.parse_args(argv)
     logging.basicConfig(
@@ -85,14 +105,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CanimucalError as error:
         _report(error, args.debug)
         return error.exit_code
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
     except BrokenPipeError:
         return 0
+    except MemoryError:  # an input too large for this machine: say so, never a traceback
+        print("error: out of memory (input too large for this machine?)", file=sys.stderr)
+        return 2
     except Exception as error:  # a bug: say so, in one line unless --debug
         _report(error, args.debug, prefix="internal error: ")
         return 1
+
+
+def _interrupted(interrupt: KeyboardInterrupt, verb: str | None) -> int:
+    """Report an interrupt in one line (its notes name the backup); return the status."""
+    terminated = isinstance(interrupt, Terminated)
+    if verb == "sim":
+        return 0
+    words = ["terminated" if terminated else "interrupted", *getattr(interrupt, "__notes__", [])]
+    try:
+        print("; ".join(words), file=sys.stderr)
+    except OSError:
+        pass
+    return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
 
 
 def _report(error: BaseException, debug: bool, prefix: str = "") -> None:

@@ -69,7 +69,7 @@ def read_document(client: ImuClient) -> dict[str, Any]:
     odr = client.output_data_rate()
     readout = client.read_calibration_block()
     calibration = record_from_block(
-        readout.block, identity, node_id=client.node_id, objects=readout.objects
+        readout.block, identity, node_id=client.node_id, objects=readout.objects, raw=readout.raw
     ).to_dict()
     return {
         "schema": SCHEMA,
@@ -80,6 +80,8 @@ def read_document(client: ImuClient) -> dict[str, Any]:
             "revision": identity.revision,
             "serial": identity.serial,
             "device_name": identity.device_name,
+            "hardware_version": identity.hardware_version,
+            "software_version": identity.software_version,
         },
         "nominal": {"accel_lsb": accel_lsb, "gyro_lsb": gyro_lsb, "output_data_rate_hz": odr},
         "readback": to_plain(readback_of(readout.block, readout.valid, readout.crc_ok)),
@@ -102,7 +104,8 @@ def report(document: dict[str, Any]) -> str:
     lines = [
         f"node {d['node_id']}: {d['device_name'] or 'unnamed'}, serial {d['serial']}, "
         f"vendor 0x{d['vendor_id']:08X}, product 0x{d['product_code']:08X}, "
-        f"revision 0x{d['revision']:08X}",
+        f"revision 0x{d['revision']:08X}, hardware {d.get('hardware_version') or '—'}, "
+        f"software {d.get('software_version') or '—'}",
         f"nominal: accel {n['accel_lsb']:.8g} m/s² per count, gyro {n['gyro_lsb']:.8g} rad/s "
         f"per count, {n['output_data_rate_hz']} Hz",
         f"calibration: {state}",

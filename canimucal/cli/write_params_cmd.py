@@ -109,5 +109,6 @@ def report(result: WriteReport, node: int) -> str:
     lines.append(f"backup of the previous calibration: {result.backup_path}")
     sub = result.store_sub
     stored = f"stored (0x1010:{sub:02X})" if result.stored and sub else "not stored (--no-store)"
-    lines.append(f"wrote {len(result.writes)} objects, read back bit-exactly, valid, {stored}")
+    valid = "valid" if result.valid else "left invalid (valid = 0: nominal values apply)"
+    lines.append(f"wrote {len(result.writes)} objects, read back bit-exactly, {valid}, {stored}")
     return "\n".join(lines) + "\n"

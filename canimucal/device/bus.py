@@ -143,6 +143,10 @@ def open_bus(settings: BusSettings) -> can.BusABC:
     return bus
 
 
+ABORT_OUT_OF_MEMORY = 0x05040005
+"""CiA 301 SDO abort code the client sends to stop an over-long upload."""
+
+
 class SdoChannel:
     """Raw SDO upload/download with the retry policy and error mapping.
 
@@ -171,6 +175,34 @@ class SdoChannel:
     def upload(self, index: int, sub: int) -> bytes:
         """Read ``index:sub`` as bytes."""
         return bytes(self._call("read", index, sub, lambda: self._sdo.upload(index, sub)))
+
+    def upload_bounded(self, index: int, sub: int, limit: int) -> tuple[bytes, bool]:
+        """Read at most ``limit`` bytes of ``index:sub``; return them and whether cut short.
+
+        A longer (segmented) value is aborted after the first segment past ``limit`` (SDO
+        abort 0x05040005, out of memory), so a device name of megabytes costs a few dozen
+        frames rather than the whole transfer.
+        """
+        return self._call("read", index, sub, lambda: self._read_bounded(index, sub, limit))
+
+    def _read_bounded(self, index: int, sub: int, limit: int) -> tuple[bytes, bool]:
+        stream = self._sdo.open(index, sub, "rb", buffering=0)
+        data = bytearray()
+        try:
+            while len(data) <= limit:
+                piece = stream.read(7)
+                if not piece:
+                    return bytes(data), False
+                data += piece
+            request = bytearray([0x80, index & 0xFF, index >> 8, sub, 0, 0, 0, 0])
+            request[4:8] = ABORT_OUT_OF_MEMORY.to_bytes(4, "little")
+            self._sdo.send_request(request)
+            logger.warning(
+                "%s is longer than %d bytes: upload aborted", od.format_key(index, sub), limit
+            )
+            return bytes(data[:limit]), True
+        finally:
+            stream.close()
 
     def download(self, index: int, sub: int, data: bytes) -> None:
         """Write ``data`` to ``index:sub`` (expedited when ≤ 4 bytes)."""

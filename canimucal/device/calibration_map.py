@@ -88,6 +88,8 @@ def backup_objects(record: Calibration) -> dict[tuple[int, int], float | int] | 
     if record.objects is None:
         return None
     objects = {od.parse_key(key): value for key, value in record.objects.items()}
+    for key, value in backup_raw(record).items():
+        objects[key] = od.decode(od.OBJECT_CODES[key], value)
     missing = [od.format_key(i, s) for i, s, _ in od.CALIBRATION_OBJECTS if (i, s) not in objects]
     if missing:
         raise InputError(f"backup objects missing: {', '.join(missing)}")
@@ -118,14 +120,34 @@ def _model_matrix(correction: ArrayLike) -> Matrix:
         return ((None,) * 3,) * 3
 
 
+def backup_raw(record: Calibration) -> dict[tuple[int, int], bytes]:
+    """Return a backup's ``objects_raw`` (values JSON cannot hold) as bytes by (index, sub)."""
+    out: dict[tuple[int, int], bytes] = {}
+    for key, text in (record.objects_raw or {}).items():
+        index_sub = od.parse_key(key)
+        code = od.OBJECT_CODES.get(index_sub)
+        if code is None:
+            raise InputError(f"objects_raw: {key} is not a calibration object")
+        data = bytes.fromhex(text)
+        if len(data) != len(od.encode(code, 0)):
+            raise InputError(f"objects_raw: {key} needs {len(od.encode(code, 0))} bytes")
+        out[index_sub] = data
+    return out
+
+
 def record_from_block(
     block: od.CalibrationBlock,
     identity: Identity,
     *,
     node_id: int | None = None,
     objects: Mapping[tuple[int, int], float | int] | None = None,
+    raw: Mapping[tuple[int, int], bytes] | None = None,
 ) -> Calibration:
-    """Build the calibration record of a device block; with ``objects`` a restorable backup."""
+    """Build the calibration record of a device block; with ``objects`` a restorable backup.
+
+    Values JSON cannot hold (NaN, ±inf) go to ``objects_raw`` as the SDO bytes (``raw``,
+    the bytes the node returned, else their encoding).
+    """
     created = None
     if block.time_unix_s > 0:
         created = datetime.fromtimestamp(block.time_unix_s, UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
@@ -150,20 +172,41 @@ def record_from_block(
         ),
         base_tilt_deg=BaseTilt(alpha0=_finite(alpha0), beta0=_finite(beta0)),
         fit=Fit(rms=_finite(block.rms_ms2)),
-        objects=None if objects is None else objects_json(objects),
+        objects=None if objects is None else objects_json(objects, raw),
+        objects_raw=None if objects is None else (objects_raw_json(objects, raw) or None),
     )
 
 
-def objects_json(objects: Mapping[tuple[int, int], float | int]) -> dict[str, float | int]:
-    """``{"0x2100:01": value, …}`` in CALIBRATION_OBJECTS order (valid flag included)."""
+def objects_json(
+    objects: Mapping[tuple[int, int], float | int],
+    raw: Mapping[tuple[int, int], bytes] | None = None,
+) -> dict[str, float | int]:
+    """``{"0x2100:01": value, …}`` in CALIBRATION_OBJECTS order (valid flag included).
+
+    Non-finite values are left out: :func:`objects_raw_json` keeps them as bytes.
+    """
     out: dict[str, float | int] = {}
     for index, sub, code in od.CALIBRATION_OBJECTS:
         if (index, sub) in objects:
             value = objects[(index, sub)]
+            if not math.isfinite(value):
+                continue
             out[od.format_key(index, sub)] = float(value) if code == "f32" else int(value)
-    bad = [key for key, value in out.items() if not math.isfinite(value)]
-    if bad:
-        raise InputError(f"device holds non-finite values in {', '.join(bad)}; cannot back up")
+    return out
+
+
+def objects_raw_json(
+    objects: Mapping[tuple[int, int], float | int],
+    raw: Mapping[tuple[int, int], bytes] | None = None,
+) -> dict[str, str]:
+    """``{"0x2100:01": "0000c07f"}`` for every non-finite value: the SDO bytes in hex."""
+    out: dict[str, str] = {}
+    for index, sub, code in od.CALIBRATION_OBJECTS:
+        value = objects.get((index, sub))
+        if value is None or math.isfinite(value):
+            continue
+        data = raw.get((index, sub)) if raw is not None else None
+        out[od.format_key(index, sub)] = (data or od.encode(code, value)).hex()
     return out
 
 
@@ -171,7 +214,9 @@ def record_from_readout(
     readout: CalibrationReadout, identity: Identity, node_id: int | None = None
 ) -> Calibration:
     """Build the backup record of a :class:`~canimucal.device.client.CalibrationReadout`."""
-    return record_from_block(readout.block, identity, node_id=node_id, objects=readout.objects)
+    return record_from_block(
+        readout.block, identity, node_id=node_id, objects=readout.objects, raw=readout.raw
+    )
 
 
 def readback_of(block: od.CalibrationBlock, valid: int, crc_ok: bool) -> Readback:

@@ -35,6 +35,7 @@ from canimucal.device.stream import SampleLayout, SamplePairer, layout_from_mapp
 from canimucal.device.stream_consumer import StreamConsumer
 from canimucal.errors import DeviceError, DeviceSilentError, NoDeviceError, SdoAbort
 from canimucal.model.samples import SampleBlock, concat_blocks
+from canimucal.untrusted import DEVICE_TEXT_MAX_BYTES, device_text
 
 logger = logging.getLogger(__name__)
 
@@ -43,26 +44,34 @@ SKEW_NOTICE_PPM = 1000.0
 """Event-timer skew worth a warning when streaming stops (one sample in a thousand)."""
 DEFAULT_STORE_TIMEOUT_S = 10.0
 """How long a 0x1010 store may take to answer (flash erase inside the SDO handler)."""
+SDO_REQUEST_BASE = 0x600
+"""COB-ID base of SDO requests (client to server) of the default SDO channel."""
 NOTIFIER_CYCLE_S = 0.1
 """Receive-thread wake-up of a network the client makes itself (bounds :meth:`close`)."""
 
 
 class Identity(NamedTuple):
-    """0x1018:01–04 and 0x1008."""
+    """0x1018:01–04, 0x1008 and 0x1009/0x100A.
+
+    The strings are the device's, made printable (:func:`canimucal.untrusted.printable`)
+    and cut at 256 bytes; empty when the node does not have the object.
+    """
 
     vendor_id: int
     product_code: int
     revision: int
     serial: int
     device_name: str
+    hardware_version: str = ""
+    software_version: str = ""
 
 
 class CalibrationReadout(NamedTuple):
     """The calibration block as read: values, valid flag, stored CRC and whether it matches.
 
     ``objects`` holds every :data:`od.CALIBRATION_OBJECTS` value (valid and CRC included);
-    ``raw`` re-encodes them: the bytes the node returned (decode/encode is exact for every
-    finite value, and the node refuses non-finite ones).
+    ``raw`` their bytes: as the node returned them when read (``read_bytes``), else
+    re-encoded (exact for every finite value; a NaN keeps its payload only when read).
     """
 
     block: od.CalibrationBlock
@@ -70,10 +79,13 @@ class CalibrationReadout(NamedTuple):
     crc_stored: int
     crc_ok: bool
     objects: dict[tuple[int, int], float | int]
+    read_bytes: dict[tuple[int, int], bytes] | None = None
 
     @property
     def raw(self) -> dict[tuple[int, int], bytes]:
         """Little-endian SDO bytes of every object."""
+        if self.read_bytes is not None:
+            return dict(self.read_bytes)
         return {key: od.encode(od.OBJECT_CODES[key], v) for key, v in self.objects.items()}
 
 
@@ -121,6 +133,9 @@ class ImuClient:
         )
         network.subscribe(HEARTBEAT_BASE + node_id, self.heartbeat.on_heartbeat)
         network.subscribe(EMCY_BASE + node_id, self.heartbeat.on_emergency)
+        self.foreign_sdo_requests = 0
+        """SDO requests to the node that this client did not send (another SDO client)."""
+        network.subscribe(SDO_REQUEST_BASE + node_id, self._on_foreign_sdo_request)
         self.bus_meter = BusLoadMeter(bitrate_bps)
         """Every frame the network receives (``bitrate_bps=None``: 500 kbit/s assumed)."""
         if network.notifier is not None:
@@ -185,11 +200,22 @@ class ImuClient:
             logger.warning("node %d serial changed: %d -> %d", self.node_id, self._serial, serial)
             self.events.put(SerialChanged(self.node_id, self._serial, serial))
         self._serial = serial
+        name, hardware, software = (
+            self.device_string(index)
+            for index in (od.DEVICE_NAME, od.HARDWARE_VERSION, od.SOFTWARE_VERSION)
+        )
+        return Identity(vendor, product, revision, serial, name, hardware, software)
+
+    def device_string(self, index: int) -> str:
+        """Read a VISIBLE_STRING object (sub 0): at most 256 bytes, made printable.
+
+        ``""`` when the node does not have the object.
+        """
         try:
-            name = self.sdo.upload(od.DEVICE_NAME, 0).decode("ascii", "replace").rstrip("\0")
+            raw, cut = self.sdo.upload_bounded(index, 0, DEVICE_TEXT_MAX_BYTES)
         except SdoAbort:
-            name = ""
-        return Identity(vendor, product, revision, serial, name)
+            return ""
+        return device_text(raw, cut)
 
     def nominal_lsb(self) -> tuple[float, float]:
         """Nominal accel (m/s² per count) and gyro (rad/s per count) LSB, signed (0x2010)."""
@@ -235,13 +261,15 @@ class ImuClient:
     def read_calibration_block(self) -> CalibrationReadout:
         """Read every calibration object (DESIGN §4), the valid flag and the stored CRC."""
         objects: dict[tuple[int, int], float | int] = {}
+        read: dict[tuple[int, int], bytes] = {}
         for index, sub, code in od.CALIBRATION_OBJECTS:
-            objects[(index, sub)] = od.decode(code, self.read_raw(index, sub, code))
+            read[(index, sub)] = self.read_raw(index, sub, code)
+            objects[(index, sub)] = od.decode(code, read[(index, sub)])
         crc_stored = int(objects[(od.CAL_INFO, od.CAL_CRC_SUB)])
         valid = int(objects[(od.CAL_INFO, od.CAL_VALID_SUB)])
         crc_ok = od.block_crc(objects) == crc_stored
         return CalibrationReadout(
-            od.CalibrationBlock.from_objects(objects), valid, crc_stored, crc_ok, objects
+            od.CalibrationBlock.from_objects(objects), valid, crc_stored, crc_ok, objects, read
         )
 
     def store_calibration(self) -> None:
@@ -289,6 +317,10 @@ class ImuClient:
         return self.bus_meter.load(full_window=full_window)
 
     # ----------------------------------------------------------------------- streaming
+    def _on_foreign_sdo_request(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        """Count a request on 0x600+id: the bus never echoes our own, so it is not ours."""
+        self.foreign_sdo_requests += 1
+
     def _boots(self) -> int:
         return self.heartbeat.boots
 
@@ -479,6 +511,7 @@ class ImuClient:
         self.heartbeat.unwatch()
         self.network.unsubscribe(HEARTBEAT_BASE + self.node_id, self.heartbeat.on_heartbeat)
         self.network.unsubscribe(EMCY_BASE + self.node_id, self.heartbeat.on_emergency)
+        self.network.unsubscribe(SDO_REQUEST_BASE + self.node_id, self._on_foreign_sdo_request)
         if self.network.notifier is not None:
             for listener in (self.heartbeat, self.bus_meter):
                 try:

@@ -17,6 +17,8 @@ GYRO_RAW = 0x2001
 SAMPLE_INFO = 0x2002
 SIGNED_OBJECTS = {(ACCEL_RAW, 1), (ACCEL_RAW, 2), (ACCEL_RAW, 3), (GYRO_RAW, 1), (GYRO_RAW, 2)}
 SIGNED_OBJECTS |= {(GYRO_RAW, 3), (SAMPLE_INFO, 1)}
+COUNTER_BITS = 16
+"""The sample counter 0x2002:02 is UNSIGNED16; pairing wraps it at 2**16."""
 TEMP_SCALE_C = 0.01
 """0x2002:01 is in 0.01 °C."""
 
@@ -117,7 +119,35 @@ class SampleLayout:
     info: PdoLayout | None
 
     def __post_init__(self) -> None:
-        """Check that the halves carry what pairing needs."""
+        """Check that the mapping can be decoded and the halves carry what pairing needs.
+
+        Refused (``ValueError``): a 0-bit entry, a TPDO longer than a CAN frame's 8 bytes,
+        two TPDOs on one COB-ID, a counter 0x2002:02 not mapped with 16 bits (pairing and
+        loss counting wrap it at 65536), and a half without x, y, z or the counter.
+        """
+        layouts = [(n, layout) for n, layout in ((1, self.accel), (2, self.gyro), (3, self.info))]
+        seen: dict[int, int] = {}
+        for number, layout in layouts:
+            if layout is None:
+                continue
+            for f in layout.fields:
+                if f.bits == 0:
+                    raise ValueError(f"TPDO{number} maps 0x{f.index:04X}:{f.sub:02X} with 0 bits")
+            if layout.size_bytes > 8:
+                raise ValueError(
+                    f"TPDO{number} maps {layout.size_bytes} bytes; a CAN frame holds 8"
+                )
+            if layout.cob_id in seen:
+                raise ValueError(
+                    f"TPDO{number} has TPDO{seen[layout.cob_id]}'s COB-ID 0x{layout.cob_id:X}"
+                )
+            seen[layout.cob_id] = number
+            for f in layout.fields:
+                if (f.index, f.sub) == (SAMPLE_INFO, 2) and f.bits != COUNTER_BITS:
+                    raise ValueError(
+                        f"TPDO{number} maps the counter 0x2002:02 with {f.bits} bits; "
+                        f"it needs {COUNTER_BITS}"
+                    )
         needed = [(self.accel, ACCEL_RAW), (self.gyro, GYRO_RAW)]
         for layout, index in needed:
             for sub in (1, 2, 3):

@@ -61,6 +61,10 @@ RECENT_WINDOW = 1024
 """How many finalized counters are remembered to tell duplicates from late halves."""
 
 
+MALFORMED_LOG_EVERY = 1000
+"""A stream of malformed frames is logged at its 1st, 10th and every 1000th frame."""
+
+
 @dataclass
 class _Pending:
     seq: int
@@ -134,7 +138,14 @@ class SamplePairer:
         except (struct.error, IndexError):
             self.malformed += 1
             self._tally.malformed += 1
-            logger.warning("dropped a malformed frame 0x%X: %s", can_id, bytes(data).hex())
+            if self.malformed in (1, 10) or self.malformed % MALFORMED_LOG_EVERY == 0:
+                logger.warning(
+                    "dropped a malformed frame 0x%X: %s (%d bytes; %d so far)",
+                    can_id,
+                    bytes(data).hex(),
+                    len(data),
+                    self.malformed,
+                )
 
     def _feed(self, can_id: int, data: bytes, timestamp: float) -> None:
         if can_id == self.layout.accel.cob_id:

@@ -20,6 +20,7 @@ is read again and :class:`StoreNotConfirmedError` says what RAM holds.
 from __future__ import annotations
 
 import logging
+import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
@@ -29,6 +30,7 @@ from pathlib import Path
 from canimucal.device import od
 from canimucal.device.calibration_map import (
     backup_objects,
+    backup_raw,
     block_from_record,
     record_from_readout,
 )
@@ -40,6 +42,7 @@ from canimucal.device.client import (
 )
 from canimucal.errors import (
     DeviceError,
+    ForeignSdoClientError,
     InputError,
     NodeRebootedError,
     RollbackIncompleteError,
@@ -48,6 +51,7 @@ from canimucal.errors import (
 )
 from canimucal.io.atomic import unique_path, write_text_atomic
 from canimucal.io.calibration import Calibration, calibration_to_json
+from canimucal.signals import deferred_signals
 
 logger = logging.getLogger(__name__)
 
@@ -91,6 +95,8 @@ class WriteReport:
     serial_forced: bool
     restore: bool
     store_sub: int | None = None
+    valid: int = 1
+    """The valid flag written last: 0 for a backup that was invalid or whose CRC mismatched."""
 
 
 def default_backup_dir(environ: Mapping[str, str] | None = None) -> Path:
@@ -111,10 +117,20 @@ def plan_writes(
     *,
     store: bool,
     store_sub: int = od.STORE_CALIBRATION_SUB,
+    raw: Mapping[ObjectKey, bytes] | None = None,
 ) -> tuple[PlannedWrite, ...]:
-    """List the SDO downloads of steps 4–10 in order: valid 0, block, CRC, valid, store."""
+    """List the SDO downloads of steps 4–10 in order: valid 0, block, CRC, valid, store.
+
+    ``raw`` gives the exact bytes of objects a backup kept as bytes (a NaN's payload).
+    """
+    raw = raw or {}
     writes = [_planned(*VALID_KEY, "u8", 0)]
-    writes += [_planned(i, s, c, target[(i, s)]) for i, s, c in od.CRC_ORDER]
+    writes += [
+        PlannedWrite(i, s, c, target[(i, s)], raw[(i, s)])
+        if (i, s) in raw
+        else _planned(i, s, c, target[(i, s)])
+        for i, s, c in od.CRC_ORDER
+    ]
     writes += [_planned(*CRC_KEY, "u32", crc), _planned(*VALID_KEY, "u8", final_valid)]
     if store:
         writes.append(_planned(od.STORE, store_sub, "u32", od.SAVE_SIGNATURE))
@@ -168,7 +184,17 @@ def _target(
         return block, values, od.block_crc(values), 1, False
     values = {(i, s): objects[(i, s)] for i, s, _ in od.CRC_ORDER}
     block = od.CalibrationBlock.from_objects(values)
-    return block, values, int(objects[CRC_KEY]), int(objects[VALID_KEY]), True
+    valid = int(objects[VALID_KEY])
+    bad = _non_finite(values)
+    if bad and valid == 1:
+        logger.warning("backup holds non-finite values in %s: restored with valid = 0", bad)
+        valid = 0
+    return block, values, int(objects[CRC_KEY]), valid, True
+
+
+def _non_finite(values: Mapping[ObjectKey, float | int]) -> str:
+    """Name the keys holding NaN or ±inf, comma-separated ("" when none)."""
+    return ", ".join(od.format_key(*key) for key, v in values.items() if not math.isfinite(v))
 
 
 def _check_serial(identity: Identity, record: Calibration, force: bool) -> bool:
@@ -204,18 +230,38 @@ def write_calibration_transaction(
     :class:`InputError` (exit 2) for values out of the device's ranges (nothing written).
     ``store_sub`` forces the 0x1010 sub-index (see :func:`choose_store_sub`).
     """
+    foreign = client.foreign_sdo_requests  # any request we did not send from now on aborts
     identity = client.identity()  # step 1
     forced = _check_serial(identity, record, force)
     accel_lsb, gyro_lsb = client.nominal_lsb()  # step 2
     block, values, crc, final_valid, restore = _target(record, accel_lsb, gyro_lsb)
-    problems = od.block_range_problems(block, accel_lsb, gyro_lsb)
+    # a backup of what the device held is written back as it was, non-finite values too
+    problems = (
+        []
+        if restore and _non_finite(values)
+        else od.block_range_problems(block, accel_lsb, gyro_lsb)
+    )
     if problems:
         more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
         raise InputError(f"calibration outside the device's ranges: {problems[0]}{more}")
     if final_valid == 1 and restore and od.block_crc(values) != crc:
-        logger.warning("backup's CRC does not match its values: restoring it verbatim")
+        # edited, or taken while another client wrote: never valid = 1 over such a set
+        logger.warning(
+            "backup's CRC 0x%08X does not match its values (0x%08X): restored with valid = 0, "
+            "nominal values apply",
+            crc,
+            od.block_crc(values),
+        )
+        final_valid = 0
     sub = choose_store_sub(client, store_sub) if store else None
-    writes = plan_writes(values, crc, final_valid, store=sub is not None, store_sub=sub or 0)
+    writes = plan_writes(
+        values,
+        crc,
+        final_valid,
+        store=sub is not None,
+        store_sub=sub or 0,
+        raw=backup_raw(record),
+    )
     report = WriteReport(
         identity,
         accel_lsb,
@@ -229,12 +275,16 @@ def write_calibration_transaction(
         forced,
         restore,
         sub,
+        final_valid,
     )
     if dry_run:
         return report
     before = client.read_calibration_block()  # step 3
+    _check_alone(client, foreign, "nothing written")
     backup_path = save_backup(before, identity, client.node_id, backup_dir)
-    _run_with_rollback(client, writes, before, backup_path, identity.serial, store_timeout_s)
+    _run_with_rollback(
+        client, writes, before, backup_path, identity.serial, foreign, store_timeout_s
+    )
     return replace(report, backup_path=backup_path, stored=store)
 
 
@@ -302,37 +352,59 @@ def _run_with_rollback(
     before: CalibrationReadout,
     backup_path: Path,
     serial: int,
+    foreign: int,
     store_timeout_s: float = DEFAULT_STORE_TIMEOUT_S,
 ) -> None:
     """Run steps 4–10; on failure restore ``before`` or raise RollbackIncompleteError.
 
     A store that does not answer in time is not a failure to roll back: RAM holds the new,
-    verified set and flash may too (:class:`StoreNotConfirmedError`).
+    verified set and flash may too (:class:`StoreNotConfirmedError`). A request from another
+    SDO client (``client.foreign_sdo_requests`` past ``foreign``) is a failure like any
+    other: its writes may interleave with ours.
     """
     step = "clear valid"
     boots = client.boots
     try:
         for step, batch in _steps(writes):
+            _check_alone(client, foreign)
             if step == "store":
                 _store(client, batch[0], store_timeout_s, boots)
             else:
                 _do_step(client, step, batch, boots)
+            _check_alone(client, foreign)
     except StoreNotConfirmedError:
         raise
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM (canimucal.signals.Terminated)
         logger.error("interrupted at %s; rolling back", step)
-        _rollback(client, before, backup_path)
+        with deferred_signals():  # a second interrupt must not skip the rollback
+            _rollback(client, before, backup_path)
+        exc.add_note(f"previous calibration restored from {backup_path}")
         raise
     except DeviceError as exc:
         verb = "refused" if isinstance(exc, SdoAbort) else "failed"
         if isinstance(exc, NodeRebootedError):
             _refuse_other_unit(client, serial, exc)
         logger.error("calibration write %s at %s: %s; rolling back", verb, step, exc)
-        _rollback(client, before, backup_path)
-        raise DeviceError(
+        with deferred_signals() as held:
+            _rollback(client, before, backup_path)
+        message = (
             f"calibration write {verb} at {step}: {exc}; previous calibration restored from "
             f"{backup_path}"
-        ) from exc
+        )
+        interrupt = held.interrupt()
+        if interrupt is not None:
+            interrupt.add_note(message)
+            raise interrupt from exc
+        raise DeviceError(message) from exc
+
+
+def _check_alone(client: ImuClient, foreign: int, consequence: str = "") -> None:
+    """Raise ForeignSdoClientError when another SDO client has spoken to the node."""
+    if client.foreign_sdo_requests != foreign:
+        error = ForeignSdoClientError(client.node_id)
+        if consequence:
+            raise DeviceError(f"{error}; {consequence}") from error
+        raise error
 
 
 def _refuse_other_unit(client: ImuClient, serial: int, exc: DeviceError) -> None:
@@ -423,6 +495,10 @@ def restore_readout(client: ImuClient, before: CalibrationReadout) -> None:
         data = raw[(index, sub)]
         writes.append(PlannedWrite(index, sub, code, od.decode(code, data), data))
     crc_raw, valid_raw = raw[CRC_KEY], raw[VALID_KEY]
+    bad = _non_finite(before.objects)
+    if bad and valid_raw != od.encode("u8", 0):
+        logger.warning("the previous set holds non-finite values in %s: left valid = 0", bad)
+        valid_raw = od.encode("u8", 0)
     crc_write = PlannedWrite(*CRC_KEY, "u32", od.decode("u32", crc_raw), crc_raw)
     valid_write = PlannedWrite(*VALID_KEY, "u8", od.decode("u8", valid_raw), valid_raw)
     for write in writes + [crc_write]:

@@ -9,9 +9,11 @@ so even a file created concurrently is never replaced.
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import os
 import secrets
+import stat
 from pathlib import Path
 
 from canimucal.errors import InputError
@@ -56,6 +58,24 @@ def refuse_existing(path: Path, *, overwrite: bool) -> None:
     """Raise :class:`InputError` when ``path`` exists and ``overwrite`` is false."""
     if not overwrite and os.path.lexists(path):
         raise InputError(f"{path} exists; use --overwrite to replace it")
+
+
+def read_bytes_nofollow(path: str | os.PathLike[str]) -> bytes:
+    """Read a whole file opened with ``O_NOFOLLOW``: a symlink at ``path`` is refused.
+
+    For files the tool appends to or resumes from, so that a link planted there never makes
+    it read (and then write) another file. Raises :class:`InputError` on any failure.
+    """
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise InputError(f"{path} is a symlink; refusing to follow it") from exc
+        raise InputError(f"cannot read {path}: {exc.strerror or exc}") from exc
+    with os.fdopen(fd, "rb") as handle:
+        if not stat.S_ISREG(os.fstat(handle.fileno()).st_mode):
+            raise InputError(f"{path} is not a regular file")
+        return handle.read()
 
 
 def temporary_sibling(path: Path) -> Path:

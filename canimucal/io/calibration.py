@@ -251,6 +251,8 @@ class Calibration:
     fit: Fit | None = field(default=None, metadata=cs.block(Fit))
     recording: RecordingRef | None = field(default=None, metadata=cs.block(RecordingRef))
     objects: dict[str, int | float] | None = field(default=None, metadata=cs.objects())
+    objects_raw: dict[str, str] | None = field(default=None, metadata=cs.raw_objects())
+    """Objects JSON numbers cannot hold (NaN, ±inf), as their SDO bytes in hex."""
     readback: Readback | None = field(default=None, metadata=cs.block(Readback))
     acceptance: Acceptance | None = field(default=None, metadata=cs.block(Acceptance))
     verification: Verification | None = field(default=None, metadata=cs.block(Verification))

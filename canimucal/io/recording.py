@@ -84,6 +84,10 @@ class Recording:
     sample_rate_inferred: bool = False
     source: str = field(default="", compare=False)
     turns: tuple[KnownTurn, ...] = field(default=(), compare=False)
+    duplicate_counters: int = field(default=0, compare=False)
+    """Rows whose counter repeats the row before's (a frame received twice, a bad merge)."""
+    duplicate_rows: int = field(default=0, compare=False)
+    """Rows identical in every column to the row before (a copy-paste, a doubled log)."""
 
     @property
     def n_rows(self) -> int:
@@ -165,9 +169,45 @@ def _recording_from_table(
     for arr in (*arrays, accel, gyro, position):
         arr.setflags(write=False)
     t, counter, alpha, beta, psi, temp = arrays
+    dup_counters, dup_rows = count_duplicates(table)
+    if dup_counters or dup_rows:
+        logger.warning(
+            "%s: %d rows repeat the previous row's counter, %d rows are exact copies of the "
+            "previous row (kept; check how the file was made)",
+            source or "recording",
+            dup_counters,
+            dup_rows,
+        )
     return Recording(
-        header, t, counter, position, alpha, beta, psi, accel, gyro, temp, inferred, source
+        header,
+        t,
+        counter,
+        position,
+        alpha,
+        beta,
+        psi,
+        accel,
+        gyro,
+        temp,
+        inferred,
+        source,
+        duplicate_counters=dup_counters,
+        duplicate_rows=dup_rows,
     )
+
+
+def count_duplicates(table: FloatArray) -> tuple[int, int]:
+    """Count rows repeating the previous row's counter, and rows equal to it in every column.
+
+    Empty cells (NaN) compare equal to empty cells; an empty counter is never a duplicate.
+    """
+    if table.shape[0] < 2:
+        return 0, 0
+    counter = table[:, 1]
+    same_counter = (counter[1:] == counter[:-1]) & np.isfinite(counter[1:])
+    a, b = table[1:], table[:-1]
+    same_row = np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1)
+    return int(np.count_nonzero(same_counter)), int(np.count_nonzero(same_row))
 
 
 def _infer_rate(t: FloatArray, source: str) -> float:
@@ -198,6 +238,21 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
         raw = Path(path).read_bytes()
     except OSError as exc:
         raise InputError(f"cannot read {source}: {exc.strerror or exc}") from exc
+    try:
+        return parse_recording(raw, source)
+    except MemoryError:
+        raise InputError(
+            f"{source}: not enough memory to read {len(raw) / 1e6:.0f} MB; split the file "
+            "or record shorter stretches"
+        ) from None
+
+
+def parse_recording(raw: bytes, source: str) -> Recording:
+    """Parse and validate the bytes of a recording CSV read from ``source``.
+
+    A UTF-8 byte-order mark (written by some spreadsheet programs) is skipped.
+    """
+    raw = raw.removeprefix(b"\xef\xbb\xbf")
     if b"\r" in raw:
         raw = raw.replace(b"\r\n", b"\n")
     header, data_start, first_line = _read_head(raw, source)

@@ -14,6 +14,7 @@ from canimucal.analysis.acceptance import AcceptanceLimits, AcceptanceReport
 from canimucal.device.client import Identity
 from canimucal.io.calibration import Calibration, calibration_to_dict
 from canimucal.procedure.events import LevelChecked
+from canimucal.untrusted import markdown_text
 
 
 def _fmt(value: Any, sigma: Any) -> str:
@@ -124,11 +125,14 @@ def _head(d: dict[str, Any], identity: Identity) -> list[str]:
     cond = d.get("conditions") or {}
     fit = d.get("fit") or {}
     return [
-        f"# Calibration certificate — {identity.device_name or 'IMU'} serial {identity.serial}",
+        f"# Calibration certificate — {markdown_text(identity.device_name) or 'IMU'} serial "
+        f"{identity.serial}",
         "",
         f"- Date (UTC): {d.get('created', 'unknown')}",
         f"- Device: node {d['device'].get('node_id')}, vendor 0x{identity.vendor_id:08X}, "
-        f"product 0x{identity.product_code:08X}, revision 0x{identity.revision:08X}",
+        f"product 0x{identity.product_code:08X}, revision 0x{identity.revision:08X}, "
+        f"hardware {markdown_text(identity.hardware_version) or '—'}, "
+        f"software {markdown_text(identity.software_version) or '—'}",
         f"- Plan: {d.get('plan', 'unknown')}, {len(d.get('positions') or [])} positions",
         f"- Conditions: g = {cond.get('g')} m/s², latitude {cond.get('latitude_deg')}°, "
         f"heading {cond.get('heading_deg')}°, temperature {cond.get('temp_c')} °C",

@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 from canimucal.device.client import ImuClient
 from canimucal.device.events import NodeRebooted
 from canimucal.errors import DeviceError, InputError
+from canimucal.io.recording import DEVICE_RATES_HZ
 from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.model.samples import SampleBlock, concat_blocks
@@ -50,6 +51,10 @@ WRITE_INTERVAL_S = 0.5
 """Blocks (20 ms each) are labelled and written in batches of this many rows or seconds:
 the per-write overhead is what a slow (emulated) machine cannot afford 50 times a second."""
 DEFAULT_GUARD_S = 0.5
+RATE_CHECK_S = 2.0
+"""The sample rate is measured over the first 2 s of CAN receive times."""
+RATE_TOLERANCE = 0.1
+"""A measured rate further than 10 % from the claimed one replaces it (with a warning)."""
 """Schedule mode: samples within this (schedule) time of a move are not labelled."""
 
 PosePrompt = Callable[[int, PlannedPosition], None]
@@ -98,7 +103,14 @@ class _Track:
         self.was_operational = False
         self.pending: list[SampleBlock] = []
         self.pending_rows = 0
+        self.malformed = 0
         self.last_write = time.monotonic()
+        self.check_rate = False
+        """Measure the rate (off for simulated nodes on a scaled clock: CAN times lie)."""
+        self.rate_measured = False
+        self.rate_t0 = 0.0  # CAN time of the first sample, counter and samples since
+        self.rate_counter: int | None = None
+        self.rate_seq = 0
 
     def unwrap(self, counter: NDArray[np.int64]) -> NDArray[np.int64]:
         """Unwrapped sequence numbers of a block's 16-bit counters."""
@@ -149,10 +161,13 @@ class Recorder:
         channels: Sequence[tuple[ImuClient, RecordingWriter, float]],
         *,
         idle_timeout_s: float = DEFAULT_IDLE_TIMEOUT_S,
+        check_rate: bool = False,
     ) -> None:
         if not channels:
             raise InputError("nothing to record: no node")
         self._tracks = [_Track(client, writer, rate) for client, writer, rate in channels]
+        for track in self._tracks:
+            track.check_rate = check_rate
         self._idle_timeout_s = idle_timeout_s
         self._started = False
 
@@ -162,12 +177,20 @@ class Recorder:
         return [track.tally for track in self._tracks]
 
     def start(self) -> None:
-        """Start streaming on every node (NMT start to each target node only)."""
+        """Start streaming on every node (NMT start to each target node only).
+
+        With ``check_rate`` the first RATE_CHECK_S of samples are written unlabelled while
+        the rate is measured (see :func:`_check_rate`).
+        """
         for track in self._tracks:
             track.was_operational = track.client.node_state == "OPERATIONAL"
             track.client.start_streaming(rate_hz=track.rate_hz)
             track.last_data = time.monotonic()
         self._started = True
+        # the rate is measured before any labelling, so windows are counted at the true rate
+        self._pump(
+            _unlabelled, lambda: all(t.rate_measured or not t.check_rate for t in self._tracks)
+        )
 
     def stop(self) -> None:
         """Stop streaming (a node found OPERATIONAL stays so) and write what is left."""
@@ -247,17 +270,26 @@ class Recorder:
                 now = time.monotonic()
                 if block is not None:
                     track.pending.append(block)
+                    track.malformed += block.malformed
                     if block.n:
                         track.last_data = now
                         track.pending_rows += block.n
-                elif now - track.last_data > self._idle_timeout_s:
-                    raise DeviceError(
-                        f"node {track.client.node_id} sent no sample for {self._idle_timeout_s:g} s"
-                    )
+                if now - track.last_data > self._idle_timeout_s:  # frames that pair nothing too
+                    raise DeviceError(self._stalled(track))
                 if track.pending_rows >= WRITE_ROWS or now - track.last_write > WRITE_INTERVAL_S:
                     self._flush(track, labeller)
         for track in self._tracks:
             self._flush(track, labeller)
+
+    def _stalled(self, track: _Track) -> str:
+        """Say that a node gave no sample, and why when its frames did not fit the mapping."""
+        message = f"node {track.client.node_id} sent no sample for {self._idle_timeout_s:g} s"
+        if track.malformed:
+            message += (
+                f"; {track.malformed} frames did not match the node's PDO mapping (wrong "
+                "length): check 0x1A00-0x1A02"
+            )
+        return message
 
     def _device_events(self, track: _Track, labeller: Labeller) -> None:
         """React to what the node reported: a reboot resumes streaming (see ``_rebooted``)."""
@@ -310,7 +342,55 @@ class Recorder:
         track.pending, track.pending_rows = [], 0
         track.tally.add(block)
         if block.n:
+            if track.check_rate:
+                _check_rate(track, block)
             track.write(block, *labeller(track, block))
+
+
+def _check_rate(track: _Track, block: SampleBlock) -> None:
+    """Measure the sample rate over the first RATE_CHECK_S of CAN times; trust it over 0x2010:03.
+
+    The rate is the counter span over the receive-time span (lost samples still advance the
+    counter). When it differs from the claimed rate by more than RATE_TOLERANCE, a warning
+    says so, the labelling windows still to come are rescaled and the recording's header is
+    corrected when the file is closed. Measured once per track.
+    """
+    if track.rate_measured:
+        return
+    counters = block.counter.tolist()
+    if track.rate_counter is None:
+        track.rate_t0, track.rate_seq, track.rate_counter = float(block.t[0]), 0, int(counters[0])
+    for c in counters:
+        track.rate_seq += (int(c) - track.rate_counter) % COUNTER_MODULUS
+        track.rate_counter = int(c)
+    span = float(block.t[-1]) - track.rate_t0
+    if span < RATE_CHECK_S:
+        return
+    track.rate_measured = True
+    measured = _snap_rate(track.rate_seq / span)
+    claimed = track.rate_hz
+    if abs(measured / claimed - 1.0) <= RATE_TOLERANCE:
+        return
+    log.warning(
+        "node %d claims %g Hz (0x2010:03) but its samples arrive at %g Hz: using the measured rate",
+        track.client.node_id,
+        claimed,
+        measured,
+    )
+    factor = measured / claimed
+    track.skip = int(round(track.skip * factor))
+    if track.remaining:
+        track.remaining = max(int(round(track.remaining * factor)), 2)
+    track.rate_hz = measured
+    track.writer.correct_header(sample_rate_hz=measured)
+
+
+def _snap_rate(rate: float) -> float:
+    """Return the device rate within 2 % of ``rate``, else ``rate`` itself."""
+    for device_rate in DEVICE_RATES_HZ:
+        if abs(rate - device_rate) <= 0.02 * device_rate:
+            return float(device_rate)
+    return rate
 
 
 def _unlabelled(track: _Track, block: SampleBlock) -> Labels:

@@ -11,6 +11,7 @@ still applies after a power cycle) and the session appends to the same recording
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -18,8 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from canimucal.errors import DeviceError, InputError
+from canimucal.io.atomic import read_bytes_nofollow
 from canimucal.io.grouping import position_averages
-from canimucal.io.recording import Recording, read_recording
+from canimucal.io.recording import Recording, parse_recording
 from canimucal.model.positions import Plan, PositionAverage
 from canimucal.procedure.config import ResumeState
 
@@ -61,10 +63,10 @@ def load_resume_state(
     files: dict[int, Path] = {}
     for node_id in ids:
         path = recording_path(out, node_id, several)
-        source = partial_path(path) if partial_path(path).exists() else path
-        if not source.exists():
+        source = partial_path(path) if os.path.lexists(partial_path(path)) else path
+        if not os.path.lexists(source):
             raise InputError(f"cannot resume: no {path.name} in {out}")
-        recording = read_recording(source)
+        recording = parse_recording(read_bytes_nofollow(source), str(source))
         if serials is not None and node_id in serials:
             _check_unit(recording, source, node_id, serials[node_id])
         averages[node_id] = _accepted(recording, source, plan)

@@ -442,7 +442,7 @@ def write_text(path: Path, text: str) -> None:
 def open_resumed(path: Path, header: Mapping[str, Any]) -> RecordingWriter:
     """Append to the recording of an interrupted session (its ``.partial`` is the newer copy)."""
     partial = partial_path(path)
-    if partial.exists():
+    if os.path.lexists(partial):  # a symlink is moved as a link, then refused by the append
         os.replace(partial, path)
     return RecordingWriter.open(path, header, append=True)
 

@@ -46,9 +46,13 @@ Vector = NDArray[np.float64]
 SCHEMA = "canimucal.truth/1"
 DEFAULT_LATITUDE_DEG = 50.45
 _TILT_MODELS = ("rigid", "additive")
+DEFAULT_DEVICE_NAME = "canimucal IMU"
+DEFAULT_HARDWARE_VERSION = "sim 1"
+DEFAULT_SOFTWARE_VERSION = "sim 1"
 _TOP_KEYS = tuple(
     "schema sample_rate_hz g latitude_deg height_m heading_deg serial tilt_model base_tilt_deg"
-    " accel gyro temperature faults nmt_start heartbeat_ms store_delay_s storage_subs".split()
+    " accel gyro temperature faults nmt_start heartbeat_ms store_delay_s storage_subs"
+    " device_name hardware_version software_version".split()
 )
 NMT_STARTS = ("pre-operational", "operational")
 DEFAULT_STORAGE_SUBS = (1, 2, 3, 4)
@@ -127,6 +131,10 @@ class Truth:
     """A 0x1010 store blocks the SDO answer this long (flash erased in the SDO handler)."""
     storage_subs: tuple[int, ...] = DEFAULT_STORAGE_SUBS
     """0x1010/0x1011 sub-indices the node has (stock CANopenNode: no 4)."""
+    device_name: str = DEFAULT_DEVICE_NAME
+    """0x1008, any text (tests present hostile names); 0x1009/0x100A likewise."""
+    hardware_version: str = DEFAULT_HARDWARE_VERSION
+    software_version: str = DEFAULT_SOFTWARE_VERSION
 
     @classmethod
     def from_dict(cls, d: Any) -> Truth:
@@ -179,11 +187,30 @@ class Truth:
             temperature=TemperatureProfile.from_dict(d.get("temperature", {})),
             faults=copy.deepcopy(dict(faults)),
             **_device_behaviour(d),
+            device_name=_text(d.get("device_name", DEFAULT_DEVICE_NAME), "device_name"),
+            hardware_version=_text(
+                d.get("hardware_version", DEFAULT_HARDWARE_VERSION), "hardware_version"
+            ),
+            software_version=_text(
+                d.get("software_version", DEFAULT_SOFTWARE_VERSION), "software_version"
+            ),
         )
 
     def to_dict(self) -> dict[str, Any]:
-        """Return the truth JSON document (degrees; ``g`` always recorded)."""
+        """Return the truth JSON document (degrees; ``g`` always recorded).
+
+        The identity strings appear only when they differ from the defaults.
+        """
         rate = self.sample_rate_hz
+        identity = {
+            key: value
+            for key, value, default in (
+                ("device_name", self.device_name, DEFAULT_DEVICE_NAME),
+                ("hardware_version", self.hardware_version, DEFAULT_HARDWARE_VERSION),
+                ("software_version", self.software_version, DEFAULT_SOFTWARE_VERSION),
+            )
+            if value != default
+        }
         return {
             "schema": SCHEMA,
             "sample_rate_hz": int(rate) if float(rate).is_integer() else rate,
@@ -202,6 +229,7 @@ class Truth:
             "temperature": self.temperature.to_dict(),
             "faults": copy.deepcopy(dict(self.faults)),
             **self._behaviour_dict(),
+            **identity,
         }
 
     def _behaviour_dict(self) -> dict[str, Any]:
@@ -283,6 +311,12 @@ def _device_behaviour(d: Mapping[str, Any]) -> dict[str, Any]:
         fail("storage_subs", "must be a list of distinct sub-indices 1..127 (e.g. [1, 2, 3])")
     out["storage_subs"] = tuple(sorted(subs))
     return out
+
+
+def _text(value: Any, key: str) -> str:
+    if not isinstance(value, str):
+        fail(key, "must be a string")
+    return value
 
 
 def _serial(value: Any) -> int:

@@ -45,6 +45,9 @@ def factory_values(truth: Truth, comm_odr_hz: int | None = None) -> dict[Key, by
         (od.TPDO_COMM[0], 5): od.encode("u16", 1000 // odr),
         (od.TPDO_COMM[1], 5): od.encode("u16", 1000 // odr),
         (od.IDENTITY, 4): od.encode("u32", truth.serial & 0xFFFFFFFF),
+        (od.DEVICE_NAME, 0): truth.device_name.encode("utf-8", "surrogateescape"),
+        (od.HARDWARE_VERSION, 0): truth.hardware_version.encode("utf-8", "surrogateescape"),
+        (od.SOFTWARE_VERSION, 0): truth.software_version.encode("utf-8", "surrogateescape"),
     }
     if truth.heartbeat_ms is not None:
         values[(od.HEARTBEAT, 0)] = od.encode("u16", truth.heartbeat_ms)

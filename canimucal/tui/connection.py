@@ -49,9 +49,10 @@ class ConnectionScreen(Screen[None]):
     def compose(self) -> ComposeResult:
         """Title, bus, node table, status line."""
         yield Static("canimucal · connection", classes="screen-title")
-        yield Static(f"bus: {self.source.description}", id="bus")
+        # device text and bus names are shown as they are, never parsed as markup
+        yield Static(f"bus: {self.source.description}", id="bus", markup=False)
         yield passive_table(id="nodes", zebra_stripes=True)
-        yield Static("connecting…", id="status")
+        yield Static("connecting…", id="status", markup=False)
         yield Footer()
 
     def on_mount(self) -> None:

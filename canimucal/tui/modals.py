@@ -31,7 +31,7 @@ class Confirm(ModalScreen[bool]):
         """Question, explanation and two buttons."""
         with Vertical(id="dialog"):
             yield Static(self.QUESTION, classes="dialog-title")
-            yield Static(self.text, id="confirm-text")
+            yield Static(self.text, id="confirm-text", markup=False)
             with Horizontal(classes="buttons"):
                 yield Button(f"{self.YES} (y)", variant="warning", id="yes")
                 yield Button(f"{self.NO} (n)", variant="primary", id="no")
@@ -87,7 +87,7 @@ class ErrorModal(ModalScreen[None]):
         """Title, message and an OK button."""
         with Vertical(id="dialog", classes="error"):
             yield Static(self.error_title, classes="dialog-title", id="error-title")
-            yield Static(self.message, id="error-message")
+            yield Static(self.message, id="error-message", markup=False)
             with Horizontal(classes="buttons"):
                 yield Button("OK (enter)", variant="error", id="ok")
 

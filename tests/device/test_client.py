@@ -169,7 +169,8 @@ def test_factory_calibration_block(rig: Rig) -> None:
     np.testing.assert_array_equal(readout.block.accel_correction, factory.accel_correction)
     np.testing.assert_array_equal(readout.block.gyro_bias, np.zeros(3))
     assert set(readout.objects) == {(i, s) for i, s, _ in od.CALIBRATION_OBJECTS}
-    block, valid, crc_stored, crc_ok, objects = readout  # the documented 5-tuple
+    block, valid, crc_stored, crc_ok, objects, read = readout  # the bytes read come last
+    assert read is not None and read == readout.raw
     assert crc_stored == od.block_crc(objects) and crc_ok and valid == 0
     assert readout.raw[(od.CAL_INFO, od.CAL_CRC_SUB)] == od.encode("u32", crc_stored)
 

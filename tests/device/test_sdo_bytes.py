@@ -30,7 +30,7 @@ NODE_ID = 0x10
 SERIAL = 31337
 REQUEST, RESPONSE = 0x600 + NODE_ID, 0x580 + NODE_ID
 DOWNLOAD_COMMAND = {4: 0x23, 2: 0x2B, 1: 0x2F}
-SEGMENT_REQUESTS = (0x60, 0x70)  # segmented upload of 0x1008 (toggle bit)
+SEGMENT_REQUESTS = (0x60, 0x70)  # segmented uploads of 0x1008–0x100A (toggle bit)
 
 
 def upload(index: int, sub: int) -> bytes:
@@ -94,6 +94,7 @@ def test_transactional_write_byte_script(
     expected = (
         [upload(od.IDENTITY, sub) for sub in (1, 2, 3, 4)]
         + [upload(od.DEVICE_NAME, 0)]
+        + [upload(od.HARDWARE_VERSION, 0), upload(od.SOFTWARE_VERSION, 0)]  # 0x1009, 0x100A
         + [upload(od.NOMINAL, 1), upload(od.NOMINAL, 2)]
         + [upload(od.STORE, 4)]  # 0x1010:04 offered ("save on command")? Before any write
         + [upload(i, s) for i, s, _ in od.CALIBRATION_OBJECTS]  # step 3: the backup

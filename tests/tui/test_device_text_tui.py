@@ -1,0 +1,31 @@
+"""Device text and bus names with markup in them are shown literally (issue 13, failure 6)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from canimucal.tui.app import make_app
+from canimucal.tui.connection import ConnectionScreen
+from tests.support.tui_fakes import FakeSource, node_status, screen_text
+
+pytestmark = pytest.mark.asyncio
+
+
+async def test_markup_in_device_name_and_channel_is_shown_not_parsed(tmp_path: Path) -> None:
+    status = node_status()
+    status = replace(status, identity=status.identity._replace(device_name="evil [/] [b]x[/b]"))
+    source = FakeSource(tmp_path, statuses=[status], description="socketcan [/]can0")
+    app = make_app(source)
+    async with app.run_test(size=(100, 24)) as pilot:
+        screen = app.screen
+        assert isinstance(screen, ConnectionScreen)
+        for _ in range(100):
+            if screen.state == "connected":
+                break
+            await pilot.pause(0.05)
+        await pilot.pause()
+        text = screen_text(app)
+        assert "evil [/] [b]x[/b]" in text and "socketcan [/]can0" in text
