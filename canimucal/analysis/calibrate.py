@@ -31,7 +31,7 @@ from canimucal.model.plan import builtin_plan, cramer_rao
 from canimucal.model.positions import Plan, PlannedPosition, PositionAverage
 from canimucal.model.scalar import ScalarFit, fit_scalar_averages
 
-BUILTIN_PLANS = ("two", "five", "recommended")
+BUILTIN_PLANS = ("two", "five", "recommended", "vehicle")
 LACK_OF_FIT_P = 1e-3
 """A fit whose χ² has a p-value below this gets a lack-of-fit warning."""
 _ANGLE_MATCH_RAD = float(np.deg2rad(0.05))

@@ -241,7 +241,7 @@ class Session:
         """
         angles = target.angles
         if self.operator_rng is not None:
-            angles = angles + self.operator_rng.normal(0.0, target.tolerance, 3)
+            angles = angles + self.operator_rng.normal(0.0, target.tolerances)
         return float(angles[0]), float(angles[1]), float(angles[2])
 
     def _drain(self) -> list[ev.Event]:
