@@ -35,7 +35,7 @@ from canimucal.version import __version__
 SCHEMA = "canimucal.calibration/1"
 """The only calibration schema this version reads and writes."""
 
-PLANS = ("two", "five", "recommended", "custom", "scalar")
+PLANS = ("two", "five", "recommended", "vehicle", "custom", "scalar")
 """Allowed values of ``plan``."""
 
 Vector = tuple[float | None, ...]
@@ -220,6 +220,19 @@ class Acceptance:
 
 
 @dataclass(frozen=True, kw_only=True)
+class Prior:
+    """One entry of ``priors``: a parameter held at a stated prior (mean, 1σ, where from).
+
+    Its value and σ in the record are the posterior: the prior combined with the data.
+    """
+
+    name: str = field(metadata=cs.text(pattern=r"[a-z_]+\.[A-Za-z_]+(\[\d\])*"))
+    mean: float = field(metadata=cs.number())
+    sigma: float = field(metadata=cs.number(low=0.0, open_low=True))
+    source: str | None = field(default=None, metadata=cs.text())
+
+
+@dataclass(frozen=True, kw_only=True)
 class Calibration:
     """The whole calibration JSON (see the module doc for ``None`` and units)."""
 
@@ -241,6 +254,7 @@ class Calibration:
     objects: dict[str, int | float] | None = field(default=None, metadata=cs.objects())
     readback: Readback | None = field(default=None, metadata=cs.block(Readback))
     acceptance: Acceptance | None = field(default=None, metadata=cs.block(Acceptance))
+    priors: tuple[Prior, ...] | None = field(default=None, metadata=cs.block_list(Prior))
 
     @classmethod
     def from_json(cls, path: str | os.PathLike[str]) -> Calibration:
@@ -387,6 +401,7 @@ def record_from_estimates(
     positions: Sequence[PositionSummary] | None = None,
     fit: Fit | None = None,
     recording: RecordingRef | None = None,
+    priors: Sequence[Prior] | None = None,
 ) -> Calibration:
     """Build a record from a solver's named parameter vector and its covariance.
 
@@ -420,6 +435,7 @@ def record_from_estimates(
         positions=tuple(positions) if positions is not None else None,
         fit=fit,
         recording=recording,
+        priors=tuple(priors) if priors else None,
     )
 
 

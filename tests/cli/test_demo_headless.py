@@ -23,7 +23,7 @@ from canimucal.runtime.demo_rig import readback_deviations
 from canimucal.sim.truth import Truth
 
 FAST = ["--headless", "--seconds", "4", "--time-scale", "30"]
-POSITIONS = {"two": 2, "five": 5, "recommended": 8}
+POSITIONS = {"two": 2, "five": 5, "recommended": 8, "vehicle": 8}
 
 
 def _check_node(out: Path, record: dict[str, Any], suffix: str, plan: str) -> None:
@@ -34,7 +34,7 @@ def _check_node(out: Path, record: dict[str, Any], suffix: str, plan: str) -> No
     deviations = readback_deviations(record, truth)
     estimated = {d.name for d in deviations}
     assert {"accel.bias[0]", "accel.K[1][1]", "gyro.bias[2]"} <= estimated
-    if plan == "recommended":
+    if plan in ("recommended", "vehicle"):
         assert "accel.K[0][1]" in estimated and "base_tilt.beta0 (deg)" in estimated
     worst = max(deviations, key=lambda d: abs(d.dev_sigma))
     assert abs(worst.dev_sigma) < 4.0, worst
@@ -49,7 +49,7 @@ def _check_node(out: Path, record: dict[str, Any], suffix: str, plan: str) -> No
     assert "## Acceptance limits" in certificate and "after write (re-read)" in certificate
 
 
-@pytest.mark.parametrize("plan", ["two", "five", "recommended"])
+@pytest.mark.parametrize("plan", ["two", "five", "recommended", "vehicle"])
 def test_headless_demo_per_plan_reads_back_the_truth(
     cli: Callable[[Sequence[str]], Any], tmp_path: Path, plan: str
 ) -> None:
@@ -76,6 +76,13 @@ def test_headless_demo_per_plan_reads_back_the_truth(
     _check_node(out, record, "", plan)
     assert "read back from the device" in result.out
     assert list((out / "backups").glob("*.json"))
+    if plan == "vehicle":  # what ≤ 10° tilts cannot separate is held at a stated prior
+        priors = {p["name"]: p for p in record["priors"]}
+        assert priors["accel.K[1][1]"]["sigma"] == pytest.approx(0.01 * 2048 / 9.80665)
+        assert priors["accel.K[1][1]"]["source"] == "factory K"
+        assert "held at the stated prior" in (out / "certificate.md").read_text()
+    else:
+        assert "priors" not in record
 
 
 def test_headless_demo_with_two_nodes_gives_one_result_per_node(
