@@ -6,16 +6,26 @@
 - the χ² lack-of-fit p-value (too small: the model does not explain the data).
 
 Parameters the plan cannot determine (held at nominal) are not checked; the report names them.
+The limits come from ``$XDG_CONFIG_HOME/canimucal/acceptance.toml`` (else
+``~/.config/canimucal/acceptance.toml``; DESIGN §9), with the keys of
+:class:`AcceptanceLimits`, each optional; the built-in defaults when the file is absent.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import os
+import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.stats import chi2 as chi2_distribution
 
-from canimucal.analysis.calibrate import Solution
+from canimucal.analysis.calibrate import SiteConditions, Solution
+from canimucal.errors import InputError
+from canimucal.io.calibration import Acceptance
 
 
 @dataclass(frozen=True)
@@ -27,6 +37,43 @@ class AcceptanceLimits:
     max_rms_ms2: float = 0.05
     min_fit_p: float = 1e-4
 
+    def as_dict(self) -> dict[str, float]:
+        """Return the limits by key, as ``acceptance.toml`` and the calibration JSON name them."""
+        return {f.name: float(getattr(self, f.name)) for f in dataclasses.fields(self)}
+
+
+def acceptance_config_path(environ: Mapping[str, str] | None = None) -> Path:
+    """``$XDG_CONFIG_HOME/canimucal/acceptance.toml`` (``~/.config`` when unset or empty)."""
+    env = os.environ if environ is None else environ
+    base = env.get("XDG_CONFIG_HOME") or str(Path(env.get("HOME", "~")).expanduser() / ".config")
+    return Path(base) / "canimucal" / "acceptance.toml"
+
+
+def load_limits(path: Path | None = None) -> AcceptanceLimits:
+    """Read the acceptance limits (defaults for keys absent, or for an absent file).
+
+    An unreadable file, an unknown key or a value that is not a positive number is an
+    :class:`InputError` naming the file: a quality limit is never silently dropped.
+    """
+    path = acceptance_config_path() if path is None else path
+    if not path.is_file():
+        return AcceptanceLimits()
+    try:
+        document = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise InputError(f"{path}: cannot read the acceptance limits ({exc})") from None
+    known = AcceptanceLimits().as_dict()
+    values = {}
+    for key, value in document.items():
+        if key not in known:
+            raise InputError(f"{path}: unknown key {key!r} (known: {', '.join(known)})")
+        if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
+            raise InputError(f"{path}: {key} must be a positive number, got {value!r}")
+        if not np.isfinite(value):
+            raise InputError(f"{path}: {key} must be finite, got {value!r}")
+        values[key] = float(value)
+    return AcceptanceLimits(**values)
+
 
 @dataclass(frozen=True)
 class Check:
@@ -37,6 +84,8 @@ class Check:
     limit: float
     unit: str
     passed: bool
+    key: str = ""
+    """The limit's key in :class:`AcceptanceLimits` (``max_bias_sigma_mg``, …)."""
 
     def line(self) -> str:
         """``name: value unit (limit …) ok/FAILED``."""
@@ -94,6 +143,7 @@ def check_acceptance(
                 limits.max_bias_sigma_mg,
                 "mg",
                 worst <= limits.max_bias_sigma_mg,
+                "max_bias_sigma_mg",
             )
         )
     if scale_ppm:
@@ -105,11 +155,46 @@ def check_acceptance(
                 limits.max_scale_sigma_ppm,
                 "ppm",
                 worst <= limits.max_scale_sigma_ppm,
+                "max_scale_sigma_ppm",
             )
         )
     rms = float(joint.rms_accel_ms2)
-    checks.append(Check("fit rms", rms, limits.max_rms_ms2, "m/s²", rms <= limits.max_rms_ms2))
+    passed = rms <= limits.max_rms_ms2
+    checks.append(Check("fit rms", rms, limits.max_rms_ms2, "m/s²", passed, "max_rms_ms2"))
     if joint.dof > 0:
         p = float(chi2_distribution.sf(joint.chi2, joint.dof))
-        checks.append(Check("fit p-value", p, limits.min_fit_p, "", p >= limits.min_fit_p))
+        checks.append(
+            Check("fit p-value", p, limits.min_fit_p, "", p >= limits.min_fit_p, "min_fit_p")
+        )
     return AcceptanceReport(tuple(checks), tuple(sorted(joint.undetermined)))
+
+
+def acceptance_block(report: AcceptanceReport, limits: AcceptanceLimits) -> Acceptance:
+    """Return the calibration JSON's ``acceptance``: verdict, every limit, the values."""
+    return Acceptance(
+        passed=report.passed,
+        limits=limits.as_dict(),
+        values={c.key: float(c.value) for c in report.checks if c.key},
+    )
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """One solution judged: the JSON block and the lines a person reads."""
+
+    report: AcceptanceReport
+    block: Acceptance
+    text: str
+
+
+def judge(
+    solution: Solution, site: SiteConditions, limits: AcceptanceLimits | None = None
+) -> Verdict:
+    """Check ``solution`` against ``limits`` (default: :func:`load_limits`) and say so."""
+    limits = load_limits() if limits is None else limits
+    report = check_acceptance(solution, limits, site.accel_lsb, site.g)
+    lines = [f"acceptance: {'PASSED' if report.passed else 'FAILED'}"]
+    lines += [f"  {c.line()}" for c in report.checks]
+    if report.held_nominal:
+        lines.append(f"  not checked (held at nominal): {', '.join(report.held_nominal)}")
+    return Verdict(report, acceptance_block(report, limits), "\n".join(lines) + "\n")

@@ -4,14 +4,17 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from canimucal.analysis.acceptance import judge, load_limits
 from canimucal.analysis.calibrate import SiteConditions, Solution, solve_positions, solve_scalar
 from canimucal.cli.conditions import recording_conditions
 from canimucal.cli.output import add_json_option, check_outputs, emit
+from canimucal.cli.session_model import session_model
 from canimucal.cli.spec_options import add_model_options, spec_from_args
 from canimucal.errors import InputError
 from canimucal.io.calibration import Device, RecordingRef, calibration_to_dict, sha256_of
@@ -27,11 +30,30 @@ def add_subparser(subparsers: Any) -> None:
         "solve",
         help="solve a recording for the calibration parameters",
         description="Solve a recording: joint least squares when the positions carry "
-        "angles, the scalar |f| = g fit otherwise. Prints every parameter with its σ; "
-        "--json writes the calibration JSON.",
+        "angles, the scalar |f| = g fit otherwise. The model defaults to the one the "
+        "session solved (header keys plan, model, tilt, gyro, tolerance_deg). Prints every "
+        "parameter with its σ and the acceptance verdict; --json writes the calibration "
+        "JSON; exit 3 when acceptance fails (after writing).",
     )
     p.add_argument("recording", help="recording CSV (canimucal.recording/1)")
     add_model_options(p, default_tilt=False)
+    p.set_defaults(model=None, tilt=None, tilt_model=None)  # None: from the header
+    p.add_argument(
+        "--tolerance-deg",
+        type=float,
+        help="1σ angle-setting error of each position (default: header, else 0.1)",
+    )
+    p.add_argument(
+        "--prior-k-sigma",
+        type=float,
+        metavar="FRACTION",
+        help="hold K at the nominal with this relative 1σ (default: the header's plan's)",
+    )
+    p.add_argument(
+        "--no-check",
+        action="store_true",
+        help="report the acceptance verdict but exit 0 when it fails",
+    )
     p.add_argument("--g", type=float, help="local gravity, m/s² (default: header, latitude)")
     add_json_option(p)
     p.set_defaults(run=run)
@@ -40,6 +62,7 @@ def add_subparser(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Solve and report."""
     check_outputs(args)
+    limits = load_limits()  # a bad acceptance.toml: exit 2 before any work
     rec = read_recording(args.recording)
     cond = recording_conditions(rec, args.g)
     latitude = cond.latitude_rad
@@ -56,17 +79,28 @@ def run(args: argparse.Namespace) -> int:
     )
     device = Device(serial=_serial(rec), node_id=_node_id(rec))
     ref = RecordingRef(file=Path(args.recording).name, sha256=sha256_of(args.recording))
+    session = session_model(rec, args)
     if has_angles(rec):
-        averages = position_averages(rec)
+        averages = session.tolerances(position_averages(rec, tolerance_deg=session.tolerance_deg))
         has_gyro = all(a.mean_gyro is not None for a in averages)
         spec = spec_from_args(args, has_gyro=has_gyro)
-        solution = solve_positions(averages, spec, site, device, recording=ref)
+        prior = session.prior(spec, site.accel_lsb)
+        solution = solve_positions(
+            averages, spec, site, device, recording=ref, plan_name=session.plan_name, prior=prior
+        )
     else:
         averages = _unlabelled_averages(rec)
         solution = solve_scalar(averages, site, device, full=args.model == "full", recording=ref)
     for warning in solution.warnings:
         print(f"warning: {warning}", file=sys.stderr)
-    emit(args, calibration_to_dict(solution.record), solution_report(solution, cond.g_source))
+    verdict = judge(solution, site, limits)
+    record = replace(solution.record, acceptance=verdict.block)
+    emit(args, calibration_to_dict(record), solution_report(solution, cond.g_source) + verdict.text)
+    if not verdict.block.passed and not args.no_check:
+        print(
+            "error: acceptance failed (the JSON is written; --no-check to exit 0)", file=sys.stderr
+        )
+        return 3
     return 0
 
 

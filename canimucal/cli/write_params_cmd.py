@@ -34,18 +34,37 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("--dry-run", action="store_true", help="print the planned writes only")
     p.add_argument("--no-store", action="store_true", help="do not store (0x1010:04)")
     p.add_argument("--force", action="store_true", help="write even if the device serial differs")
+    p.add_argument(
+        "--no-check",
+        action="store_true",
+        help="write a calibration whose acceptance failed (acceptance.passed false)",
+    )
     p.add_argument("--backup-dir", metavar="DIR", help="where the backup of the device goes")
     add_bus_options(p)
     p.set_defaults(run=run)
 
 
-def check_file(path: str) -> Calibration:
-    """Read and check the calibration before connecting (InputError, exit 2)."""
+def check_file(path: str, *, no_check: bool = False) -> Calibration:
+    """Read and check the calibration before connecting (InputError, exit 2).
+
+    A calibration that failed its acceptance limits is refused unless ``no_check``.
+    """
     from canimucal.device.calibration_map import backup_objects, block_from_record
 
     if not Path(path).is_file():
         raise InputError(f"{path}: no such file")
     record = read_calibration(Path(path))
+    if record.acceptance is not None and not record.acceptance.passed and not no_check:
+        failed = [
+            key
+            for key, limit in record.acceptance.limits.items()
+            if key in record.acceptance.values
+            and not _within(key, record.acceptance.values[key], limit)
+        ]
+        raise InputError(
+            f"{path}: acceptance failed ({', '.join(failed) or 'see the file'}); "
+            "not written (--no-check to write it anyway)"
+        )
     if backup_objects(record) is None:
         block_from_record(record, DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB)  # K, S invertible
     return record
@@ -55,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     """Check the file, connect, write (or plan) on every node."""
     from canimucal.device.transaction import write_calibration_transaction
 
-    record = check_file(args.calibration)
+    record = check_file(args.calibration, no_check=args.no_check)
     with DeviceSession(args) as session:
         for client in session.clients.values():
             result = write_calibration_transaction(
@@ -85,3 +104,8 @@ def report(result: WriteReport, node: int) -> str:
     stored = "stored (0x1010:04)" if result.stored else "not stored (--no-store)"
     lines.append(f"wrote {len(result.writes)} objects, read back bit-exactly, valid, {stored}")
     return "\n".join(lines) + "\n"
+
+
+def _within(key: str, value: float, limit: float) -> bool:
+    """Whether ``value`` meets the limit ``key`` (``min_*`` are lower limits)."""
+    return value >= limit if key.startswith("min_") else value <= limit

@@ -48,6 +48,7 @@ from canimucal.io.calibration import (
 from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.positions import Pose
 from canimucal.procedure import events as ev
+from canimucal.procedure.config import ProcedureConfig
 from canimucal.procedure.machine import Phase, Procedure
 from canimucal.procedure.tracks import LabelledRows
 from canimucal.runtime.certificate import certificate_markdown
@@ -101,7 +102,7 @@ class Session:
         self.links: dict[int, NodeLink] = {}
         for node_id, client in clients.items():
             path = output_name(out_dir, "recording", node_id, several, ".csv")
-            head = dict((header or {}).get(node_id, {}))
+            head = {**(header or {}).get(node_id, {}), **model_header(procedure.config)}
             if procedure.config.resume_from is not None:
                 writer = open_resumed(path, head)
             else:
@@ -406,6 +407,23 @@ def device_of(node_id: int, identity: Identity) -> Device:
         revision=identity.revision,
         serial=identity.serial,
     )
+
+
+def model_header(cfg: ProcedureConfig) -> dict[str, Any]:
+    """Header keys naming the model the session solves (DESIGN §9), for ``solve`` to reuse.
+
+    ``tolerance_deg`` is the plan's largest tilt tolerance; ``solve`` takes each position's
+    own from the built-in plan that ``plan`` names.
+    """
+    spec = cfg.spec
+    tolerance = max(p.tolerance for p in cfg.plan.positions)
+    return {
+        "plan": cfg.plan_name or cfg.plan.name,
+        "model": spec.accel_k,
+        "tilt": spec.tilt,
+        "gyro": spec.gyro,
+        "tolerance_deg": round(float(np.rad2deg(tolerance)), 10),
+    }
 
 
 def recording_header(

@@ -16,6 +16,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from canimucal.io.recording import read_recording
@@ -76,6 +77,7 @@ def test_headless_demo_per_plan_reads_back_the_truth(
     _check_node(out, record, "", plan)
     assert "read back from the device" in result.out
     assert list((out / "backups").glob("*.json"))
+    _solve_agrees_with_the_session(cli, out, record)
     if plan == "vehicle":  # what ≤ 10° tilts cannot separate is held at a stated prior
         priors = {p["name"]: p for p in record["priors"]}
         assert priors["accel.K[1][1]"]["sigma"] == pytest.approx(0.01 * 2048 / 9.80665)
@@ -127,3 +129,23 @@ def test_demo_rejects_bad_input_with_exit_2(
     result = cli(["demo", "--headless", "--out", tmp_path / "o", *argv])
     assert result.code == 2
     assert message in result.err
+
+
+def _solve_agrees_with_the_session(
+    cli: Callable[[Sequence[str]], Any], out: Path, record: dict[str, Any]
+) -> None:
+    """`solve` of the session's recording, no flags: the session's model, numbers and priors."""
+    run = cli(["solve", out / "recording.csv", "--no-check", "--json", "-"])
+    assert run.code == 0, run.err
+    solved = json.loads(run.out)
+    assert solved["plan"] == record["plan"]
+    assert solved["covariance"]["order"] == record["covariance"]["order"]
+    assert solved.get("priors") == record.get("priors")
+    for block, key in (("accel", "bias"), ("accel", "K"), ("gyro", "bias")):
+        mine = np.array(solved[block][key], dtype=float)
+        theirs = np.array(record[block][key], dtype=float)
+        sigma = np.array(record[block][f"{key}_sigma"], dtype=float)
+        np.testing.assert_allclose(mine, theirs, rtol=0, atol=1e-6 * np.nanmax(sigma))
+        np.testing.assert_allclose(
+            np.array(solved[block][f"{key}_sigma"], dtype=float), sigma, rtol=1e-6
+        )

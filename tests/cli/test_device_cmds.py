@@ -345,3 +345,25 @@ def test_record_interrupted_keeps_what_was_recorded(tmp_path: Path) -> None:
     assert proc.returncode == 130, err
     assert out.exists() and not partial.exists()
     assert read_recording(out).n_rows > 100
+
+
+def test_write_params_refuses_a_failed_calibration_unless_no_check(
+    cli: Cli, tmp_path: Path, truth_file: Path
+) -> None:
+    cal = calibration_file(tmp_path, SERIAL)
+    document = json.loads(cal.read_text())
+    document["acceptance"] = {
+        "passed": False,
+        "limits": {"max_bias_sigma_mg": 5.0, "min_fit_p": 1e-4},
+        "values": {"max_bias_sigma_mg": 8.2, "min_fit_p": 0.3},
+    }
+    cal.write_text(json.dumps(document))
+    state = tmp_path / "state.json"
+    flags = sim_flags(truth_file, state)
+    run = cli(["write-params", cal, *flags, "--backup-dir", tmp_path / "bk"])
+    assert run.code == 2 and run.err.count("\n") == 1
+    assert "acceptance failed (max_bias_sigma_mg)" in run.err and "--no-check" in run.err
+    assert not state.exists() and not (tmp_path / "bk").exists()  # refused before connecting
+    run = cli(["write-params", cal, *flags, "--no-check", "--backup-dir", tmp_path / "bk"])
+    assert run.code == 0, run.err
+    assert read_params(cli, flags, tmp_path / "r.json")["readback"]["valid"] == 1

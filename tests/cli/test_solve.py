@@ -80,7 +80,7 @@ def deviations(doc: dict[str, Any], truth: Truth) -> dict[str, float]:
 
 
 def solve_json(cli: Cli, path: Path, *flags: str) -> tuple[dict[str, Any], Any]:
-    run = cli(["solve", str(path), *flags, "--json", "-"])
+    run = cli(["solve", str(path), *flags, "--no-check", "--json", "-"])
     assert run.code == 0, run.err
     return json.loads(run.out), run
 
@@ -92,10 +92,17 @@ def test_two_positions_json_document(cli: Cli, simulated: Sim, tmp_path: Path) -
     sim = simulated("two", "level")
     target = tmp_path / "cal.json"
     run = cli(["solve", sim.path, "--json", target])
-    assert run.code == 0, run.err
+    # two positions see K_zz only through sin 5°: σ 4 % fails the 3000 ppm limit; the
+    # JSON is written first, with the verdict, and the exit status says it failed
+    assert run.code == 3, run.err
+    assert "worst scale σ" in run.out and "FAILED" in run.out
+    assert run.err.strip().endswith("--no-check to exit 0)")
     assert f"wrote {target}" in run.out
     record = read_calibration(target)  # validates schema, keys, shapes, covariance
     doc = json.loads(target.read_text())
+    assert record.acceptance is not None and record.acceptance.passed is False
+    assert doc["acceptance"]["limits"]["max_scale_sigma_ppm"] == 3000.0
+    assert doc["acceptance"]["values"]["max_scale_sigma_ppm"] > 3000.0
     assert record.plan == "two" and doc["plan"] == "two"
     assert record.device.serial == sim.truth.serial
     est = estimates(doc)
@@ -166,7 +173,7 @@ def test_recommended_full_model_recovers_cross_axis_and_tilt(cli: Cli, simulated
 
 def test_two_positions_full_model_is_null_with_reason(cli: Cli, simulated: Sim) -> None:
     sim = simulated("two", "level")
-    run = cli(["solve", sim.path, "--model", "full"])
+    run = cli(["solve", sim.path, "--model", "full", "--no-check"])
     assert run.code == 0, run.err
     off = [f"accel.K[{i}][{j}]" for i in range(3) for j in range(3) if i != j]
     for name in off:
@@ -186,7 +193,7 @@ def test_two_positions_full_model_is_null_with_reason(cli: Cli, simulated: Sim) 
 
 def test_json_dash_prints_only_json(cli: Cli, simulated: Sim) -> None:
     sim = simulated("two", "level")
-    run = cli(["solve", sim.path, "--json", "-"])
+    run = cli(["solve", sim.path, "--json", "-", "--no-check"])
     assert run.code == 0
     assert run.out.startswith("{") and run.out.rstrip().endswith("}")
     doc = json.loads(run.out)
@@ -203,7 +210,7 @@ def test_existing_json_target_needs_overwrite(cli: Cli, simulated: Sim, tmp_path
     assert target.read_text() == "keep me\n"
     assert run.err.count("\n") == 1 and run.err.startswith("error: ")
     assert run.out == ""
-    run = cli(["solve", sim.path, "--json", target, "--overwrite"])
+    run = cli(["solve", sim.path, "--json", target, "--overwrite", "--no-check"])
     assert run.code == 0, run.err
     read_calibration(target)
 
@@ -285,7 +292,7 @@ def test_nonexistent_file(cli: Cli, tmp_path: Path) -> None:
 def test_python_dash_m_runs_solve(simulated: Sim) -> None:
     sim = simulated("two", "level")
     proc = subprocess.run(
-        [sys.executable, "-m", "canimucal", "solve", str(sim.path), "--json", "-"],
+        [sys.executable, "-m", "canimucal", "solve", str(sim.path), "--json", "-", "--no-check"],
         capture_output=True,
         text=True,
         timeout=120,
@@ -294,3 +301,26 @@ def test_python_dash_m_runs_solve(simulated: Sim) -> None:
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["plan"] == "two"
     assert "Traceback" not in proc.stderr
+
+
+def test_acceptance_limits_come_from_the_user_config(
+    cli: Cli, simulated: Sim, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    sim = simulated("recommended", "full")
+    run = cli(["solve", sim.path, "--model", "full", "--tilt", "--json", "-"])
+    assert run.code == 0, run.err  # the recommended plan meets the built-in limits
+    assert json.loads(run.out)["acceptance"]["passed"] is True
+    config = tmp_path / "xdg"
+    (config / "canimucal").mkdir(parents=True)
+    (config / "canimucal" / "acceptance.toml").write_text("max_bias_sigma_mg = 0.001\n")
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(config))
+    run = cli(["solve", sim.path, "--model", "full", "--tilt", "--json", "-"])
+    assert run.code == 3
+    doc = json.loads(run.out)
+    assert doc["acceptance"]["passed"] is False
+    assert doc["acceptance"]["limits"]["max_bias_sigma_mg"] == 0.001
+    assert doc["acceptance"]["limits"]["max_scale_sigma_ppm"] == 3000.0  # default kept
+    (config / "canimucal" / "acceptance.toml").write_text("max_bias_sigma = 1\n")
+    run = cli(["solve", sim.path])
+    assert run.code == 2 and "unknown key 'max_bias_sigma'" in run.err
+    assert run.err.count("\n") == 1

@@ -1,0 +1,93 @@
+"""The model a recording's session solved, from its header (DESIGN §9), as `solve`'s defaults.
+
+A session writes ``plan``, ``model``, ``tilt``, ``gyro`` and ``tolerance_deg`` into its
+recording. A flag given on the command line wins over the header; without either, the
+defaults are bias + diagonal K, no tilt, gyro ``mems`` when there are gyro data, 0.1°.
+When ``plan`` names a built-in plan whose poses the recording's positions match, each
+position takes that plan's own tolerances (a vehicle's turn: 5°) and the plan's prior on K.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from canimucal.errors import InputError
+from canimucal.io.calibration import PLANS
+from canimucal.io.plans import BUILTIN_PLANS, DEFAULT_TOLERANCE_DEG
+from canimucal.io.recording import Recording
+from canimucal.model.layout import JointSpec
+from canimucal.model.plan import builtin_plan, plan_prior
+from canimucal.model.positions import Plan, PositionAverage
+
+_MATCH_DEG = 0.05
+"""Recorded angles within this of a plan's are that plan's poses."""
+
+
+@dataclass(frozen=True)
+class SessionModel:
+    """What the header says about the session: its plan, tolerance and prior."""
+
+    plan_name: str | None
+    plan: Plan | None
+    tolerance_deg: float
+    prior_k_sigma: float | None
+    plan_tolerances: bool = True
+
+    def tolerances(self, averages: Sequence[PositionAverage]) -> list[PositionAverage]:
+        """Give each average its plan position's tolerances when the poses are the plan's."""
+        plan = self.plan
+        if not self.plan_tolerances or plan is None or len(plan.positions) != len(averages):
+            return list(averages)
+        planned = np.array([p.angles for p in plan.positions])
+        recorded = np.array([a.pose.angles for a in averages])
+        if not np.allclose(planned, recorded, atol=np.deg2rad(_MATCH_DEG)):
+            return list(averages)
+        return [
+            replace(a, pose=replace(a.pose, tolerance=p.tolerance, psi_tolerance=p.psi_tolerance))
+            for a, p in zip(averages, plan.positions, strict=True)
+        ]
+
+    def prior(self, spec: JointSpec, accel_lsb: float) -> dict[str, tuple[float, float]]:
+        """Return the prior on K the plan (or ``--prior-k-sigma``) holds, at the nominal K."""
+        plan = self.plan or Plan("custom", ())
+        return plan_prior(plan, spec, accel_lsb, k_sigma=self.prior_k_sigma)
+
+
+def session_model(rec: Recording, args: argparse.Namespace) -> SessionModel:
+    """Fill ``args.model``/``tilt``/``tilt_model``/``gyro`` left unset from the header."""
+    header = rec.header
+    if args.model is None:
+        args.model = str(header.get("model", "diag"))
+    if args.tilt is None:
+        tilt = str(header.get("tilt", "none"))
+        args.tilt = tilt != "none"
+        if args.tilt_model is None and args.tilt:
+            args.tilt_model = tilt
+    if args.tilt_model is None:
+        args.tilt_model = "rigid"
+    if args.gyro is None and "gyro" in header:
+        if header["gyro"] == "moves":
+            raise InputError(
+                "header gyro 'moves': this solve has no gyro-from-moves model; "
+                "pass --gyro mems or --gyro none"
+            )
+        args.gyro = str(header["gyro"])
+    tolerance = args.tolerance_deg
+    if tolerance is None:
+        value = header.get("tolerance_deg", DEFAULT_TOLERANCE_DEG)
+        tolerance = float(value) if isinstance(value, int | float) else DEFAULT_TOLERANCE_DEG
+    if not (np.isfinite(tolerance) and tolerance >= 0):
+        raise InputError(f"--tolerance-deg must be a finite number >= 0, got {tolerance:g}")
+    if args.prior_k_sigma is not None and not args.prior_k_sigma > 0:
+        raise InputError(f"--prior-k-sigma must be > 0, got {args.prior_k_sigma:g}")
+    name = header.get("plan")
+    plan = builtin_plan(name) if isinstance(name, str) and name in BUILTIN_PLANS else None
+    plan_name = name if isinstance(name, str) and name in PLANS else None
+    explicit = args.tolerance_deg is not None
+    return SessionModel(
+        plan_name, plan, tolerance, args.prior_k_sigma, plan_tolerances=not explicit
+    )
