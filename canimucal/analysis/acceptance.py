@@ -36,6 +36,8 @@ class AcceptanceLimits:
     max_scale_sigma_ppm: float = 3000.0
     max_rms_ms2: float = 0.05
     min_fit_p: float = 1e-4
+    max_verify_norm_error_mg: float = 5.0
+    """Verification: |f| − g of the calibrated re-read at level, in mg (1 mg = g/1000)."""
 
     def as_dict(self) -> dict[str, float]:
         """Return the limits by key, as ``acceptance.toml`` and the calibration JSON name them."""

@@ -220,6 +220,21 @@ class Acceptance:
 
 
 @dataclass(frozen=True, kw_only=True)
+class Verification:
+    """``verification``: the check at level after the write, against a stated limit.
+
+    ``done`` is false when the session ended before it (``passed`` is then false too);
+    ``values`` and ``limits`` share keys, as in :class:`Acceptance`.
+    """
+
+    passed: bool = field(metadata=cs.boolean())
+    done: bool = field(metadata=cs.boolean())
+    written: bool | None = field(default=None, metadata=cs.boolean())
+    limits: dict[str, float] = field(default_factory=dict, metadata=cs.number_map())
+    values: dict[str, float] = field(default_factory=dict, metadata=cs.number_map())
+
+
+@dataclass(frozen=True, kw_only=True)
 class Prior:
     """One entry of ``priors``: a parameter held at a stated prior (mean, 1σ, where from).
 
@@ -255,6 +270,7 @@ class Calibration:
     readback: Readback | None = field(default=None, metadata=cs.block(Readback))
     acceptance: Acceptance | None = field(default=None, metadata=cs.block(Acceptance))
     priors: tuple[Prior, ...] | None = field(default=None, metadata=cs.block_list(Prior))
+    verification: Verification | None = field(default=None, metadata=cs.block(Verification))
 
     @classmethod
     def from_json(cls, path: str | os.PathLike[str]) -> Calibration:

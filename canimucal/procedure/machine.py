@@ -70,6 +70,8 @@ class Procedure:
         self.solutions: dict[int, Solution] = {}
         self.solved: ev.Solved | None = None
         self.write_results: dict[int, ev.WriteFinished] = {}
+        self.warmup_skipped = False
+        """The operator stopped waiting for warm-up (the certificate says so)."""
         self.level_checks: dict[tuple[int, str], ev.LevelChecked] = {}
         self._still = False
         self._last_progress_s = -np.inf
@@ -237,6 +239,7 @@ class Procedure:
         if self.phase is not Phase.WARMUP:
             return []
         tracker = next(iter(self.warmups.values()))
+        self.warmup_skipped = True
         return [progress_event(tracker, skipped=True), *self._instruct()]
 
     def confirm_pose(self) -> list[ev.Event]:

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from canimucal.analysis.acceptance import acceptance_block
 from canimucal.analysis.calibrate import SiteConditions
 from canimucal.device.calibration_map import readback_of
 from canimucal.device.client import Identity, ImuClient
@@ -51,7 +52,12 @@ from canimucal.procedure import events as ev
 from canimucal.procedure.config import ProcedureConfig
 from canimucal.procedure.machine import Phase, Procedure
 from canimucal.procedure.tracks import LabelledRows
-from canimucal.runtime.certificate import certificate_markdown
+from canimucal.runtime.certificate import (
+    SessionFacts,
+    certificate_html,
+    certificate_markdown,
+    verification_of,
+)
 from canimucal.runtime.resume import partial_path
 from canimucal.simnode.node import SimulatedImuNode
 
@@ -92,9 +98,13 @@ class Session:
         backup_dir: Path | None = None,
         overwrite: bool = False,
         operator_rng: np.random.Generator | None = None,
+        operator: str | None = None,
+        site_name: str | None = None,
     ) -> None:
         self.procedure = procedure
         self.operator_rng = operator_rng
+        self.operator = operator
+        self.site_name = site_name
         self.out_dir = out_dir
         self.backup_dir = backup_dir
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -285,11 +295,15 @@ class Session:
             link.writer = RecordingWriter.open(verify_path, link.header or {}, overwrite=True)
             solution = self.procedure.solutions[node_id]
             ref = RecordingRef(file=rec_path.name, sha256=sha256_of(rec_path))
-            link.record = replace(solution.record, recording=ref)
+            assert self.procedure.solved is not None
+            verdict = acceptance_block(
+                self.procedure.solved.acceptance[node_id], self.procedure.config.limits
+            )
+            link.record = replace(solution.record, recording=ref, acceptance=verdict)
             link.record_path = self._name("calibration", node_id, ".json")
             write_text(link.record_path, calibration_to_json(link.record))
             link.certificate_path = self._name("certificate", node_id, ".md")
-            write_text(link.certificate_path, self.certificate(node_id))
+            self._write_certificates(node_id)
             out.append(
                 ev.RecordSaved(
                     node_id, str(link.record_path), str(link.certificate_path), str(rec_path)
@@ -297,19 +311,47 @@ class Session:
             )
         return out
 
-    def certificate(self, node_id: int) -> str:
-        """Render the Markdown certificate of one node as it stands now."""
+    def certificate(self, node_id: int, *, html: bool = False) -> str:
+        """Render the certificate of one node as it stands now (Markdown, or the HTML page)."""
         link = self.links[node_id]
         proc = self.procedure
         assert proc.solved is not None and link.record is not None
-        return certificate_markdown(
+        render = certificate_html if html else certificate_markdown
+        return render(
             link.record,
             link.identity,
             proc.solved.acceptance[node_id],
             proc.config.limits,
             [e for (n, _), e in proc.level_checks.items() if n == node_id],
             warnings=proc.solutions[node_id].warnings,
+            facts=self.facts(node_id),
         )
+
+    def facts(self, node_id: int) -> SessionFacts:
+        """Operator, site, written or not, the verification verdict and the warm-up."""
+        proc = self.procedure
+        result = proc.write_results.get(node_id)
+        written = result is not None and result.ok
+        after = proc.level_checks.get((node_id, "after"))
+        if proc.warmup_skipped:
+            warmup = "skipped by the operator"
+        elif proc.config.warmup:
+            warmup = "waited until the temperature was stable"
+        else:
+            warmup = "not required (resumed or disabled)"
+        return SessionFacts(
+            operator=self.operator,
+            site=self.site_name,
+            written=written,
+            verification=verification_of(after, written, proc.config.limits, proc.config.site.g),
+            warmup=warmup,
+        )
+
+    def _write_certificates(self, node_id: int) -> None:
+        link = self.links[node_id]
+        assert link.certificate_path is not None
+        write_text(link.certificate_path, self.certificate(node_id))
+        write_text(link.certificate_path.with_suffix(".html"), self.certificate(node_id, html=True))
 
     def write(
         self, *, force: bool = False, store: bool = True, override: bool = False
@@ -350,7 +392,11 @@ class Session:
             self._write_rows(node_id)
             link.writer.close()
             if link.certificate_path is not None and self.procedure.solved is not None:
-                write_text(link.certificate_path, self.certificate(node_id))
+                if link.record is not None and link.record_path is not None:
+                    verification = self.facts(node_id).verification
+                    link.record = replace(link.record, verification=verification)
+                    write_text(link.record_path, calibration_to_json(link.record))
+                self._write_certificates(node_id)
 
     def _name(self, stem: str, node_id: int, suffix: str) -> Path:
         return output_name(self.out_dir, stem, node_id, self.several, suffix)

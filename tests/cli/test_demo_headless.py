@@ -48,6 +48,26 @@ def _check_node(out: Path, record: dict[str, Any], suffix: str, plan: str) -> No
     assert (out / f"verification{suffix}.csv").is_file()
     certificate = (out / f"certificate{suffix}.md").read_text()
     assert "## Acceptance limits" in certificate and "after write (re-read)" in certificate
+    # the verdicts: in the JSON and on both pages of the certificate
+    acceptance, verification = record["acceptance"], record["verification"]
+    assert set(acceptance["limits"]) >= {"max_bias_sigma_mg", "max_verify_norm_error_mg"}
+    assert acceptance["passed"] is all(
+        acceptance["values"][k] <= acceptance["limits"][k]
+        for k in acceptance["values"]
+        if k.startswith("max_")
+    ) and all(acceptance["values"][k] >= acceptance["limits"][k] for k in ["min_fit_p"])
+    assert verification["done"] is True and verification["written"] is True
+    assert verification["passed"] is (
+        verification["values"]["max_verify_norm_error_mg"]
+        <= verification["limits"]["max_verify_norm_error_mg"]
+    )
+    page = (out / f"certificate{suffix}.html").read_text()
+    for text in (certificate, page):
+        assert "k = 1" in text and "Warm-up" in text and "not required" in text
+        assert "Written to the device" in text and "Operator" in text
+        assert "Units: biases in counts" in text
+    assert "Written to the device: yes" in certificate
+    assert page.startswith("<!DOCTYPE html>") and "<script" not in page
 
 
 @pytest.mark.parametrize("plan", ["two", "five", "recommended", "vehicle"])
