@@ -180,6 +180,7 @@ class DeviceSession:
                 self.where = describe(config)
                 bitrate = bitrate or config.get("bitrate")
             network = self._network(bus)
+            census = HeartbeatCensus(network)
             for nid in self.ids:
                 self.clients[nid] = ImuClient(
                     network,
@@ -189,11 +190,26 @@ class DeviceSession:
                     bitrate_bps=int(bitrate) if bitrate else None,
                 )
                 if find and not self.sim_nodes:
-                    how = self.clients[nid].find_node(FIND_NODE_TIMEOUT_S)
+                    how = self._find(nid, census)
                     log.info("node %d found by %s", nid, how)
         except BaseException:
             self.close()
             raise
+
+    def _find(self, nid: int, census: HeartbeatCensus) -> str:
+        """Find node ``nid``; when it is not there, name the nodes that are heartbeating."""
+        from canimucal.errors import NoDeviceError
+
+        try:
+            return self.clients[nid].find_node(FIND_NODE_TIMEOUT_S)
+        except NoDeviceError as exc:
+            others = sorted(census.heard - {nid})
+            if others:
+                heard = ", ".join(f"{n} (0x{n:02X})" for n in others)
+                hint = f"heartbeating on {self.where}: node {heard}; check --node-id"
+            else:
+                hint = f"no node is heartbeating on {self.where}: check power, wiring, bit rate"
+            raise NoDeviceError(f"{exc}; {hint}") from exc
 
     def _network(self, bus: can.BusABC) -> canopen.Network:
         import canopen
@@ -257,6 +273,18 @@ class DeviceSession:
         tb: TracebackType | None,
     ) -> None:
         self.close()
+
+
+class HeartbeatCensus:
+    """The node ids whose heartbeat or boot-up (0x701–0x77F) has been seen on a network."""
+
+    def __init__(self, network: canopen.Network) -> None:
+        self.heard: set[int] = set()
+        for nid in range(1, 128):
+            network.subscribe(0x700 + nid, self._seen)
+
+    def _seen(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        self.heard.add(can_id - 0x700)
 
 
 def enlarge_receive_buffer(bus: Any, size: int = RECEIVE_BUFFER_BYTES) -> int | None:
