@@ -79,6 +79,8 @@ def add_subparser(subparsers: Any) -> None:
         help=f"simulated seconds per wall second (default {DEFAULT_TIME_SCALE:g})",
     )
     p.add_argument("--out", default="demo-out", help="directory for the demo's files")
+    p.add_argument("--operator", help="operator's name, for the certificate (headless)")
+    p.add_argument("--site", help="where the calibration was done, for the certificate")
     p.add_argument(
         "--resume",
         metavar="DIR",
@@ -143,6 +145,8 @@ def run(args: argparse.Namespace) -> int:
             warmup=False,
             verify_seconds=verify_s,
             resume=bool(args.resume),
+            operator=args.operator,
+            site_name=args.site,
         )
         resumed = session.procedure.config.resume_from
         if resumed is not None:

@@ -97,6 +97,8 @@ class DemoRig:
         plan_name: str,
         gyro: str = "mems",
         resume: bool = False,
+        operator: str | None = None,
+        site_name: str | None = None,
         **config: Any,
     ) -> Session:
         """Build a session over every node, with the site taken from the first truth.
@@ -135,6 +137,8 @@ class DemoRig:
             backup_dir=out_dir / "backups",
             overwrite=True,
             operator_rng=np.random.default_rng(self.seed + 1000),
+            operator=operator,
+            site_name=site_name,
         )
 
     def site(self) -> SiteConditions:

@@ -88,6 +88,7 @@ def test_headless_demo_per_plan_reads_back_the_truth(
             out,
             "--json",
             tmp_path / "cal.json",
+            *(["--operator", "A. Operator & Co", "--site", "Bay <3>"] if plan == "vehicle" else []),
         ]
     )
     assert result.code == 0, result.err
@@ -103,6 +104,8 @@ def test_headless_demo_per_plan_reads_back_the_truth(
         assert priors["accel.K[1][1]"]["sigma"] == pytest.approx(0.01 * 2048 / 9.80665)
         assert priors["accel.K[1][1]"]["source"] == "factory K"
         assert "held at the stated prior" in (out / "certificate.md").read_text()
+        page = (out / "certificate.html").read_text()
+        assert "A. Operator &amp; Co" in page and "Bay &lt;3&gt;" in page
     else:
         assert "priors" not in record
 
