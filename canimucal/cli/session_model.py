@@ -12,15 +12,17 @@ from __future__ import annotations
 import argparse
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
 from canimucal.errors import InputError
-from canimucal.io.calibration import PLANS
+from canimucal.io.calibration import PLANS, Calibration
 from canimucal.io.plans import BUILTIN_PLANS, DEFAULT_TOLERANCE_DEG
 from canimucal.io.recording import Recording
 from canimucal.model.layout import JointSpec
-from canimucal.model.plan import builtin_plan, plan_prior
+from canimucal.model.plan import VEHICLE_PRIOR_K_SIGMA, builtin_plan, plan_prior
 from canimucal.model.positions import Plan, PositionAverage
 
 _MATCH_DEG = 0.05
@@ -36,6 +38,8 @@ class SessionModel:
     tolerance_deg: float
     prior_k_sigma: float | None
     plan_tolerances: bool = True
+    factory_k: NDArray[np.float64] | None = None
+    prior_source: str = "factory K"
 
     def tolerances(self, averages: Sequence[PositionAverage]) -> list[PositionAverage]:
         """Give each average its plan position's tolerances when the poses are the plan's."""
@@ -52,9 +56,16 @@ class SessionModel:
         ]
 
     def prior(self, spec: JointSpec, accel_lsb: float) -> dict[str, tuple[float, float]]:
-        """Return the prior on K the plan (or ``--prior-k-sigma``) holds, at the nominal K."""
+        """Return the prior on K the plan (or the flags) hold: the factory K, else nominal.
+
+        ``--prior-k`` alone, with a plan that names no σ, holds K at 1 % (the vehicle
+        plan's own value).
+        """
         plan = self.plan or Plan("custom", ())
-        return plan_prior(plan, spec, accel_lsb, k_sigma=self.prior_k_sigma)
+        sigma = self.prior_k_sigma
+        if sigma is None and self.factory_k is not None and plan.prior_k_sigma is None:
+            sigma = VEHICLE_PRIOR_K_SIGMA
+        return plan_prior(plan, spec, accel_lsb, factory_k=self.factory_k, k_sigma=sigma)
 
 
 def session_model(rec: Recording, args: argparse.Namespace) -> SessionModel:
@@ -87,7 +98,30 @@ def session_model(rec: Recording, args: argparse.Namespace) -> SessionModel:
     name = header.get("plan")
     plan = builtin_plan(name) if isinstance(name, str) and name in BUILTIN_PLANS else None
     plan_name = name if isinstance(name, str) and name in PLANS else None
-    explicit = args.tolerance_deg is not None
+    own = args.tolerance_deg is None
+    factory_k, source = (None, "factory K")
+    if getattr(args, "prior_k", None):
+        factory_k, source = read_factory_k(args.prior_k), f"K from {Path(args.prior_k).name}"
     return SessionModel(
-        plan_name, plan, tolerance, args.prior_k_sigma, plan_tolerances=not explicit
+        plan_name,
+        plan,
+        tolerance,
+        args.prior_k_sigma,
+        plan_tolerances=own,
+        factory_k=factory_k,
+        prior_source=source,
     )
+
+
+def read_factory_k(path: str) -> NDArray[np.float64]:
+    """Return the accelerometer K of a calibration JSON or of ``read-params --json`` output."""
+    from canimucal.schema import parse_json, read_text
+
+    document = parse_json(read_text(path), path)
+    if isinstance(document, dict) and isinstance(document.get("calibration"), dict):
+        document = document["calibration"]  # read-params output: the block the node holds
+    record = Calibration.from_dict(document)
+    k = np.array([[np.nan if v is None else v for v in row] for row in record.accel.K or ()])
+    if k.shape != (3, 3) or not np.all(np.isfinite(k)):
+        raise InputError(f"{path}: --prior-k needs a complete accel.K (3×3, no nulls)")
+    return k

@@ -50,6 +50,11 @@ def add_subparser(subparsers: Any) -> None:
         help="hold K at the nominal with this relative 1σ (default: the header's plan's)",
     )
     p.add_argument(
+        "--prior-k",
+        metavar="FILE",
+        help="the factory K to hold it at: a calibration JSON or read-params --json output",
+    )
+    p.add_argument(
         "--no-check",
         action="store_true",
         help="report the acceptance verdict but exit 0 when it fails",
@@ -86,7 +91,14 @@ def run(args: argparse.Namespace) -> int:
         spec = spec_from_args(args, has_gyro=has_gyro)
         prior = session.prior(spec, site.accel_lsb)
         solution = solve_positions(
-            averages, spec, site, device, recording=ref, plan_name=session.plan_name, prior=prior
+            averages,
+            spec,
+            site,
+            device,
+            recording=ref,
+            plan_name=session.plan_name,
+            prior=prior,
+            prior_source=session.prior_source,
         )
     else:
         averages = _unlabelled_averages(rec)

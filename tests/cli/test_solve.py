@@ -324,3 +324,37 @@ def test_acceptance_limits_come_from_the_user_config(
     run = cli(["solve", sim.path])
     assert run.code == 2 and "unknown key 'max_bias_sigma'" in run.err
     assert run.err.count("\n") == 1
+
+
+def test_vehicle_recording_with_a_factory_k_holds_it_as_a_stated_prior(
+    cli: Cli, simulated: Sim, tmp_path: Path
+) -> None:
+    sim = simulated("vehicle", "diag")
+    factory = tmp_path / "factory.json"
+    k = np.asarray(sim.truth.accel.K, dtype=float)  # the maker's K, known to 0.1 %
+    factory.write_text(
+        json.dumps(
+            {
+                "schema": "canimucal.calibration/1",
+                "device": {"serial": 1},
+                "accel": {"bias": [0.0, 0.0, 0.0], "K": k.tolist()},
+            }
+        )
+    )
+    prior = ("--prior-k", str(factory), "--prior-k-sigma", "0.001")
+    flags = ("--tilt", "--tolerance-deg", "0.5", *prior)  # no header: say the tolerance
+    doc, run = solve_json(cli, sim.path, *flags)
+    priors = {p["name"]: p for p in doc["priors"]}
+    assert set(priors) == {f"accel.K[{i}][{i}]" for i in range(3)}
+    assert priors["accel.K[1][1]"]["mean"] == pytest.approx(k[1, 1])
+    assert priors["accel.K[1][1]"]["source"] == "K from factory.json"
+    assert "held at the stated prior (K from factory.json" in run.err
+    dev = deviations(doc, sim.truth)
+    assert max(abs(d) for d in dev.values()) < MAX_DEVIATION_SIGMA, dev
+    # with bias y tied to K_yy, its σ is about g·σ(K_yy): 0.1 % of 2048 counts
+    bias_y_sigma = estimates(doc)["accel.bias[1]"][1]
+    assert bias_y_sigma is not None and 1.0 < bias_y_sigma < 4.0
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"schema": "canimucal.calibration/1", "device": {"serial": 1}}')
+    run = cli(["solve", sim.path, "--prior-k", bad])
+    assert run.code == 2 and run.err.count("\n") == 1
