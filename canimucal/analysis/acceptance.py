@@ -6,17 +6,25 @@
 - the χ² lack-of-fit p-value (too small: the model does not explain the data).
 
 Parameters the plan cannot determine (held at nominal) are not checked; the report names them.
+The limits come from ``$XDG_CONFIG_HOME/canimucal/acceptance.toml`` (else
+``~/.config/canimucal/acceptance.toml``; DESIGN §9), with the keys of
+:class:`AcceptanceLimits`, each optional; the built-in defaults when the file is absent.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
+import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.stats import chi2 as chi2_distribution
 
-from canimucal.analysis.calibrate import Solution
+from canimucal.analysis.calibrate import SiteConditions, Solution
+from canimucal.errors import InputError
 from canimucal.io.calibration import Acceptance
 
 
@@ -28,21 +36,58 @@ class AcceptanceLimits:
     max_scale_sigma_ppm: float = 3000.0
     max_rms_ms2: float = 0.05
     min_fit_p: float = 1e-4
+    max_verify_norm_error_mg: float = 5.0
+    """Verification: |f| − g of the calibrated re-read at level, in mg (1 mg = g/1000)."""
+
+    def as_dict(self) -> dict[str, float]:
+        """Return the limits by key, as ``acceptance.toml`` and the calibration JSON name them."""
+        return {f.name: float(getattr(self, f.name)) for f in dataclasses.fields(self)}
+
+
+def acceptance_config_path(environ: Mapping[str, str] | None = None) -> Path:
+    """``$XDG_CONFIG_HOME/canimucal/acceptance.toml`` (``~/.config`` when unset or empty)."""
+    env = os.environ if environ is None else environ
+    base = env.get("XDG_CONFIG_HOME") or str(Path(env.get("HOME", "~")).expanduser() / ".config")
+    return Path(base) / "canimucal" / "acceptance.toml"
+
+
+def load_limits(path: Path | None = None) -> AcceptanceLimits:
+    """Read the acceptance limits (defaults for keys absent, or for an absent file).
+
+    An unreadable file, an unknown key or a value that is not a positive number is an
+    :class:`InputError` naming the file: a quality limit is never silently dropped.
+    """
+    path = acceptance_config_path() if path is None else path
+    if not path.is_file():
+        return AcceptanceLimits()
+    try:
+        document = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise InputError(f"{path}: cannot read the acceptance limits ({exc})") from None
+    known = AcceptanceLimits().as_dict()
+    values = {}
+    for key, value in document.items():
+        if key not in known:
+            raise InputError(f"{path}: unknown key {key!r} (known: {', '.join(known)})")
+        if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
+            raise InputError(f"{path}: {key} must be a positive number, got {value!r}")
+        if not np.isfinite(value):
+            raise InputError(f"{path}: {key} must be finite, got {value!r}")
+        values[key] = float(value)
+    return AcceptanceLimits(**values)
 
 
 @dataclass(frozen=True)
 class Check:
-    """One limit: the measured value against the limit (``passed`` when within it).
+    """One limit: the measured value against the limit (``passed`` when within it)."""
 
-    ``key`` is the limit's field name in :class:`AcceptanceLimits` (and in the JSON block).
-    """
-
-    key: str
     name: str
     value: float
     limit: float
     unit: str
     passed: bool
+    key: str = ""
+    """The limit's key in :class:`AcceptanceLimits` (``max_bias_sigma_mg``, …)."""
 
     def line(self) -> str:
         """``name: value unit (limit …) ok/FAILED``."""
@@ -95,42 +140,63 @@ def check_acceptance(
         worst = max(bias_mg)
         checks.append(
             Check(
-                "max_bias_sigma_mg",
                 "worst bias σ",
                 worst,
                 limits.max_bias_sigma_mg,
                 "mg",
                 worst <= limits.max_bias_sigma_mg,
+                "max_bias_sigma_mg",
             )
         )
     if scale_ppm:
         worst = max(scale_ppm)
         checks.append(
             Check(
-                "max_scale_sigma_ppm",
                 "worst scale σ",
                 worst,
                 limits.max_scale_sigma_ppm,
                 "ppm",
                 worst <= limits.max_scale_sigma_ppm,
+                "max_scale_sigma_ppm",
             )
         )
     rms = float(joint.rms_accel_ms2)
-    checks.append(
-        Check("max_rms_ms2", "fit rms", rms, limits.max_rms_ms2, "m/s²", rms <= limits.max_rms_ms2)
-    )
+    passed = rms <= limits.max_rms_ms2
+    checks.append(Check("fit rms", rms, limits.max_rms_ms2, "m/s²", passed, "max_rms_ms2"))
     if joint.dof > 0:
         p = float(chi2_distribution.sf(joint.chi2, joint.dof))
         checks.append(
-            Check("min_fit_p", "fit p-value", p, limits.min_fit_p, "", p >= limits.min_fit_p)
+            Check("fit p-value", p, limits.min_fit_p, "", p >= limits.min_fit_p, "min_fit_p")
         )
     return AcceptanceReport(tuple(checks), tuple(sorted(joint.undetermined)))
 
 
 def acceptance_block(report: AcceptanceReport, limits: AcceptanceLimits) -> Acceptance:
-    """Build the calibration JSON's ``acceptance`` block: limits, values checked, verdict."""
+    """Return the calibration JSON's ``acceptance``: verdict, every limit, the values."""
     return Acceptance(
         passed=report.passed,
-        limits={k: float(v) for k, v in dataclasses.asdict(limits).items()},
-        values={c.key: float(c.value) for c in report.checks},
+        limits=limits.as_dict(),
+        values={c.key: float(c.value) for c in report.checks if c.key},
     )
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """One solution judged: the JSON block and the lines a person reads."""
+
+    report: AcceptanceReport
+    block: Acceptance
+    text: str
+
+
+def judge(
+    solution: Solution, site: SiteConditions, limits: AcceptanceLimits | None = None
+) -> Verdict:
+    """Check ``solution`` against ``limits`` (default: :func:`load_limits`) and say so."""
+    limits = load_limits() if limits is None else limits
+    report = check_acceptance(solution, limits, site.accel_lsb, site.g)
+    lines = [f"acceptance: {'PASSED' if report.passed else 'FAILED'}"]
+    lines += [f"  {c.line()}" for c in report.checks]
+    if report.held_nominal:
+        lines.append(f"  not checked (held at nominal): {', '.join(report.held_nominal)}")
+    return Verdict(report, acceptance_block(report, limits), "\n".join(lines) + "\n")

@@ -9,7 +9,7 @@ Known angles: the joint estimator (model/joint.py). No angles: the scalar |f| = 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,6 +21,7 @@ from canimucal.io.calibration import (
     Conditions,
     Device,
     Fit,
+    Prior,
     RecordingRef,
     record_from_estimates,
     summarize_position,
@@ -31,7 +32,7 @@ from canimucal.model.plan import builtin_plan, cramer_rao
 from canimucal.model.positions import Plan, PlannedPosition, PositionAverage
 from canimucal.model.scalar import ScalarFit, fit_scalar_averages
 
-BUILTIN_PLANS = ("two", "five", "recommended")
+BUILTIN_PLANS = ("two", "five", "recommended", "vehicle")
 LACK_OF_FIT_P = 1e-3
 """A fit whose χ² has a p-value below this gets a lack-of-fit warning."""
 _ANGLE_MATCH_RAD = float(np.deg2rad(0.05))
@@ -89,9 +90,13 @@ def solve_positions(
     *,
     recording: RecordingRef | None = None,
     plan_name: str | None = None,
+    prior: Mapping[str, tuple[float, float]] | None = None,
+    prior_source: str = "factory K",
 ) -> Solution:
     """Joint least squares over labelled positions with known angles.
 
+    ``prior`` (``{name: (mean, σ)}``, e.g. :func:`canimucal.model.plan.plan_prior`) holds
+    what the plan cannot separate at a stated prior; the record lists it under ``priors``.
     ModelError (exit 2) for fewer than two positions or a plan whose poses are all the same.
     """
     _check_positions(averages)
@@ -104,6 +109,7 @@ def solve_positions(
         accel_lsb=site.accel_lsb,
         gyro_lsb=site.gyro_lsb,
         allow_undetermined=True,
+        prior=prior,
     )
     keep = [i for i, n in enumerate(result.names) if n not in result.undetermined]
     names = [result.names[i] for i in keep]
@@ -118,12 +124,30 @@ def solve_positions(
         positions=[summarize_position(a) for a in averages],
         fit=Fit(rms=result.rms_accel_ms2, dof=result.dof),
         recording=recording,
+        priors=[
+            Prior(name=n, mean=m, sigma=s, source=prior_source)
+            for n, (m, s) in (prior or {}).items()
+        ],
     )
-    warnings = _correlation_warnings(result)
+    warnings = _prior_warnings(prior, prior_source) + _correlation_warnings(result)
     warnings += _plan_warnings(averages, spec, site, warnings) + _lack_of_fit_warning(result)
     if not result.converged:
         warnings += (f"the least-squares fit did not converge: {result.message}",)
     return Solution(record, joint=result, undetermined=dict(result.undetermined), warnings=warnings)
+
+
+def _prior_warnings(
+    prior: Mapping[str, tuple[float, float]] | None, source: str
+) -> tuple[str, ...]:
+    """State the prior: its σ bounds what these positions cannot separate."""
+    if not prior:
+        return ()
+    sigmas = sorted({s for _m, s in prior.values()})
+    text = ", ".join(f"{s:.4g}" for s in sigmas)
+    return (
+        f"{', '.join(prior)} held at the stated prior ({source}, σ {text} counts/(m/s²)); "
+        "these positions cannot separate them from the biases, and the σ include the prior",
+    )
 
 
 def _check_positions(averages: Sequence[PositionAverage]) -> None:

@@ -13,69 +13,36 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 
-from canimucal.analysis.acceptance import AcceptanceLimits, acceptance_block, check_acceptance
+from canimucal.analysis.acceptance import AcceptanceLimits, Verdict, judge, load_limits
 from canimucal.analysis.calibrate import SiteConditions, Solution, solve_positions, solve_scalar
 from canimucal.analysis.conditions import recording_conditions
 from canimucal.analysis.gyro_moves import solve_gyro_moves
+from canimucal.analysis.session_model import (
+    GyroChoice,
+    ModelChoice,
+    ModelName,
+    TiltModel,
+    session_model,
+)
 from canimucal.errors import InputError
 from canimucal.io.calibration import Calibration, Device, RecordingRef, sha256_of
 from canimucal.io.grouping import average_rows, has_angles, position_averages, position_rows
 from canimucal.io.importers import read_any
 from canimucal.io.recording import Recording
-from canimucal.model.layout import GyroSpec, JointSpec
 from canimucal.model.positions import PositionAverage
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, STANDARD_GRAVITY
-
-ModelName = Literal["diag", "full"]
-TiltModel = Literal["rigid", "additive"]
-GyroChoice = Literal["none", "mems", "moves", "nav"]
-
-
-@dataclass(frozen=True)
-class ModelChoice:
-    """Which model to solve: the options of ``canimucal solve`` (same names, same defaults).
-
-    ``gyro`` None means ``mems`` when every position has gyro data, else ``none``; ``moves``
-    adds S from the moves (:mod:`canimucal.analysis.gyro_moves`) to the ``mems`` fit.
-    ``latitude_deg`` and ``g`` override the recording's header.
-    """
-
-    model: ModelName = "diag"
-    tilt: bool = False
-    tilt_model: TiltModel = "rigid"
-    gyro: GyroChoice | None = None
-    gyro_g: bool = False
-    latitude_deg: float | None = None
-    g: float | None = None
-
-    def spec(self, *, has_gyro: bool) -> JointSpec:
-        """Build the :class:`JointSpec` of this choice (InputError: ``nav`` without latitude)."""
-        gyro: GyroSpec = (
-            "mems" if self.gyro == "moves" else self.gyro or ("mems" if has_gyro else "none")
-        )
-        if gyro == "nav" and self.latitude_deg is None:
-            raise InputError(
-                "--gyro nav needs --latitude-deg (the gyro scale comes from Earth rate)"
-            )
-        return JointSpec(
-            accel_k=self.model,
-            tilt=self.tilt_model if self.tilt else "none",
-            gyro=gyro,
-            gyro_s=self.model,
-            gyro_g=self.gyro_g,
-        )
 
 
 @dataclass(frozen=True)
 class RecordingSolution:
-    """A solved recording: the solution and where its g came from (for the report)."""
+    """A solved recording: the solution, where its g came from, the acceptance verdict."""
 
     solution: Solution
     g_source: str
+    verdict: Verdict | None = None
 
     @property
     def record(self) -> Calibration:
@@ -104,19 +71,34 @@ def site_of(rec: Recording, choice: ModelChoice) -> tuple[SiteConditions, str]:
 
 def solve_recording(
     rec: Recording,
-    choice: ModelChoice = ModelChoice(),
+    choice: ModelChoice | None = None,
     *,
     recording: RecordingRef | None = None,
     limits: AcceptanceLimits | None = None,
 ) -> RecordingSolution:
-    """Solve ``rec`` for the calibration ``choice`` asks for (module doc)."""
+    """Solve ``rec`` for the calibration ``choice`` asks for (module doc).
+
+    Options ``choice`` leaves unset come from the recording's header (the session's own
+    model, tolerance and plan prior); ``limits`` None reads ``acceptance.toml``.
+    """
+    limits = load_limits() if limits is None else limits  # a bad file: exit 2 before work
+    choice, session = session_model(rec, choice or ModelChoice())
     site, g_source = site_of(rec, choice)
     serial, node_id = _header_int(rec, "device_serial"), _header_int(rec, "node_id")
     device = Device(serial=serial or 0, node_id=node_id)
     if has_angles(rec):
-        averages = position_averages(rec)
+        averages = session.tolerances(position_averages(rec, tolerance_deg=session.tolerance_deg))
         spec = choice.spec(has_gyro=all(a.mean_gyro is not None for a in averages))
-        solution = solve_positions(averages, spec, site, device, recording=recording)
+        solution = solve_positions(
+            averages,
+            spec,
+            site,
+            device,
+            recording=recording,
+            plan_name=session.plan_name,
+            prior=session.prior(spec, site.accel_lsb),
+            prior_source=session.prior_source,
+        )
         if choice.gyro == "moves":  # imucal's turns are known; its poses leave psi free
             solution, _ = solve_gyro_moves(rec, solution, site, pose_moves=not rec.turns)
     else:
@@ -130,9 +112,9 @@ def solve_recording(
             recording=recording,
         )
     solution = replace(solution, warnings=solution.warnings + _unchecked_gyro(solution))
-    return RecordingSolution(
-        _with_acceptance(solution, site, limits or AcceptanceLimits()), g_source
-    )
+    verdict = judge(solution, site, limits)
+    solution = replace(solution, record=replace(solution.record, acceptance=verdict.block))
+    return RecordingSolution(solution, g_source, verdict)
 
 
 def _unchecked_gyro(solution: Solution) -> tuple[str, ...]:
@@ -154,17 +136,6 @@ def _unknown_pose_averages(rec: Recording) -> list[PositionAverage]:
     return [average_rows(rec, r) for r in rows]
 
 
-def _with_acceptance(
-    solution: Solution, site: SiteConditions, limits: AcceptanceLimits
-) -> Solution:
-    """Attach the acceptance verdict to a joint solution's record (scalar fits have none)."""
-    if solution.joint is None:
-        return solution
-    report = check_acceptance(solution, limits, site.accel_lsb, site.g)
-    record = replace(solution.record, acceptance=acceptance_block(report, limits))
-    return replace(solution, record=record)
-
-
 def _header_int(rec: Recording, key: str) -> int | None:
     value = rec.header.get(key)
     return int(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
@@ -176,27 +147,30 @@ def calibrate(
     model: ModelName | None = None,
     tilt: bool | None = None,
     gyro: GyroChoice | None = None,
-    tilt_model: TiltModel = "rigid",
+    tilt_model: TiltModel | None = None,
     gyro_g: bool = False,
     g: float | None = None,
     latitude_deg: float | None = None,
+    tolerance_deg: float | None = None,
 ) -> Calibration:
     """Calibrate from a recording (or its path) or from position averages.
 
-    The defaults are ``canimucal solve``'s, so ``calibrate(rec, model="full", tilt=True)``
-    gives the numbers of ``canimucal solve REC --model full --tilt``. Averages (from
+    The defaults are ``canimucal solve``'s (the recording header's session model, else
+    diagonal K without tilt), so ``calibrate(rec, model="full", tilt=True)`` gives the
+    numbers of ``canimucal solve REC --model full --tilt``. Averages (from
     :func:`~canimucal.model.positions.average_position`) are solved with standard gravity
     (or ``g``) and the nominal LSBs of DESIGN §4. A failed acceptance check is reported in
     ``.acceptance``, never raised.
     """
     choice = ModelChoice(
-        model=model or "diag",
-        tilt=bool(tilt),
+        model=model,
+        tilt=tilt,
         tilt_model=tilt_model,
         gyro=gyro,
         gyro_g=gyro_g,
         latitude_deg=latitude_deg,
         g=g,
+        tolerance_deg=tolerance_deg,
     )
     if isinstance(source, str | os.PathLike):
         path = Path(source)
@@ -218,9 +192,12 @@ def _calibrate_averages(averages: list[PositionAverage], choice: ModelChoice) ->
         gyro_lsb=DEFAULT_GYRO_LSB,
     )
     device = Device(serial=0)
+    if choice.gyro == "moves":
+        raise InputError("calibrate: gyro 'moves' needs a recording (the moves are its samples)")
     if all(np.all(np.isfinite(a.pose.angles)) for a in averages):
         spec = choice.spec(has_gyro=all(a.mean_gyro is not None for a in averages))
         solution = solve_positions(averages, spec, site, device)
     else:
         solution = solve_scalar(averages, site, device, full=choice.model == "full")
-    return _with_acceptance(solution, site, AcceptanceLimits()).record
+    verdict = judge(solution, site, load_limits())
+    return replace(solution.record, acceptance=verdict.block)

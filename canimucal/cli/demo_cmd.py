@@ -30,7 +30,7 @@ import numpy as np
 
 from canimucal.cli.output import add_json_option, check_outputs, dumps, emit
 from canimucal.io.atomic import write_text_atomic
-from canimucal.io.plans import resolve_plan
+from canimucal.io.plans import BUILTIN_PLANS, resolve_plan
 from canimucal.io.truth import load_truth
 from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
@@ -49,8 +49,11 @@ DEFAULT_TIME_SCALE = 20.0
 PLAN_TRUTH_LIMITS: dict[str, dict[str, float]] = {
     "two": {"cross_axis_max": 0.0, "tilt_max_deg": 0.0},
     "five": {"cross_axis_max": 0.0},
+    "vehicle": {"cross_axis_max": 0.0, "scale_error_max": 0.0173},
 }
-"""A random truth for these plans leaves out what they cannot determine (see spec_for_plan)."""
+"""A random truth for these plans leaves out what they cannot determine (see spec_for_plan).
+
+The vehicle plan's scale errors are uniform in ±1.73 %: σ 1 %, its stated prior."""
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -62,7 +65,9 @@ def add_subparser(subparsers: Any) -> None:
         "CAN bus, write the result into them and compare what they hold with the truth.",
     )
     p.add_argument("--headless", action="store_true", help="no TUI: an automatic operator")
-    p.add_argument("--plan", default="recommended", help="two, five, recommended or a plan file")
+    p.add_argument(
+        "--plan", default="recommended", help="two, five, recommended, vehicle or a plan file"
+    )
     p.add_argument("--truth", help="truth JSON for the simulated unit(s) (default: random)")
     p.add_argument("--seed", type=int, default=2026, help="random seed (truth and noise)")
     p.add_argument("--seconds", type=float, help="averaging seconds of every position")
@@ -75,6 +80,8 @@ def add_subparser(subparsers: Any) -> None:
         help=f"simulated seconds per wall second (default {DEFAULT_TIME_SCALE:g})",
     )
     p.add_argument("--out", default="demo-out", help="directory for the demo's files")
+    p.add_argument("--operator", help="operator's name, for the certificate (headless)")
+    p.add_argument("--site", help="where the calibration was done, for the certificate")
     p.add_argument(
         "--resume",
         metavar="DIR",
@@ -117,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
     check_outputs(args)
     _check_numbers(args)
     plan = resolve_plan(args.plan, builtin_plan)
-    plan_name = plan.name if plan.name in ("two", "five", "recommended") else "custom"
+    plan_name = plan.name if plan.name in BUILTIN_PLANS else "custom"
     truths = _truths(args)
     out = Path(args.resume or args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -141,6 +148,8 @@ def run(args: argparse.Namespace) -> int:
             verify_seconds=verify_s,
             resume=bool(args.resume),
             overwrite=True,
+            operator=args.operator,
+            site_name=args.site,
         )
         resumed = session.procedure.config.resume_from
         if resumed is not None:

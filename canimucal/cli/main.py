@@ -37,6 +37,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "tui": ("tui_cmd", "the guided calibration in the terminal UI (the default)"),
 }
 
+LIBRARY_LOGGERS = ("can", "canopen")
+"""Their log lines (canopen's ERROR/WARNING before our own one-line error) show only with -v."""
+_TOP_FLAGS = ("--debug", "-v", "--verbose")
+
 
 def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
     """Build the argument parser; only ``verb``'s module is imported (``None``: none).
@@ -51,6 +55,12 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"canimucal {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks and debug logs")
+    parser.add_argument(
+        "-v",
+        "--verbose",
+        action="store_true",
+        help="show informational log lines, the CAN libraries' too",
+    )
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module_name, help_line) in COMMANDS.items():
         if name == verb:
@@ -63,15 +73,42 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
 def _verb_of(argv: Sequence[str]) -> str | None:
     """Return the verb ``argv`` runs: the first word naming one, ``tui`` when there is none.
 
+    ``canimucal --channel can0`` and ``canimucal --sim`` are the TUI's own options: a word
+    right after a ``--option`` (other than the top-level flags) is taken as its value.
     ``None`` for top-level help or version (nothing to import) and for an unknown word
     (argparse then reports it).
     """
+    previous = ""
     for arg in argv:
         if arg in COMMANDS:
             return arg
-        if arg in ("-h", "--help", "--version") or not arg.startswith("-"):
+        if arg in ("-h", "--help", "--version"):
             return None
+        is_value = previous.startswith("--") and "=" not in previous
+        if not arg.startswith("-") and not (is_value and previous not in _TOP_FLAGS):
+            return None
+        previous = arg
     return "tui"
+
+
+def _with_verb(argv: list[str], verb: str | None) -> list[str]:
+    """Insert ``tui`` after the top-level flags when the TUI's options came without it."""
+    if verb != "tui" or "tui" in argv:
+        return argv
+    top = [a for a in argv if a in _TOP_FLAGS]
+    return [*top, "tui", *(a for a in argv if a not in _TOP_FLAGS)]
+
+
+def configure_logging(verbose: bool, debug: bool) -> None:
+    """WARNING and up from canimucal; INFO with ``-v``, DEBUG with ``--debug``.
+
+    The CAN libraries' own lines are hidden unless ``-v`` or ``--debug``: every error they
+    cause reaches the user as canimucal's one-line error.
+    """
+    level = logging.DEBUG if debug else logging.INFO if verbose else logging.WARNING
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    for name in LIBRARY_LOGGERS:
+        logging.getLogger(name).setLevel(level if verbose or debug else logging.CRITICAL + 1)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -92,14 +129,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _main(argv: list[str]) -> int:
-    parser = build_parser(_verb_of(argv))
-    args = parser.parse_args(argv)
-    logging.basicConfig(
-        level=logging.DEBUG if args.debug else logging.WARNING,
-        format="%(levelname)s %(name)s: %(message)s",
-    )
-    if args.command is None:  # `canimucal` alone opens the TUI (DESIGN §7)
-        args = parser.parse_args([*(["--debug"] if args.debug else []), "tui"])
+    verb = _verb_of(argv)
+    parser = build_parser(verb)
+    args = parser.parse_args(_with_verb(argv, verb))  # `canimucal [TUI options]`: the TUI
+    configure_logging(args.verbose, args.debug)
     try:
         return int(args.run(args))
     except CanimucalError as error:

@@ -10,8 +10,11 @@ import numpy as np
 from canimucal.analysis.gyro_bounds import GyroMoveBounds, gyro_move_bounds
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.cli.spec_options import add_model_options, spec_from_args
-from canimucal.io.plans import resolve_plan
-from canimucal.model.plan import BoundTable, builtin_plan, cramer_rao
+from canimucal.errors import InputError
+from canimucal.io.plans import BUILTIN_PLANS, plan_to_dict, resolve_plan
+from canimucal.model.layout import JointSpec
+from canimucal.model.plan import BoundTable, builtin_plan, cramer_rao, plan_prior
+from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, STANDARD_GRAVITY
 
 
@@ -21,11 +24,26 @@ def add_subparser(subparsers: Any) -> None:
         "plan",
         help="Cramér–Rao bound of every parameter for a plan",
         description="Print the Cramér–Rao bound of every parameter of a plan (white noise "
-        "1 count/√Hz, K = I/LSB, zero tilt) and the combinations it cannot determine or "
-        "only poorly separates.",
+        "1 count/√Hz, K = I/LSB, zero tilt), its positions and operator minutes, and the "
+        "combinations it cannot determine or only poorly separates. --compare ranks the "
+        "built-in plans by worst bound and operator minutes.",
     )
     p.add_argument(
-        "--plan", default="recommended", help="two, five, recommended or a plan file (JSON/TOML)"
+        "--plan",
+        default="recommended",
+        help="two, five, recommended, vehicle or a plan file (JSON/TOML)",
+    )
+    p.add_argument(
+        "--compare",
+        action="store_true",
+        help="compare every built-in plan (and --plan when it is a file)",
+    )
+    p.add_argument(
+        "--prior-k-sigma",
+        type=float,
+        metavar="FRACTION",
+        help="relative 1σ of the factory K held as a prior (default: the plan's own, "
+        "vehicle 0.01; others none)",
     )
     add_model_options(p, default_tilt=True)
     p.add_argument(
@@ -45,27 +63,45 @@ def add_subparser(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Compute and print the bound table."""
     check_outputs(args)
-    plan = resolve_plan(args.plan, builtin_plan)
-    if args.total_seconds is not None:
-        plan = plan.with_total_seconds(args.total_seconds)
     spec = spec_from_args(args)
-    latitude = None if args.latitude_deg is None else float(np.deg2rad(args.latitude_deg))
-    table = cramer_rao(
-        plan,
-        spec,
-        k_nominal_counts_per_ms2=1.0 / DEFAULT_ACCEL_LSB,
-        g=STANDARD_GRAVITY,
-        latitude=latitude,
-        include_tolerance=args.with_tolerance,
-    )
-    document = bound_document(table, plan.total_seconds)
-    report = bound_report(table, plan.total_seconds)
+    if args.compare:
+        plans = [builtin_plan(name) for name in BUILTIN_PLANS]
+        if args.plan not in BUILTIN_PLANS:
+            plans.append(resolve_plan(args.plan, builtin_plan))
+        tables = [(plan, _table(args, _timed(args, plan), spec)) for plan in plans]
+        compared = {"plans": [bound_document(t, p) for p, t in tables]}
+        emit(args, compared, comparison_report(tables))
+        return 0
+    plan = _timed(args, resolve_plan(args.plan, builtin_plan))
+    table = _table(args, plan, spec)
+    document = bound_document(table, plan)
+    report = bound_report(table, plan)
     if args.gyro == "moves":
         moves = gyro_move_bounds(plan)
         document["gyro_moves"] = moves_document(moves)
         report += moves_report(moves)
     emit(args, document, report)
     return 0
+
+
+def _timed(args: argparse.Namespace, plan: Plan) -> Plan:
+    return plan if args.total_seconds is None else plan.with_total_seconds(args.total_seconds)
+
+
+def _table(args: argparse.Namespace, plan: Plan, spec: JointSpec) -> BoundTable:
+    latitude = None if args.latitude_deg is None else float(np.deg2rad(args.latitude_deg))
+    if args.prior_k_sigma is not None and not args.prior_k_sigma > 0:
+        raise InputError(f"--prior-k-sigma must be > 0, got {args.prior_k_sigma:g}")
+    prior = plan_prior(plan, spec, DEFAULT_ACCEL_LSB, k_sigma=args.prior_k_sigma)
+    return cramer_rao(
+        plan,
+        spec,
+        k_nominal_counts_per_ms2=1.0 / DEFAULT_ACCEL_LSB,
+        g=STANDARD_GRAVITY,
+        latitude=latitude,
+        include_tolerance=args.with_tolerance,
+        prior_sigma={name: sigma for name, (_mean, sigma) in prior.items()},
+    )
 
 
 def moves_document(bounds: GyroMoveBounds) -> dict[str, Any]:
@@ -95,12 +131,14 @@ def moves_report(bounds: GyroMoveBounds) -> str:
     return "\n".join(lines) + "\n"
 
 
-def bound_document(table: BoundTable, total_seconds: float) -> dict[str, Any]:
-    """Return the JSON form of a bound table."""
+def bound_document(table: BoundTable, plan: Plan) -> dict[str, Any]:
+    """Return the JSON form of a bound table, with the plan's positions and operator time."""
     worst = table.worst_case_counts
     return {
         "plan": table.plan,
-        "total_seconds": total_seconds,
+        "total_seconds": plan.total_seconds,
+        "operator_minutes": plan.operator_minutes,
+        "positions": plan_to_dict(plan)["positions"],
         "model": _spec_dict(table),
         "parameters": [
             {
@@ -109,6 +147,7 @@ def bound_document(table: BoundTable, total_seconds: float) -> dict[str, Any]:
                 "sigma": r.sigma,
                 "effect_at_1g_counts": r.effect_counts,
                 "reason": r.reason,
+                **({"prior": {"sigma": r.prior_sigma}} if r.prior_sigma is not None else {}),
             }
             for r in table.rows
         ],
@@ -138,11 +177,13 @@ def _spec_dict(table: BoundTable) -> dict[str, Any]:
     }
 
 
-def bound_report(table: BoundTable, total_seconds: float) -> str:
-    """Format the bound table as text (fits 80 columns)."""
+def bound_report(table: BoundTable, plan: Plan) -> str:
+    """Format the bound table, the positions and the priors as text (fits 80 columns)."""
     lines = [
-        f"plan {table.plan}: {total_seconds:g} s of averaging in all; "
-        "white noise 1 count/√Hz, K = I/LSB, zero tilt",
+        f"plan {table.plan}: {plan.total_seconds:g} s of averaging in all, "
+        f"{plan.operator_minutes:.0f} operator minutes",
+        "bounds at white noise 1 count/√Hz, K = I/LSB, zero tilt",
+        *_position_lines(plan),
         f"{'parameter':<22}{'σ (own units)':>16} {'unit':<14}{'effect at 1 g':>14}",
     ]
     for r in table.rows:
@@ -152,11 +193,53 @@ def bound_report(table: BoundTable, total_seconds: float) -> str:
             continue
         sigma = np.rad2deg(r.sigma) if r.unit == "rad" else r.sigma
         unit = "deg" if r.unit == "rad" else r.unit
-        lines.append(f"{name:<22}{sigma:>16.4g} {unit:<14}{r.effect_counts:>9.4g} cnt")
+        mark = " *" if r.prior_sigma is not None else ""
+        lines.append(f"{name:<22}{sigma:>16.4g} {unit:<14}{r.effect_counts:>9.4g} cnt{mark}")
+    priors = [r for r in table.rows if r.prior_sigma is not None]
+    if priors:
+        lines.append(
+            f"* prior: factory K ± {priors[0].prior_sigma:.4g} counts/(m/s²) (1σ), "
+            "which these poses cannot separate"
+        )
     worst = table.worst_case_counts
     worst_text = f"{worst:.4g} counts" if np.isfinite(worst) else "unbounded"
     lines.append(f"worst-case bound: {worst_text} ({table.worst_parameter})")
     lines.extend(f.message for f in table.separability.findings)
     if not table.separability.findings:
         lines.append("every parameter is identifiable and separable under this plan")
+    return "\n".join(lines) + "\n"
+
+
+def _position_lines(plan: Plan) -> list[str]:
+    lines = []
+    for k, p in enumerate(plan_to_dict(plan)["positions"], start=1):
+        turn = f"psi {p['psi_deg']:g}°"
+        tolerance = f"±{p['tolerance_deg']:g}°"
+        if "psi_tolerance_deg" in p:
+            tolerance += f" (turn ±{p['psi_tolerance_deg']:g}°)"
+        lines.append(
+            f"  {k:>2}. alpha {p['alpha_deg']:g}°, beta {p['beta_deg']:g}°, {turn}, "
+            f"{p['seconds']:g} s, {tolerance}"
+        )
+    return lines
+
+
+def comparison_report(tables: list[tuple[Plan, BoundTable]]) -> str:
+    """One line per plan: worst bound, its parameter, operator minutes, largest tilt, prior."""
+    lines = [
+        f"{'plan':<13}{'worst bound':>12} {'parameter':<16}{'minutes':>8}"
+        f"{'max tilt':>9} {'prior':<12}"
+    ]
+    for plan, table in tables:
+        worst = table.worst_case_counts
+        worst_text = f"{worst:.3g} cnt" if np.isfinite(worst) else "unbounded"
+        tilt = max(max(abs(p.alpha), abs(p.beta)) for p in plan.positions)
+        prior = "none" if plan.prior_k_sigma is None else f"K ±{plan.prior_k_sigma:.0%}"
+        if any(r.prior_sigma is not None for r in table.rows) and plan.prior_k_sigma is None:
+            prior = "K (flag)"
+        lines.append(
+            f"{plan.name:<13}{worst_text:>12} {table.worst_parameter:<16}"
+            f"{plan.operator_minutes:>8.0f}{np.rad2deg(tilt):>8.0f}° {prior:<12}"
+        )
+    lines.append("worst bound: largest effect at 1 g of any parameter (counts), 1σ")
     return "\n".join(lines) + "\n"

@@ -50,7 +50,7 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("output", help="recording CSV to write")
     what = p.add_mutually_exclusive_group(required=True)
     what.add_argument("--position", type=int, metavar="I", help="index of this position")
-    what.add_argument("--plan", metavar="P", help="two, five, recommended or a plan file")
+    what.add_argument("--plan", metavar="P", help="two, five, recommended, vehicle or a plan file")
     p.add_argument("--alpha-deg", type=float, help="tilt alpha of the position (deg)")
     p.add_argument("--beta-deg", type=float, help="tilt beta of the position (deg)")
     p.add_argument("--psi-deg", type=float, default=0.0, help="turn psi (deg, default 0)")
@@ -64,6 +64,11 @@ def add_subparser(subparsers: Any) -> None:
     )
     p.add_argument(
         "--settle-s", type=float, default=1.5, help="seconds skipped after each pose is set"
+    )
+    p.add_argument(
+        "--no-pose-check",
+        action="store_true",
+        help="record without checking that the unit is at each pose (5° first, then 3°)",
     )
     p.add_argument(
         "--transient-s",
@@ -164,6 +169,10 @@ def run(args: argparse.Namespace) -> int:
         channels = []
         for nid, client in session.clients.items():
             header = header_for(client, args, session.truths.get(nid))
+            if args.position is None:  # a whole plan: name it and its tolerance (DESIGN §9)
+                header["plan"] = plan.name
+                tolerance = max(p.tolerance for p in plan.positions)
+                header["tolerance_deg"] = round(float(np.rad2deg(tolerance)), 10)
             path = per_node_path(args.output, nid, several)
             writer = RecordingWriter.open(
                 path, header, overwrite=args.overwrite, append=args.append
@@ -196,12 +205,23 @@ def _record(args: argparse.Namespace, session: Devices, recorder: Recorder, plan
             node.set_pose(first.alpha, first.beta, first.psi)
     recorder.start()
     if args.position is not None:
-        recorder.record_pose(args.position, plan.positions[0], settle_s=args.settle_s)
+        settle = args.settle_s
+        if not args.no_pose_check:
+            checks = recorder.check_pose(plan.positions[0], settle_s=args.settle_s)
+            bad = [c.message() for c in checks if not c.passed]
+            if bad:
+                raise InputError(
+                    f"position {args.position} refused: {bad[0]} (--no-pose-check to record "
+                    "it anyway)"
+                )
+            settle = 0.0
+        recorder.record_pose(args.position, plan.positions[0], settle_s=settle)
     elif scheduled:
         print(f"following the unit's schedule: {len(plan.positions)} positions", flush=True)
         recorder.record_scheduled(plan, transient_s=args.transient_s, guard_s=GUARD_S)
     else:
-        recorder.record_prompted(plan, _prompt, settle_s=args.settle_s)
+        refused = None if args.no_pose_check else _refused
+        recorder.record_prompted(plan, _prompt, settle_s=args.settle_s, refused=refused)
 
 
 def _prompt(index: int, position: PlannedPosition) -> None:
@@ -213,6 +233,10 @@ def _prompt(index: int, position: PlannedPosition) -> None:
     )
     if not sys.stdin.readline():
         raise InputError("no operator input: stdin closed (use --follow-schedule or --sim)")
+
+
+def _refused(index: int, why: str) -> None:
+    print(f"position {index} refused, not recorded: {why}; set the pose again", flush=True)
 
 
 def report(tallies: list[NodeTally], paths: list[Path]) -> str:

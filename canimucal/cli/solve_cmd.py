@@ -21,14 +21,38 @@ def add_subparser(subparsers: Any) -> None:
         "solve",
         help="solve a recording for the calibration parameters",
         description="Solve a recording: joint least squares when the positions carry "
-        "angles, the scalar |f| = g fit otherwise. Prints every parameter with its σ; "
-        "--json writes the calibration JSON.",
+        "angles, the scalar |f| = g fit otherwise. The model defaults to the one the "
+        "session solved (header keys plan, model, tilt, gyro, tolerance_deg). Prints every "
+        "parameter with its σ and the acceptance verdict; --json writes the calibration "
+        "JSON; exit 3 when acceptance fails (after writing).",
     )
     p.add_argument("recording", help="recording CSV, imu_tk accelerometer file or imucal CSV")
     p.add_argument("second", nargs="?", help="imu_tk gyro file, or imucal section JSON (optional)")
     p.add_argument("--format", choices=FORMATS, help="input format (default: from content)")
     p.add_argument("--sample-rate-hz", type=float, help="sample rate when the input has none")
     add_model_options(p, default_tilt=False)
+    p.set_defaults(model=None, tilt=None, tilt_model=None)  # None: from the header
+    p.add_argument(
+        "--tolerance-deg",
+        type=float,
+        help="1σ angle-setting error of each position (default: header, else 0.1)",
+    )
+    p.add_argument(
+        "--prior-k-sigma",
+        type=float,
+        metavar="FRACTION",
+        help="hold K at the nominal with this relative 1σ (default: the header's plan's)",
+    )
+    p.add_argument(
+        "--prior-k",
+        metavar="FILE",
+        help="the factory K to hold it at: a calibration JSON or read-params --json output",
+    )
+    p.add_argument(
+        "--no-check",
+        action="store_true",
+        help="report the acceptance verdict but exit 0 when it fails",
+    )
     p.add_argument("--g", type=float, help="local gravity, m/s² (default: header, latitude)")
     add_json_option(p)
     p.set_defaults(run=run)
@@ -45,7 +69,14 @@ def run(args: argparse.Namespace) -> int:
     solved = solve_recording(rec, choice_from_args(args), recording=ref)
     for warning in solved.solution.warnings:
         print(f"warning: {warning}", file=sys.stderr)
-    emit(args, solved.record.to_dict(), solution_report(solved.solution, solved.g_source))
+    verdict = solved.verdict
+    text = solution_report(solved.solution, solved.g_source) + (verdict.text if verdict else "")
+    emit(args, solved.record.to_dict(), text)
+    if verdict is not None and not verdict.block.passed and not args.no_check:
+        print(
+            "error: acceptance failed (the JSON is written; --no-check to exit 0)", file=sys.stderr
+        )
+        return 3
     return 0
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from canimucal.analysis.solve import ModelChoice
+from canimucal.analysis.session_model import ModelChoice
 from canimucal.model.layout import JointSpec
 
 
@@ -48,12 +48,15 @@ def choice_from_args(args: argparse.Namespace) -> ModelChoice:
     """Build the :class:`ModelChoice` the flags ask for."""
     return ModelChoice(
         model=args.model,
-        tilt=bool(args.tilt),
+        tilt=args.tilt,
         tilt_model=args.tilt_model,
         gyro=args.gyro,
         gyro_g=bool(args.gyro_g),
         latitude_deg=args.latitude_deg,
         g=getattr(args, "g", None),
+        tolerance_deg=getattr(args, "tolerance_deg", None),
+        prior_k_sigma=getattr(args, "prior_k_sigma", None),
+        prior_k=getattr(args, "prior_k", None),
     )
 
 

@@ -35,6 +35,11 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("--dry-run", action="store_true", help="print the planned writes only")
     p.add_argument("--no-store", action="store_true", help="do not store (0x1010:04)")
     p.add_argument("--force", action="store_true", help="write even if the device serial differs")
+    p.add_argument(
+        "--no-check",
+        action="store_true",
+        help="write a calibration whose acceptance failed (acceptance.passed false)",
+    )
     p.add_argument("--backup-dir", metavar="DIR", help="where the backup of the device goes")
     p.add_argument(
         "--store-sub",
@@ -55,13 +60,27 @@ def add_subparser(subparsers: Any) -> None:
     p.set_defaults(run=run)
 
 
-def check_file(path: str) -> Calibration:
-    """Read and check the calibration before connecting (InputError, exit 2)."""
+def check_file(path: str, *, no_check: bool = False) -> Calibration:
+    """Read and check the calibration before connecting (InputError, exit 2).
+
+    A calibration that failed its acceptance limits is refused unless ``no_check``.
+    """
     from canimucal.device.calibration_map import backup_objects, block_from_record
 
     if not Path(path).is_file():
         raise InputError(f"{path}: no such file")
     record = read_calibration(Path(path))
+    if record.acceptance is not None and not record.acceptance.passed and not no_check:
+        failed = [
+            key
+            for key, limit in record.acceptance.limits.items()
+            if key in record.acceptance.values
+            and not _within(key, record.acceptance.values[key], limit)
+        ]
+        raise InputError(
+            f"{path}: acceptance failed ({', '.join(failed) or 'see the file'}); "
+            "not written (--no-check to write it anyway)"
+        )
     if backup_objects(record) is None:
         block_from_record(record, DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB)  # K, S invertible
     return record
@@ -71,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     """Check the file, connect, write (or plan) on every node."""
     from canimucal.device.transaction import write_calibration_transaction
 
-    record = check_file(args.calibration)
+    record = check_file(args.calibration, no_check=args.no_check)
     store_timeout_s = _store_timeout(args.store_timeout_s)
     with open_from_args(args) as session:
         for client in session.clients.values():
@@ -112,3 +131,8 @@ def report(result: WriteReport, node: int) -> str:
     valid = "valid" if result.valid else "left invalid (valid = 0: nominal values apply)"
     lines.append(f"wrote {len(result.writes)} objects, read back bit-exactly, {valid}, {stored}")
     return "\n".join(lines) + "\n"
+
+
+def _within(key: str, value: float, limit: float) -> bool:
+    """Whether ``value`` meets the limit ``key`` (``min_*`` are lower limits)."""
+    return value >= limit if key.startswith("min_") else value <= limit

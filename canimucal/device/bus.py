@@ -11,6 +11,7 @@ exponential backoff, aborts never (the node said no: retrying cannot change that
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import threading
@@ -129,22 +130,52 @@ def describe(config: Mapping[str, Any]) -> str:
 
 
 def open_bus(settings: BusSettings) -> can.BusABC:
-    """Open the configured bus; :class:`NoDeviceError` (exit 4) when it cannot be opened."""
+    """Open the configured bus; :class:`NoDeviceError` (exit 4, one line, a hint) otherwise.
+
+    Any exception from the interface's driver counts: a vendor back end whose library is
+    missing fails with whatever its wrapper raises (python-can's kvaser: ``NameError``).
+    """
     config = settings.resolve()
     where = describe(config)
     try:
         bus = can.Bus(**config)
-    except can.CanInterfaceNotImplementedError as exc:
-        raise NoDeviceError(f"CAN interface {where} is not available here: {exc}") from exc
-    except (can.CanError, OSError, ValueError, TypeError, ImportError) as exc:
-        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise NoDeviceError(f"cannot open CAN bus {where}: {reason}") from exc
+    except Exception as exc:  # the driver's own failure, whatever its type
+        raise NoDeviceError(f"cannot open CAN bus {where}: {bus_error_text(exc, config)}") from exc
     logger.info("opened CAN bus %s", where)
     return bus
 
 
 ABORT_OUT_OF_MEMORY = 0x05040005
 """CiA 301 SDO abort code the client sends to stop an over-long upload."""
+_ERRNO_HINTS = {
+    errno.ENODEV: "no such CAN interface: check the name with 'ip link', or create it "
+    "('ip link add dev {channel} type vcan' for a virtual one)",
+    errno.ENETDOWN: "the interface is down: 'ip link set {channel} up type can bitrate "
+    "500000' (vcan: 'ip link set {channel} up')",
+    errno.EAFNOSUPPORT: "this kernel has no SocketCAN: load it ('modprobe can_raw'), or "
+    "use another --interface",
+    errno.EPERM: "not permitted: run as a user allowed to use the CAN interface",
+    errno.EACCES: "not permitted: run as a user allowed to use the CAN interface",
+}
+
+
+def bus_error_text(exc: BaseException, config: Mapping[str, Any]) -> str:
+    """One line: what failed opening the bus, and what to do about it."""
+    channel = str(config.get("channel") or "can0")
+    reason = " ".join(str(exc).split()) or type(exc).__name__
+    number = getattr(exc, "errno", None)
+    if number is None and isinstance(exc.__cause__, OSError):
+        number = exc.__cause__.errno
+    if number in _ERRNO_HINTS:
+        hint = _ERRNO_HINTS[number].format(channel=channel)
+        return f"[Errno {number}] {os.strerror(number)}; {hint}"
+    if isinstance(exc, NameError | ImportError | can.CanInterfaceNotImplementedError):
+        interface = config.get("interface")
+        return (
+            f"the driver of interface {interface!r} is not installed or not loadable "
+            f"({reason}); install the vendor's driver and its Python package"
+        )
+    return reason
 
 
 class SdoChannel:

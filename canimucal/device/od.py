@@ -62,7 +62,7 @@ STORE_CALIBRATION_SUB = 4
 SAVE_SIGNATURE = 0x65766173  # 'save' as little-endian U32 (CiA 301 0x1010)
 LOAD_SIGNATURE = 0x64616F6C  # 'load' as little-endian U32 (CiA 301 0x1011)
 
-PLAN_CODES = {"two": 1, "five": 2, "recommended": 3, "custom": 4, "scalar": 5}
+PLAN_CODES = {"two": 1, "five": 2, "recommended": 3, "custom": 4, "scalar": 5, "vehicle": 6}
 ODR_CHOICES_HZ = (50, 100, 200, 250, 500, 1000)
 
 STATUS_SATURATED = 0x01  # 0x2002:03 bit 0: a sample of the last period saturated

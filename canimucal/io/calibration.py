@@ -35,7 +35,7 @@ from canimucal.version import __version__
 SCHEMA = "canimucal.calibration/1"
 """The only calibration schema this version reads and writes."""
 
-PLANS = ("two", "five", "recommended", "custom", "scalar")
+PLANS = ("two", "five", "recommended", "vehicle", "custom", "scalar")
 """Allowed values of ``plan``."""
 
 Vector = tuple[float | None, ...]
@@ -221,14 +221,30 @@ class Acceptance:
 
 @dataclass(frozen=True, kw_only=True)
 class Verification:
-    """``verification``: whether the level check after the write was done, and its verdict.
+    """``verification``: the check at level after the write, against a stated limit.
 
-    A session that wrote the device and ended before that check (interrupted) records
-    ``done: false`` and ``passed: false``: the device holds values nobody checked.
+    ``done`` is false when the session ended before it (``passed`` is then false too);
+    ``values`` and ``limits`` share keys, as in :class:`Acceptance`.
     """
 
     passed: bool = field(metadata=cs.boolean())
     done: bool = field(metadata=cs.boolean())
+    written: bool | None = field(default=None, metadata=cs.boolean())
+    limits: dict[str, float] = field(default_factory=dict, metadata=cs.number_map())
+    values: dict[str, float] = field(default_factory=dict, metadata=cs.number_map())
+
+
+@dataclass(frozen=True, kw_only=True)
+class Prior:
+    """One entry of ``priors``: a parameter held at a stated prior (mean, 1σ, where from).
+
+    Its value and σ in the record are the posterior: the prior combined with the data.
+    """
+
+    name: str = field(metadata=cs.text(pattern=r"[a-z_]+\.[A-Za-z_]+(\[\d\])*"))
+    mean: float = field(metadata=cs.number())
+    sigma: float = field(metadata=cs.number(low=0.0, open_low=True))
+    source: str | None = field(default=None, metadata=cs.text())
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -255,6 +271,7 @@ class Calibration:
     """Objects JSON numbers cannot hold (NaN, ±inf), as their SDO bytes in hex."""
     readback: Readback | None = field(default=None, metadata=cs.block(Readback))
     acceptance: Acceptance | None = field(default=None, metadata=cs.block(Acceptance))
+    priors: tuple[Prior, ...] | None = field(default=None, metadata=cs.block_list(Prior))
     verification: Verification | None = field(default=None, metadata=cs.block(Verification))
 
     @classmethod
@@ -402,6 +419,7 @@ def record_from_estimates(
     positions: Sequence[PositionSummary] | None = None,
     fit: Fit | None = None,
     recording: RecordingRef | None = None,
+    priors: Sequence[Prior] | None = None,
 ) -> Calibration:
     """Build a record from a solver's named parameter vector and its covariance.
 
@@ -435,6 +453,7 @@ def record_from_estimates(
         positions=tuple(positions) if positions is not None else None,
         fit=fit,
         recording=recording,
+        priors=tuple(priors) if priors else None,
     )
 
 

@@ -1,12 +1,14 @@
 """Custom position plans and pose schedules (DESIGN §3 and §5): JSON or TOML files.
 
 ``{"positions": [{"alpha_deg", "beta_deg", "psi_deg", "seconds", "tolerance_deg"}]}`` in
-JSON, or ``[[positions]]`` tables in TOML. ``alpha_deg`` and ``beta_deg`` are required;
+JSON, or ``[[positions]]`` tables in TOML; an optional ``psi_tolerance_deg`` gives the
+turn its own tolerance (a vehicle turned on the spot). ``alpha_deg`` and ``beta_deg`` are required;
 ``psi_deg`` defaults to 0, ``seconds`` to 30 and ``tolerance_deg`` to 0.1. Tilts are at most
 180° in magnitude (an upside-down pose of a measured six-position session is alpha = 180°);
 the turn ``psi_deg`` about the unit's own y axis at most 360° (the recommended plan turns the
 unit 0/90/180/270°).
-The built-in plans (``two``, ``five``, ``recommended``) live in :mod:`canimucal.model.plan`.
+The built-in plans (``two``, ``five``, ``recommended``, ``vehicle``) live in
+:mod:`canimucal.model.plan`.
 """
 
 from __future__ import annotations
@@ -25,14 +27,14 @@ from canimucal.io.atomic import write_text_atomic
 from canimucal.model.positions import DEFAULT_SECONDS, Plan, PlannedPosition
 from canimucal.schema import parse_json, read_number, read_text
 
-BUILTIN_PLANS = ("two", "five", "recommended")
+BUILTIN_PLANS = ("two", "five", "recommended", "vehicle")
 """Plan names resolved by the model, not read from a file."""
 
 DEFAULT_TOLERANCE_DEG = 0.1
 """Angle-setting tolerance of a position that names none (DESIGN §3)."""
 
 _LIMITS_DEG = {"alpha_deg": 180.0, "beta_deg": 180.0, "psi_deg": 360.0}
-_KEYS = ("alpha_deg", "beta_deg", "psi_deg", "seconds", "tolerance_deg")
+_KEYS = ("alpha_deg", "beta_deg", "psi_deg", "seconds", "tolerance_deg", "psi_tolerance_deg")
 _DECIMALS = 10
 """Degrees are written rounded to 1e-10°, hiding the radian round trip's last bits."""
 
@@ -84,14 +86,17 @@ def _position(entry: Any, number: int, source: str) -> PlannedPosition:
     if seconds <= 0:
         raise InputError(f"{where}: seconds must be > 0, got {seconds:g}")
     tolerance = values.get("tolerance_deg", DEFAULT_TOLERANCE_DEG)
-    if tolerance < 0:
-        raise InputError(f"{where}: tolerance_deg must be ≥ 0, got {tolerance:g}")
+    psi_tolerance = values.get("psi_tolerance_deg")
+    for key, value in (("tolerance_deg", tolerance), ("psi_tolerance_deg", psi_tolerance)):
+        if value is not None and value < 0:
+            raise InputError(f"{where}: {key} must be ≥ 0, got {value:g}")
     return PlannedPosition(
         alpha=float(np.deg2rad(values["alpha_deg"])),
         beta=float(np.deg2rad(values["beta_deg"])),
         psi=float(np.deg2rad(values.get("psi_deg", 0.0))),
         tolerance=float(np.deg2rad(tolerance)),
         seconds=seconds,
+        psi_tolerance=None if psi_tolerance is None else float(np.deg2rad(psi_tolerance)),
     )
 
 
@@ -116,6 +121,7 @@ def plan_to_dict(plan: Plan) -> dict[str, Any]:
                 "psi_deg": deg(p.psi),
                 "seconds": float(p.seconds),
                 "tolerance_deg": deg(p.tolerance),
+                **({} if p.psi_tolerance is None else {"psi_tolerance_deg": deg(p.psi_tolerance)}),
             }
             for p in plan.positions
         ]

@@ -377,6 +377,28 @@ def _bool(raw: str) -> bool:
     return raw == "true"
 
 
+def _choice(*allowed: str) -> Callable[[str], str]:
+    def parse(raw: str) -> str:
+        if raw not in allowed:
+            raise ValueError(f"must be one of {', '.join(allowed)}")
+        return raw
+
+    return parse
+
+
+def _plan_name(raw: str) -> str:
+    if not re.fullmatch(r"[a-z][a-z0-9_-]{0,31}", raw):
+        raise ValueError("not a plan name")
+    return raw
+
+
+def _non_negative(raw: str) -> float:
+    number = _finite(raw)
+    if number < 0.0:
+        raise ValueError("must be >= 0")
+    return number
+
+
 HEADER_PARSERS: Mapping[str, Callable[[str], HeaderValue]] = {
     "schema": _text,
     "sample_rate_hz": _positive,
@@ -391,8 +413,16 @@ HEADER_PARSERS: Mapping[str, Callable[[str], HeaderValue]] = {
     "accel_units": _text,
     "gyro_units": _text,
     "offset_binary": _bool,
+    "plan": _plan_name,
+    "model": _choice("diag", "full"),
+    "tilt": _choice("rigid", "additive", "none"),
+    "gyro": _choice("none", "mems", "moves", "nav"),
+    "tolerance_deg": _non_negative,
 }
-"""Every header key DESIGN §5 allows, with the parser of its value; any other is refused."""
+"""Every header key DESIGN §5 and §9 allow, with the parser of its value; any other is refused.
+
+``plan``, ``model``, ``tilt``, ``gyro`` and ``tolerance_deg`` (the plan's angle-setting 1σ)
+are written by the tool's own sessions: the model the session solved, for ``solve``."""
 
 
 def parse_header_line(line: str, where: str) -> tuple[str, HeaderValue]:

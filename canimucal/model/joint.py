@@ -7,6 +7,12 @@ derivative of the predicted mean with respect to the position's angles, plus the
 second-order terms (a mean shift and a covariance ``½ tr(H_a T H_b T)``) that matter at
 tolerances near 1°; all re-evaluated at the estimate over a few passes. The forward model
 lives in :mod:`canimucal.model.layout`; the information analysis in :mod:`.plan`.
+
+A prior (a factory K with its σ, for plans that cannot separate K from the biases) enters
+as one pseudo-observation per parameter, ``(θ_j − μ_j)/σ_j`` appended to the whitened
+residuals: the maximum a posteriori estimate under a Gaussian prior, whose information
+``diag(1/σ²)`` adds to the data's (Tarantola, *Inverse Problem Theory*, 2005, eq. 3.37;
+Bar-Shalom et al., *Estimation with Applications to Tracking*, 2001, §3.4).
 """
 
 from __future__ import annotations
@@ -113,6 +119,35 @@ class _Data:
     observed: Array
     base_cov: Array
     tolerances: Array
+    prior: _Prior
+
+
+@dataclass(frozen=True)
+class _Prior:
+    """Pseudo-observations: parameter indices, prior means and σ (empty without a prior)."""
+
+    index: NDArray[np.intp]
+    mean: Array
+    sigma: Array
+
+    def rows(self, theta: Array, free: NDArray[np.bool_]) -> Array:
+        """Whitened prior residuals ``(θ_j − μ_j)/σ_j`` of the free parameters."""
+        keep = free[self.index]
+        return (theta[self.index[keep]] - self.mean[keep]) / self.sigma[keep]
+
+    def jacobian(self, free: NDArray[np.bool_]) -> Array:
+        """d(prior rows)/d(free parameters)."""
+        keep = free[self.index]
+        columns = np.cumsum(free) - 1
+        out = np.zeros((int(np.sum(keep)), int(np.sum(free))))
+        out[np.arange(out.shape[0]), columns[self.index[keep]]] = 1.0 / self.sigma[keep]
+        return out
+
+    def information(self, size: int) -> Array:
+        """``diag(1/σ²)`` over the parameters the prior holds."""
+        out = np.zeros((size, size))
+        out[self.index, self.index] = 1.0 / self.sigma**2
+        return out
 
 
 def solve_joint(
@@ -127,6 +162,7 @@ def solve_joint(
     initial: Mapping[str, float] | None = None,
     allow_undetermined: bool = False,
     passes: int = 3,
+    prior: Mapping[str, tuple[float, float]] | None = None,
 ) -> JointResult:
     """Fit ``spec`` to the position averages by whitened nonlinear least squares.
 
@@ -134,11 +170,14 @@ def solve_joint(
     ``initial`` overrides starting values by parameter name. A plan that cannot determine
     some parameters raises :class:`ModelError`, or with ``allow_undetermined`` holds them at
     their starting values and reports them in ``JointResult.undetermined`` (values NaN).
+    ``prior`` maps parameter names to ``(mean, σ)``: each is a pseudo-observation (module
+    docstring), its residual counted in χ² and dof; the prior mean is also the start.
     """
-    data = _validate(averages, spec, g, latitude, allow_undetermined)
     layout = ParameterLayout.of(spec)
+    data = _validate(averages, spec, g, latitude, allow_undetermined, _prior(layout, prior))
     ctx = ModelContext.build(g, latitude, heading, gyro_lsb)
     theta = _initial_guess(layout, data, ctx, accel_lsb, gyro_lsb)
+    theta[data.prior.index] = data.prior.mean
     for name, value in (initial or {}).items():
         theta[layout.index(name)] = float(value)
     scales = layout.effect_scales(g, 1.0 / accel_lsb)
@@ -153,12 +192,26 @@ def solve_joint(
     return _result(layout, theta, free, data, ctx, (converged, message), (accel_lsb, gyro_lsb))
 
 
+def _prior(layout: ParameterLayout, prior: Mapping[str, tuple[float, float]] | None) -> _Prior:
+    items = list((prior or {}).items())
+    for name, (value, spread) in items:
+        if not (np.isfinite(value) and np.isfinite(spread) and spread > 0):
+            raise ModelError(
+                f"prior of {name}: mean must be finite and σ > 0, got {value}, {spread}"
+            )
+    index = np.array([layout.index(name) for name, _ in items], dtype=np.intp)
+    means = np.array([float(m) for _, (m, _s) in items], dtype=float)
+    sigmas = np.array([float(s) for _, (_m, s) in items], dtype=float)
+    return _Prior(index, means, sigmas)
+
+
 def _validate(
     averages: Sequence[PositionAverage],
     spec: JointSpec,
     g: float,
     latitude: float | None,
     allow_undetermined: bool,
+    prior: _Prior,
 ) -> _Data:
     if not np.isfinite(g) or g <= 0:
         raise ModelError(f"g must be a positive finite number, got {g!r}")
@@ -168,7 +221,7 @@ def _validate(
     p = ParameterLayout.of(spec).size
     if n == 0:
         raise ModelError("no positions given")
-    if n * m < p and not allow_undetermined:
+    if n * m + prior.index.size < p and not allow_undetermined:
         need = -(-p // m)
         raise ModelError(
             f"the model has {p} parameters but {n} positions give only {n * m} equations; "
@@ -182,10 +235,10 @@ def _validate(
                 raise ModelError(f"gyro model {spec.gyro!r} needs gyro data; position {k} has none")
             obs[k, 3:], cov[k, 3:, 3:] = _checked(k, "gyro", a.mean_gyro, a.cov_gyro)
     angles = np.array([a.pose.angles for a in averages], dtype=float)
-    tol = np.array([a.pose.tolerance for a in averages], dtype=float)
+    tol = np.array([a.pose.tolerances for a in averages], dtype=float)
     if not (np.all(np.isfinite(angles)) and np.all(np.isfinite(tol)) and np.all(tol >= 0)):
         raise ModelError("position angles and tolerances must be finite (tolerance >= 0)")
-    return _Data(angles, obs, cov, tol)
+    return _Data(angles, obs, cov, tol, prior)
 
 
 def _checked(k: int, what: str, mean: object, cov: object) -> tuple[Array, Array]:
@@ -269,7 +322,7 @@ def _whitened_information(
     pred = predict(layout, theta, data.angles, ctx)
     jw = np.einsum("nij,njp->nip", _weights(layout, theta, data, ctx).whitener, pred.d_theta)
     jw = jw.reshape(-1, layout.size)
-    return jw.T @ jw, layout.names
+    return jw.T @ jw + data.prior.information(layout.size), layout.names
 
 
 def _free_mask(layout: ParameterLayout, check: Separability, allow: bool) -> NDArray[np.bool_]:
@@ -321,13 +374,15 @@ class _Problem:
         """Whitened predicted − observed, flattened by position then channel."""
         self._update(x)
         r = self._pred.mean - self.target
-        return np.einsum("nij,nj->ni", self.whitener, r).ravel()
+        rows = np.einsum("nij,nj->ni", self.whitener, r).ravel()
+        return np.concatenate([rows, self.data.prior.rows(self.theta, self.free)])
 
     def jacobian(self, x: Array) -> Array:
         """d(whitened residuals)/d(free parameters)."""
         self._update(x)
         jw = np.einsum("nij,njp->nip", self.whitener, self._pred.d_theta[:, :, self.free])
-        return jw.reshape(-1, int(np.sum(self.free)))
+        rows = jw.reshape(-1, int(np.sum(self.free)))
+        return np.vstack([rows, self.data.prior.jacobian(self.free)])
 
     @property
     def start(self) -> Array:
@@ -362,7 +417,8 @@ def _result(
     residuals = data.observed - weights.shift - pred.mean
     whitened = np.einsum("nij,nj->ni", weights.whitener, residuals)
     jac = np.einsum("nij,njp->nip", weights.whitener, pred.d_theta).reshape(-1, layout.size)
-    sep = analyse_information(jac.T @ jac, layout.names, layout.effect_scales(ctx.g, 1 / lsbs[0]))
+    info = jac.T @ jac + data.prior.information(layout.size)
+    sep = analyse_information(info, layout.names, layout.effect_scales(ctx.g, 1 / lsbs[0]))
     values = theta.copy()
     undetermined = dict(sep.undetermined)
     for name in layout.names:
@@ -379,8 +435,8 @@ def _result(
         residuals=residuals,
         whitened_residuals=whitened,
         jacobian=jac,
-        dof=int(residuals.size - rank),
-        chi2=float(np.sum(whitened**2)),
+        dof=int(residuals.size + np.sum(free[data.prior.index]) - rank),
+        chi2=float(np.sum(whitened**2) + np.sum(data.prior.rows(theta, free) ** 2)),
         converged=status[0],
         message=status[1],
         rms_accel_ms2=rms,

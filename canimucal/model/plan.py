@@ -212,11 +212,78 @@ sees f_y only in [-g, -g/2]); repeating the poses is what reduces that.
 """
 
 
-_BUILTIN = {"two": TWO, "five": FIVE, "recommended": RECOMMENDED}
+VEHICLE_TILT_DEG = 10.0
+"""Largest tilt of the vehicle plan: a step ladder or ramp under one axle or one side."""
+VEHICLE_LEVEL_TOLERANCE_DEG = 0.2
+"""1σ of the vehicle's attitude when parked again on the same spot (floor unevenness)."""
+VEHICLE_TILT_TOLERANCE_DEG = 0.5
+"""1σ of a ladder tilt: the nominal 10° is set by eye and the wheelbase, not measured."""
+VEHICLE_TURN_TOLERANCE_DEG = 5.0
+"""1σ of a turn of the whole vehicle on the spot."""
+VEHICLE_PRIOR_K_SIGMA = 0.01
+"""Relative 1σ of the factory K the vehicle plan relies on (1 % of the nominal scale, on
+every entry: a datasheet's scale-factor tolerance and cross-axis sensitivity)."""
+
+
+def _vehicle_plan() -> Plan:
+    level, tilt = np.deg2rad(VEHICLE_LEVEL_TOLERANCE_DEG), np.deg2rad(VEHICLE_TILT_TOLERANCE_DEG)
+    turn, t = np.deg2rad(VEHICLE_TURN_TOLERANCE_DEG), np.deg2rad(VEHICLE_TILT_DEG)
+    positions = [
+        PlannedPosition(0.0, 0.0, float(psi), float(level), 60.0, psi_tolerance=float(turn))
+        for psi in np.deg2rad([0.0, 90.0, 180.0, 270.0])
+    ]
+    positions += [
+        PlannedPosition(float(a), float(b), 0.0, float(tilt), 60.0)
+        for a, b in ((t, 0.0), (-t, 0.0), (0.0, t), (0.0, -t))
+    ]
+    return Plan("vehicle", tuple(positions), prior_k_sigma=VEHICLE_PRIOR_K_SIGMA, setup_seconds=180)
+
+
+VEHICLE = _vehicle_plan()
+"""The whole vehicle, the unit bolted in: no tilt above 10°, nothing unbolted.
+
+Four level poses, the vehicle turned on the spot by psi 0/90/180/270° (1σ 5°; its level
+repeatable to 0.2° on the same spot), then four ladder poses: each end and each side raised
+by 10° (alpha ±10° about z, beta ±10° about x; 1σ 0.5°), 60 s each, 3 min of setting up each.
+The turns reverse the floor's slope under the unit, separating it (the base tilt) from the
+x/z biases. Every pose sees f_y within cos 10° = 0.985 of -g, so bias y and K_yy (and the
+x/z biases and the K entries driven by f_y) cannot be told apart: the plan holds K at the
+factory value with 1 % relative σ (a prior, stated in the bound table and the calibration),
+and the bias y is then known to about g·σ(K_yy).
+"""
+
+
+_BUILTIN = {"two": TWO, "five": FIVE, "recommended": RECOMMENDED, "vehicle": VEHICLE}
+
+
+def plan_prior(
+    plan: Plan,
+    spec: JointSpec,
+    accel_lsb: float,
+    factory_k: Array | None = None,
+    k_sigma: float | None = None,
+) -> dict[str, tuple[float, float]]:
+    """Return the prior ``{name: (mean, σ)}`` a plan relies on, for the K entries of ``spec``.
+
+    Mean: ``factory_k`` (counts per m/s², entered or read from the device), else the nominal
+    ``I/accel_lsb``; σ: ``k_sigma`` (else the plan's ``prior_k_sigma``) × the nominal scale.
+    Empty when the plan needs no prior and none was asked for.
+    """
+    rel = plan.prior_k_sigma if k_sigma is None else k_sigma
+    if rel is None:
+        return {}
+    if not (np.isfinite(rel) and rel > 0):
+        raise ModelError(f"the prior σ of K must be a positive fraction, got {rel}")
+    k_nominal = 1.0 / abs(accel_lsb)
+    mean = np.eye(3) / accel_lsb if factory_k is None else np.asarray(factory_k, dtype=float)
+    if mean.shape != (3, 3) or not np.all(np.isfinite(mean)):
+        raise ModelError("factory K must be a finite 3×3 matrix")
+    layout = ParameterLayout.of(spec)
+    return {f"accel.K[{i}][{j}]": (float(mean[i, j]), rel * k_nominal) for i, j in layout.k_entries}
 
 
 def builtin_plan(name: str) -> Plan:
-    """Return the built-in plan ``two``, ``five`` or ``recommended``."""
+    """Return the built-in plan ``two``, ``five``, ``recommended`` or ``vehicle``."""
     try:
         return _BUILTIN[name]
     except KeyError:
@@ -244,6 +311,7 @@ def fisher_information(
     gyro_lsb: float = DEFAULT_GYRO_LSB,
     include_tolerance: bool = False,
     at: ModelParams | None = None,
+    prior_sigma: Mapping[str, float] | None = None,
 ) -> Array:
     """Fisher information of ``plan`` for the parameters of ``spec`` (in their own units).
 
@@ -252,6 +320,8 @@ def fisher_information(
     ``N²/T · I``. With ``include_tolerance`` each position's angle tolerance is added (errors
     in variables). Latitude and heading in radians. ``at`` moves the point of evaluation away
     from DESIGN §3's nominal one (K = k·I, zero tilt, nominal S, zero biases and G).
+    ``prior_sigma`` adds a Gaussian prior's information ``1/σ²`` to the parameters it names
+    (the pseudo-observations of :func:`canimucal.model.joint.solve_joint`).
     """
     if not plan.positions:
         raise ModelError("the plan has no positions")
@@ -269,10 +339,16 @@ def fisher_information(
     density[3:] = noise_density if gyro_noise_density is None else gyro_noise_density
     base = np.einsum("n,ij->nij", 1.0 / seconds, np.diag(density**2))
     if include_tolerance:
-        tol = np.array([p.tolerance for p in plan.positions], dtype=float)
+        tol = np.array([p.tolerances for p in plan.positions], dtype=float)
         base = base + angle_error_moments(layout, theta, angles, ctx, tol).covariance
     weighted = np.linalg.solve(base, pred.d_theta)
-    return np.einsum("nip,niq->pq", pred.d_theta, weighted)
+    fisher = np.einsum("nip,niq->pq", pred.d_theta, weighted)
+    for name, sigma in (prior_sigma or {}).items():
+        if not (np.isfinite(sigma) and sigma > 0):
+            raise ModelError(f"prior σ of {name} must be finite and > 0, got {sigma}")
+        j = layout.index(name)
+        fisher[j, j] += 1.0 / sigma**2
+    return np.asarray(fisher)
 
 
 _UNITS = {
@@ -290,7 +366,8 @@ class Bound:
     """Cramér–Rao σ of one parameter in its own units and as its effect at 1 g in counts.
 
     ``sigma`` and ``effect_counts`` are None when the plan cannot determine the parameter
-    (``reason`` says why).
+    (``reason`` says why). ``prior_sigma`` is the σ of the prior the bound assumed for this
+    parameter (None: the data alone).
     """
 
     name: str
@@ -298,6 +375,7 @@ class Bound:
     sigma: float | None
     effect_counts: float | None
     reason: str | None = None
+    prior_sigma: float | None = None
 
 
 @dataclass(frozen=True)
@@ -339,16 +417,22 @@ def cramer_rao(
     latitude: float | None = None,
     include_tolerance: bool = False,
     at: ModelParams | None = None,
+    prior_sigma: Mapping[str, float] | None = None,
     **kwargs: float,
 ) -> BoundTable:
     """Cramér–Rao bounds of ``plan`` for ``spec`` (default: bias + diagonal K + rigid tilt).
 
     Each parameter's σ and its effect at 1 g in counts (σ_b, g·σ_Kij, |k|·g·σ_angle); the
-    identifiability analysis of :func:`analyse_information`. ``at`` and the extra keywords
+    identifiability analysis of :func:`analyse_information`. ``prior_sigma``: the σ of a
+    Gaussian prior per parameter name (default: the plan's own prior, :func:`plan_prior`,
+    at ``k_nominal``). ``at`` and the extra keywords
     go to :func:`fisher_information` (``gyro_noise_density``, ``heading``, ``gyro_lsb``).
     """
     spec = spec or JointSpec()
     layout = ParameterLayout.of(spec)
+    if prior_sigma is None:
+        prior = plan_prior(plan, spec, 1.0 / k_nominal_counts_per_ms2)
+        prior_sigma = {name: sigma for name, (_mean, sigma) in prior.items()}
     fisher = fisher_information(
         plan,
         spec,
@@ -358,6 +442,7 @@ def cramer_rao(
         latitude=latitude,
         include_tolerance=include_tolerance,
         at=at,
+        prior_sigma=prior_sigma,
         **kwargs,
     )
     scales = layout.effect_scales(g, k_nominal_counts_per_ms2)
@@ -369,7 +454,8 @@ def cramer_rao(
             rows.append(Bound(name, unit, None, None, sep.undetermined[name]))
             continue
         sigma = float(np.sqrt(sep.covariance[j, j]))
-        rows.append(Bound(name, unit, sigma, sigma * float(scales[j])))
+        effect = sigma * float(scales[j])
+        rows.append(Bound(name, unit, sigma, effect, None, prior_sigma.get(name)))
     return BoundTable(plan.name, spec, tuple(rows), sep)
 
 

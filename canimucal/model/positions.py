@@ -6,7 +6,7 @@ Angles are radians here (degrees live only in files and flags). Sensor values ar
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -17,18 +17,24 @@ DEFAULT_TOLERANCE_RAD = float(np.deg2rad(0.1))
 DEFAULT_SECONDS = 30.0
 """Default averaging time of one position."""
 
+DEFAULT_SETUP_SECONDS = 60.0
+"""Operator time to set up one position on a bench (move the unit, let it settle)."""
+
 
 @dataclass(frozen=True)
 class Pose:
     """One position of the procedure: tilt ``alpha`` about z, ``beta`` about x, turn ``psi``.
 
-    ``tolerance`` is the 1σ angle-setting error (radians) assumed for each angle.
+    ``tolerance`` is the 1σ angle-setting error (radians) assumed for each angle;
+    ``psi_tolerance`` (keyword only) overrides it for the turn ``psi`` (a vehicle turned on
+    the spot is set to a few degrees, its tilts far better).
     """
 
     alpha: float
     beta: float
     psi: float = 0.0
     tolerance: float = DEFAULT_TOLERANCE_RAD
+    psi_tolerance: float | None = field(default=None, kw_only=True)
 
     @classmethod
     def from_deg(cls, alpha: float, beta: float, psi: float = 0.0, tolerance: float = 0.1) -> Pose:
@@ -41,6 +47,12 @@ class Pose:
         """``[alpha, beta, psi]`` in radians."""
         return np.array([self.alpha, self.beta, self.psi])
 
+    @property
+    def tolerances(self) -> NDArray[np.float64]:
+        """1σ setting error of ``[alpha, beta, psi]`` in radians."""
+        psi_tol = self.tolerance if self.psi_tolerance is None else self.psi_tolerance
+        return np.array([self.tolerance, self.tolerance, psi_tol])
+
 
 @dataclass(frozen=True)
 class PlannedPosition(Pose):
@@ -51,10 +63,22 @@ class PlannedPosition(Pose):
 
 @dataclass(frozen=True)
 class Plan:
-    """A named sequence of positions (``two``, ``five``, ``recommended``, ``custom``)."""
+    """A named sequence of positions (``two``, ``five``, ``recommended``, ``vehicle``, ``custom``).
+
+    ``prior_k_sigma`` is the relative 1σ of a factory K the plan relies on for what its poses
+    cannot separate (None: the data alone); ``setup_seconds`` the operator's time to set up
+    one position, for :attr:`operator_minutes`.
+    """
 
     name: str
     positions: tuple[PlannedPosition, ...]
+    prior_k_sigma: float | None = None
+    setup_seconds: float = DEFAULT_SETUP_SECONDS
+
+    @property
+    def operator_minutes(self) -> float:
+        """Minutes of the operator's time: setting up each position plus its averaging."""
+        return (self.total_seconds + self.setup_seconds * len(self.positions)) / 60.0
 
     @property
     def total_seconds(self) -> float:
@@ -64,10 +88,13 @@ class Plan:
     def with_total_seconds(self, total: float) -> Plan:
         """Return the same poses with the averaging time spread equally to ``total`` seconds."""
         each = total / len(self.positions)
-        return Plan(
-            self.name,
-            tuple(
-                PlannedPosition(p.alpha, p.beta, p.psi, p.tolerance, each) for p in self.positions
+        return replace(
+            self,
+            positions=tuple(
+                PlannedPosition(
+                    p.alpha, p.beta, p.psi, p.tolerance, each, psi_tolerance=p.psi_tolerance
+                )
+                for p in self.positions
             ),
         )
 

@@ -21,6 +21,7 @@ import numpy as np
 from canimucal.analysis.acceptance import AcceptanceReport, check_acceptance
 from canimucal.analysis.calibrate import Solution, solve_positions
 from canimucal.io.calibration import Device
+from canimucal.model.plan import plan_prior
 from canimucal.model.positions import PlannedPosition, Pose, PositionAverage, average_position
 from canimucal.model.samples import SampleBlock
 from canimucal.procedure import events as ev
@@ -74,6 +75,8 @@ class Procedure:
         self.solutions: dict[int, Solution] = {}
         self.solved: ev.Solved | None = None
         self.write_results: dict[int, ev.WriteFinished] = {}
+        self.warmup_skipped = False
+        """The operator stopped waiting for warm-up (the certificate says so)."""
         self.level_checks: dict[tuple[int, str], ev.LevelChecked] = {}
         self._still = False
         self._last_progress_s = -np.inf
@@ -269,6 +272,7 @@ class Procedure:
         if self.phase is not Phase.WARMUP:
             return []
         tracker = next(iter(self.warmups.values()))
+        self.warmup_skipped = True
         return [progress_event(tracker, skipped=True), *self._instruct()]
 
     def confirm_pose(self) -> list[ev.Event]:
@@ -495,7 +499,10 @@ def solve_nodes(
         averages = averages_of(node_id)
         temps = [a.temp_c for a in averages if a.temp_c is not None]
         site = replace(cfg.site, temp_c=float(np.mean(temps)) if temps else cfg.site.temp_c)
-        solution = solve_positions(averages, cfg.spec, site, device, plan_name=cfg.plan_name)
+        prior = plan_prior(cfg.plan, cfg.spec, site.accel_lsb)
+        solution = solve_positions(
+            averages, cfg.spec, site, device, plan_name=cfg.plan_name, prior=prior
+        )
         solutions[node_id] = solution
         acceptance[node_id] = check_acceptance(solution, cfg.limits, cfg.site.accel_lsb, cfg.site.g)
     return solutions, acceptance

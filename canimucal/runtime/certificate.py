@@ -1,20 +1,75 @@
-"""The calibration certificate: a readable Markdown page saved beside the calibration JSON.
+"""The calibration certificate: a Markdown page and a printable HTML page beside the JSON.
 
-Identity, date, conditions, every value ± σ (null: held at nominal), the acceptance limits
-and how the result met them, and the level check before (new parameters applied in software
-to the session's level position) and after the write (raw data re-read at level).
+Identity, date, operator and site, conditions, units, every value ± σ (k = 1; null: held at
+nominal), the acceptance limits and how the result met them, whether it was written, the
+verification verdict, whether the warm-up was skipped, the level check before (new
+parameters applied in software to the session's level position) and after the write (raw
+data re-read at level), and the warnings. Device text is escaped for Markdown and HTML.
 """
 
 from __future__ import annotations
 
+import html
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from canimucal.analysis.acceptance import AcceptanceLimits, AcceptanceReport
 from canimucal.device.client import Identity
-from canimucal.io.calibration import Calibration, calibration_to_dict
+from canimucal.io.calibration import Calibration, Verification, calibration_to_dict
 from canimucal.procedure.events import LevelChecked
 from canimucal.untrusted import markdown_text
+
+K1_STATEMENT = (
+    "Every ± is one standard uncertainty (k = 1, about 68 % coverage for a normal "
+    "distribution); for about 95 % multiply by 2 (k = 2)."
+)
+UNITS = (
+    "Units: biases in counts; K in counts per m/s²; S in counts per rad/s; base tilt in "
+    "degrees; |f| − g in m/s²."
+)
+
+
+@dataclass(frozen=True)
+class SessionFacts:
+    """What the session knows beyond the record: who, where, what was done to the device."""
+
+    operator: str | None = None
+    site: str | None = None
+    written: bool = False
+    verification: Verification | None = None
+    warmup: str = "not required"
+    """``waited until stable``, ``skipped by the operator`` or ``not required``."""
+
+
+def verification_of(
+    after: LevelChecked | None, written: bool, limits: AcceptanceLimits, g: float
+) -> Verification:
+    """Judge the re-read at level after the write: |f| − g within the stated limit.
+
+    Not done (``done`` false, ``passed`` false) when nothing was written or the session ended
+    before the level re-read.
+    """
+    limit = {"max_verify_norm_error_mg": limits.max_verify_norm_error_mg}
+    if not written or after is None:
+        return Verification(passed=False, done=False, written=written, limits=limit)
+    error_mg = abs(after.norm_error_calibrated_ms2) / g * 1000.0
+    return Verification(
+        passed=error_mg <= limits.max_verify_norm_error_mg,
+        done=True,
+        written=True,
+        limits=limit,
+        values={"max_verify_norm_error_mg": error_mg},
+    )
+
+
+def _verification_text(v: Verification | None) -> str:
+    if v is None or not v.done:
+        return "NOT DONE (the session ended before the re-read at level)"
+    value = v.values.get("max_verify_norm_error_mg", float("nan"))
+    limit = v.limits.get("max_verify_norm_error_mg", float("nan"))
+    verdict = "PASSED" if v.passed else "FAILED"
+    return f"{verdict}: abs(f) − g after the write {value:.3g} mg (limit {limit:g} mg)"
 
 
 def _fmt(value: Any, sigma: Any) -> str:
@@ -87,14 +142,26 @@ def certificate_markdown(
     level_checks: Sequence[LevelChecked],
     *,
     warnings: Sequence[str] = (),
+    facts: SessionFacts | None = None,
 ) -> str:
-    """Render the certificate of one node's calibration."""
+    """Render the certificate of one node's calibration as Markdown."""
+    facts = facts or SessionFacts()
     d = calibration_to_dict(record)
     verdict = "PASSED" if acceptance.passed else "NOT PASSED"
     lines = [
-        *_head(d, identity),
+        *_head(d, identity, facts),
+        "",
+        "## Verdict",
+        "",
+        f"- Acceptance: {verdict}",
+        f"- Written to the device: {'yes' if facts.written else 'no'}",
+        f"- Verification: {_verification_text(facts.verification)}",
+        f"- Warm-up: {facts.warmup}",
         "",
         "## Values",
+        "",
+        K1_STATEMENT,
+        UNITS,
         "",
         *_values_table(d),
         "",
@@ -118,17 +185,20 @@ def certificate_markdown(
         ]
     if warnings:
         lines += ["", "## Warnings", "", *[f"- {w}" for w in warnings]]
+    lines += ["", "## Sign-off", "", "Operator: ______________________  Date: ____________"]
     return "\n".join(lines) + "\n"
 
 
-def _head(d: dict[str, Any], identity: Identity) -> list[str]:
+def _head(d: dict[str, Any], identity: Identity, facts: SessionFacts) -> list[str]:
     cond = d.get("conditions") or {}
     fit = d.get("fit") or {}
+    name = markdown_text(identity.device_name or "IMU")
     return [
-        f"# Calibration certificate — {markdown_text(identity.device_name) or 'IMU'} serial "
-        f"{identity.serial}",
+        f"# Calibration certificate — {name} serial {identity.serial}",
         "",
         f"- Date (UTC): {d.get('created', 'unknown')}",
+        f"- Operator: {markdown_text(facts.operator) if facts.operator else 'not given'}",
+        f"- Site: {markdown_text(facts.site) if facts.site else 'not given'}",
         f"- Device: node {d['device'].get('node_id')}, vendor 0x{identity.vendor_id:08X}, "
         f"product 0x{identity.product_code:08X}, revision 0x{identity.revision:08X}, "
         f"hardware {markdown_text(identity.hardware_version) or '—'}, "
@@ -138,3 +208,112 @@ def _head(d: dict[str, Any], identity: Identity) -> list[str]:
         f"heading {cond.get('heading_deg')}°, temperature {cond.get('temp_c')} °C",
         f"- Fit: rms {fit.get('rms', float('nan')):.3g} m/s², dof {fit.get('dof')}",
     ]
+
+
+_PAGE_STYLE = """
+@page { size: A4; margin: 12mm; }
+body { font: 9pt/1.25 sans-serif; margin: 0; }
+h1 { font-size: 13pt; margin: 0 0 4pt; }
+h2 { font-size: 10pt; margin: 8pt 0 3pt; border-bottom: 0.5pt solid #000; }
+table { border-collapse: collapse; width: 100%; }
+td, th { border: 0.5pt solid #888; padding: 1pt 4pt; text-align: left; vertical-align: top; }
+.verdict td:first-child, .facts td:first-child { width: 30%; font-weight: bold; }
+.pass { font-weight: bold; } .fail { font-weight: bold; text-decoration: underline; }
+.columns { display: flex; gap: 8pt; } .columns > div { flex: 1; }
+.small { font-size: 8pt; } .sign { margin-top: 14pt; }
+"""
+
+
+def certificate_html(
+    record: Calibration,
+    identity: Identity,
+    acceptance: AcceptanceReport,
+    limits: AcceptanceLimits,
+    level_checks: Sequence[LevelChecked],
+    *,
+    warnings: Sequence[str] = (),
+    facts: SessionFacts | None = None,
+) -> str:
+    """Render the certificate as one printable HTML page (A4, no scripts, no external files)."""
+    facts = facts or SessionFacts()
+    d = calibration_to_dict(record)
+    e = html.escape
+    cond = d.get("conditions") or {}
+    fit = d.get("fit") or {}
+    name = e(identity.device_name or "IMU")
+    verdict = "PASSED" if acceptance.passed else "NOT PASSED"
+    facts_rows = [
+        ("Instrument", f"{name}, serial {identity.serial}, node {d['device'].get('node_id')}"),
+        (
+            "Identity",
+            f"vendor 0x{identity.vendor_id:08X}, product 0x{identity.product_code:08X}, "
+            f"revision 0x{identity.revision:08X}",
+        ),
+        ("Date (UTC)", e(str(d.get("created", "unknown")))),
+        ("Operator", e(facts.operator) if facts.operator else "not given"),
+        ("Site", e(facts.site) if facts.site else "not given"),
+        ("Plan", f"{e(str(d.get('plan', 'unknown')))}, {len(d.get('positions') or [])} positions"),
+        (
+            "Conditions",
+            f"g = {cond.get('g')} m/s², latitude {cond.get('latitude_deg')}°, "
+            f"temperature {cond.get('temp_c')} °C",
+        ),
+        ("Fit", f"rms {fit.get('rms', float('nan')):.3g} m/s², dof {fit.get('dof')}"),
+    ]
+    verdict_rows = [
+        ("Acceptance", _mark(verdict, acceptance.passed)),
+        ("Written to the device", "yes" if facts.written else "no"),
+        (
+            "Verification",
+            _mark(
+                e(_verification_text(facts.verification)),
+                facts.verification is not None and facts.verification.passed,
+            ),
+        ),
+        ("Warm-up", e(facts.warmup)),
+    ]
+    checks = "".join(f"<li>{e(c.line())}</li>" for c in acceptance.checks)
+    level = _html_table(_level_lines(level_checks))
+    values = _html_table(_values_table(d))
+    warning_items = "".join(f"<li>{e(w)}</li>" for w in warnings) or "<li>none</li>"
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8">
+<title>Calibration certificate {name} serial {identity.serial}</title>
+<style>{_PAGE_STYLE}</style></head><body>
+<h1>Calibration certificate — {name} serial {identity.serial}</h1>
+<div class="columns"><div><table class="facts">{_rows(facts_rows)}</table></div>
+<div><table class="verdict">{_rows(verdict_rows)}</table>
+<ul class="small">{checks}</ul></div></div>
+<h2>Values</h2>
+<p class="small">{e(K1_STATEMENT)} {e(UNITS)}</p>
+{values}
+<h2>Level check</h2>
+{level}
+<h2>Warnings</h2>
+<ul class="small">{warning_items}</ul>
+<p class="sign">Operator signature: ______________________ &nbsp; Date: ____________</p>
+</body></html>
+"""
+
+
+def _mark(text: str, passed: bool) -> str:
+    return f'<span class="{"pass" if passed else "fail"}">{text}</span>'
+
+
+def _rows(rows: Sequence[tuple[str, str]]) -> str:
+    return "".join(f"<tr><td>{html.escape(k)}</td><td>{v}</td></tr>" for k, v in rows)
+
+
+def _html_table(markdown_rows: Sequence[str]) -> str:
+    """Turn the Markdown table rows above into an HTML table (cells escaped)."""
+    if len(markdown_rows) < 2 or not markdown_rows[0].startswith("|"):
+        return "<p>" + html.escape(" ".join(markdown_rows)) + "</p>"
+
+    def cells(row: str) -> list[str]:
+        return [html.escape(c.strip()) for c in row.strip().strip("|").split("|")]
+
+    head = "".join(f"<th>{c}</th>" for c in cells(markdown_rows[0]))
+    body = "".join(
+        "<tr>" + "".join(f"<td>{c}</td>" for c in cells(r)) + "</tr>" for r in markdown_rows[2:]
+    )
+    return f"<table><tr>{head}</tr>{body}</table>"

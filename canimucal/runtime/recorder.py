@@ -12,7 +12,9 @@ Three ways to label:
   operator pressed Enter): skip ``settle_s`` worth of samples, then label the next
   ``seconds`` worth. Sample counts, not wall time, so a fast simulated node works too.
 - :meth:`Recorder.record_prompted`: a whole plan, :meth:`record_pose` per position with a
-  ``prompt(index, position)`` callback that returns when the unit is there.
+  ``prompt(index, position)`` callback that returns when the unit is there. With a
+  ``refused`` callback each pose is checked first, as the guided procedure checks it
+  (:meth:`Recorder.check_pose`): a unit not at the pose is refused and prompted again.
 - :meth:`Recorder.record_scheduled`: the unit follows the plan by itself from the NMT start
   (``canimucal sim --poses``, the in-process simulated node, a motorised rig): each sample's
   schedule time is its counter distance from the first sample over the output data rate, and
@@ -37,6 +39,9 @@ from canimucal.io.recording import DEVICE_RATES_HZ
 from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.model.samples import SampleBlock, concat_blocks
+from canimucal.model.sensor import STANDARD_GRAVITY
+from canimucal.procedure.config import ProcedureConfig
+from canimucal.procedure.posecheck import PoseCheck, check_pose, measured_force, predicted_force
 from canimucal.sim.schedule import PoseTrajectory
 
 log = logging.getLogger(__name__)
@@ -59,6 +64,13 @@ RATE_TOLERANCE = 0.1
 
 PosePrompt = Callable[[int, PlannedPosition], None]
 """Called before position ``index``; returns when the unit is at the pose."""
+PoseRefused = Callable[[int, str], None]
+"""Called with position ``index`` and why, when the unit is not at that pose."""
+CHECK_WINDOW_S = 0.5
+"""Samples averaged for the pose check (after the settling)."""
+POSE_TOLERANCE_DEG = ProcedureConfig.pose_tolerance_deg
+FIRST_POSE_TOLERANCE_DEG = ProcedureConfig.first_pose_tolerance_deg
+"""The guided procedure's tolerances: the first pose (no offset known yet) and the others."""
 
 
 @dataclass
@@ -111,6 +123,9 @@ class _Track:
         self.rate_t0 = 0.0  # CAN time of the first sample, counter and samples since
         self.rate_counter: int | None = None
         self.rate_seq = 0
+        self.check_rows: list[NDArray[np.float64]] = []
+        self.accel_lsb: float | None = None
+        self.offset_ms2: NDArray[np.float64] | None = None
 
     def unwrap(self, counter: NDArray[np.int64]) -> NDArray[np.int64]:
         """Unwrapped sequence numbers of a block's 16-bit counters."""
@@ -217,12 +232,68 @@ class Recorder:
             track.index = -1
 
     def record_prompted(
-        self, plan: Plan, prompt: PosePrompt, *, settle_s: float = 1.5, first_index: int = 0
+        self,
+        plan: Plan,
+        prompt: PosePrompt,
+        *,
+        settle_s: float = 1.5,
+        first_index: int = 0,
+        refused: PoseRefused | None = None,
     ) -> None:
-        """Record every position of ``plan``, calling ``prompt`` before each."""
+        """Record every position of ``plan``, calling ``prompt`` before each.
+
+        With ``refused``, each pose is checked before it is recorded; a unit not at the
+        pose is reported to ``refused`` and ``prompt`` is called again for that position.
+        """
         for i, position in enumerate(plan.positions):
-            prompt(first_index + i, position)
-            self.record_pose(first_index + i, position, settle_s=settle_s)
+            settle = settle_s
+            while True:
+                prompt(first_index + i, position)
+                if refused is None:
+                    break
+                checks = self.check_pose(position, settle_s=settle_s)
+                bad = [(t, c) for t, c in zip(self._tracks, checks, strict=True) if not c.passed]
+                if not bad:
+                    self.learn_offset(position)
+                    settle = 0.0  # settled and checked just now
+                    break
+                why = "; ".join(f"node {t.client.node_id}: {c.message()}" for t, c in bad)
+                refused(first_index + i, why)
+            self.record_pose(first_index + i, position, settle_s=settle)
+
+    def check_pose(self, position: PlannedPosition, *, settle_s: float = 1.5) -> list[PoseCheck]:
+        """Check that every node is at ``position``, as the guided procedure does.
+
+        After ``settle_s``, :data:`CHECK_WINDOW_S` of samples (written unlabelled) are
+        averaged; the nominal specific force, less the offset the first accepted pose
+        showed (bias and base tilt), must point within 5° (first pose) or 3° of the
+        target's (:func:`~canimucal.procedure.posecheck.check_pose`).
+        """
+        for track in self._tracks:
+            self._drain(track, _unlabelled)
+            track.skip = int(round(settle_s * track.rate_hz))
+            track.remaining = max(int(round(CHECK_WINDOW_S * track.rate_hz)), 2)
+            track.check_rows = []
+        self._pump(_checking, lambda: all(t.remaining == 0 for t in self._tracks))
+        out = []
+        for track in self._tracks:
+            if track.accel_lsb is None:
+                track.accel_lsb = float(track.client.nominal_lsb()[0])
+            rows = np.vstack(track.check_rows)
+            mean = np.nanmean(rows, axis=0)
+            f = measured_force(mean, track.accel_lsb, track.offset_ms2)
+            first = track.offset_ms2 is None
+            tolerance = FIRST_POSE_TOLERANCE_DEG if first else POSE_TOLERANCE_DEG
+            out.append(check_pose(position, f, STANDARD_GRAVITY, tolerance))
+        return out
+
+    def learn_offset(self, position: PlannedPosition) -> None:
+        """Take the last checked pose's offset (bias and base tilt) when none is known yet."""
+        for track in self._tracks:
+            if track.offset_ms2 is None and track.check_rows and track.accel_lsb is not None:
+                mean = np.nanmean(np.vstack(track.check_rows), axis=0)
+                f = measured_force(mean, track.accel_lsb, None)
+                track.offset_ms2 = f - predicted_force(position, STANDARD_GRAVITY)
 
     def record_scheduled(
         self,
@@ -320,6 +391,11 @@ class Recorder:
         track.last_data = time.monotonic()
         log.warning("node %d rebooted; streaming resumed", node_id)
         labelling = track.index >= 0 and track.skip == 0 and track.remaining > 0
+        if labeller is _checking:
+            track.check_rows = []  # the check starts again on fresh samples
+            track.skip = int(round(CHECK_WINDOW_S * track.rate_hz))
+            track.remaining = max(int(round(CHECK_WINDOW_S * track.rate_hz)), 2)
+            return
         if labelling or labeller is not _window:
             what = f"position {track.index}" if labeller is _window else "the schedule"
             raise DeviceError(
@@ -409,3 +485,14 @@ def _window(track: _Track, block: SampleBlock) -> Labels:
     track.remaining -= count
     angles = np.where((labels >= 0)[:, None], track.angles_deg, np.nan)
     return labels, angles
+
+
+def _checking(track: _Track, block: SampleBlock) -> Labels:
+    """Keep the accelerometer rows of the pose check (after ``track.skip``); none labelled."""
+    first = min(track.skip, block.n)
+    count = min(track.remaining, block.n - first)
+    if count:
+        track.check_rows.append(np.asarray(block.accel[first : first + count], dtype=float))
+    track.skip -= first
+    track.remaining -= count
+    return _unlabelled(track, block)

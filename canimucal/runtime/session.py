@@ -27,6 +27,7 @@ from typing import Any, assert_never
 
 import numpy as np
 
+from canimucal.analysis.acceptance import acceptance_block
 from canimucal.analysis.calibrate import SiteConditions
 from canimucal.device.calibration_map import readback_of
 from canimucal.device.client import Identity, ImuClient
@@ -44,16 +45,21 @@ from canimucal.io.calibration import (
     Calibration,
     Device,
     RecordingRef,
-    Verification,
     calibration_to_json,
     sha256_of,
 )
 from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.positions import Pose
 from canimucal.procedure import events as ev
+from canimucal.procedure.config import ProcedureConfig
 from canimucal.procedure.machine import Phase, Procedure
 from canimucal.procedure.tracks import LabelledRows
-from canimucal.runtime.certificate import certificate_markdown
+from canimucal.runtime.certificate import (
+    SessionFacts,
+    certificate_html,
+    certificate_markdown,
+    verification_of,
+)
 from canimucal.runtime.resume import partial_path
 from canimucal.simnode.node import SimulatedImuNode
 
@@ -120,9 +126,13 @@ class Session:
         backup_dir: Path | None = None,
         overwrite: bool = False,
         operator_rng: np.random.Generator | None = None,
+        operator: str | None = None,
+        site_name: str | None = None,
     ) -> None:
         self.procedure = procedure
         self.operator_rng = operator_rng
+        self.operator = operator
+        self.site_name = site_name
         self.out_dir = out_dir
         self.backup_dir = backup_dir
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -130,7 +140,7 @@ class Session:
         self.links: dict[int, NodeLink] = {}
         for node_id, client in clients.items():
             path = output_name(out_dir, "recording", node_id, several, ".csv")
-            head = dict((header or {}).get(node_id, {}))
+            head = {**(header or {}).get(node_id, {}), **model_header(procedure.config)}
             if procedure.config.resume_from is not None:
                 writer = open_resumed(path, head)
             else:
@@ -274,7 +284,7 @@ class Session:
         """
         angles = target.angles
         if self.operator_rng is not None:
-            angles = angles + self.operator_rng.normal(0.0, target.tolerance, 3)
+            angles = angles + self.operator_rng.normal(0.0, target.tolerances)
         return float(angles[0]), float(angles[1]), float(angles[2])
 
     def _drain(self) -> list[ev.Event]:
@@ -337,11 +347,15 @@ class Session:
             link.writer = RecordingWriter.open(verify_path, link.header or {}, overwrite=True)
             solution = self.procedure.solutions[node_id]
             ref = RecordingRef(file=rec_path.name, sha256=sha256_of(rec_path))
-            link.record = replace(solution.record, recording=ref)
+            assert self.procedure.solved is not None
+            verdict = acceptance_block(
+                self.procedure.solved.acceptance[node_id], self.procedure.config.limits
+            )
+            link.record = replace(solution.record, recording=ref, acceptance=verdict)
             link.record_path = self._name("calibration", node_id, ".json")
             write_text(link.record_path, calibration_to_json(link.record))
             link.certificate_path = self._name("certificate", node_id, ".md")
-            write_text(link.certificate_path, self.certificate(node_id))
+            self._write_certificates(node_id)
             out.append(
                 ev.RecordSaved(
                     node_id, str(link.record_path), str(link.certificate_path), str(rec_path)
@@ -349,19 +363,47 @@ class Session:
             )
         return out
 
-    def certificate(self, node_id: int) -> str:
-        """Render the Markdown certificate of one node as it stands now."""
+    def certificate(self, node_id: int, *, html: bool = False) -> str:
+        """Render the certificate of one node as it stands now (Markdown, or the HTML page)."""
         link = self.links[node_id]
         proc = self.procedure
         assert proc.solved is not None and link.record is not None
-        return certificate_markdown(
+        render = certificate_html if html else certificate_markdown
+        return render(
             link.record,
             link.identity,
             proc.solved.acceptance[node_id],
             proc.config.limits,
             [e for (n, _), e in proc.level_checks.items() if n == node_id],
             warnings=proc.solutions[node_id].warnings,
+            facts=self.facts(node_id),
         )
+
+    def facts(self, node_id: int) -> SessionFacts:
+        """Operator, site, written or not, the verification verdict and the warm-up."""
+        proc = self.procedure
+        result = proc.write_results.get(node_id)
+        written = result is not None and result.ok
+        after = proc.level_checks.get((node_id, "after"))
+        if proc.warmup_skipped:
+            warmup = "skipped by the operator"
+        elif proc.config.warmup:
+            warmup = "waited until the temperature was stable"
+        else:
+            warmup = "not required (resumed or disabled)"
+        return SessionFacts(
+            operator=self.operator,
+            site=self.site_name,
+            written=written,
+            verification=verification_of(after, written, proc.config.limits, proc.config.site.g),
+            warmup=warmup,
+        )
+
+    def _write_certificates(self, node_id: int) -> None:
+        link = self.links[node_id]
+        assert link.certificate_path is not None
+        write_text(link.certificate_path, self.certificate(node_id))
+        write_text(link.certificate_path.with_suffix(".html"), self.certificate(node_id, html=True))
 
     def write(self, options: WriteOptions | None = None) -> list[ev.Event]:
         """Write every node's calibration transactionally, read it back, verify at level."""
@@ -405,23 +447,12 @@ class Session:
         for node_id, link in self.links.items():
             self._write_rows(node_id)
             link.writer.close()
-            if self._written_unverified(node_id):
-                assert link.record is not None and link.record_path is not None
-                undone = Verification(passed=False, done=False)
-                link.record = replace(link.record, verification=undone)
-                write_text(link.record_path, calibration_to_json(link.record))
             if link.certificate_path is not None and self.procedure.solved is not None:
-                write_text(link.certificate_path, self.certificate(node_id))
-
-    def _written_unverified(self, node_id: int) -> bool:
-        proc, link = self.procedure, self.links[node_id]
-        result = proc.write_results.get(node_id)
-        return (
-            result is not None
-            and result.ok
-            and (node_id, "after") not in proc.level_checks
-            and link.record_path is not None
-        )
+                if link.record is not None and link.record_path is not None:
+                    verification = self.facts(node_id).verification
+                    link.record = replace(link.record, verification=verification)
+                    write_text(link.record_path, calibration_to_json(link.record))
+                self._write_certificates(node_id)
 
     def _name(self, stem: str, node_id: int, suffix: str) -> Path:
         return output_name(self.out_dir, stem, node_id, self.several, suffix)
@@ -478,6 +509,23 @@ def device_of(node_id: int, identity: Identity) -> Device:
         revision=identity.revision,
         serial=identity.serial,
     )
+
+
+def model_header(cfg: ProcedureConfig) -> dict[str, Any]:
+    """Header keys naming the model the session solves (DESIGN §9), for ``solve`` to reuse.
+
+    ``tolerance_deg`` is the plan's largest tilt tolerance; ``solve`` takes each position's
+    own from the built-in plan that ``plan`` names.
+    """
+    spec = cfg.spec
+    tolerance = max(p.tolerance for p in cfg.plan.positions)
+    return {
+        "plan": cfg.plan_name or cfg.plan.name,
+        "model": spec.accel_k,
+        "tilt": spec.tilt,
+        "gyro": spec.gyro,
+        "tolerance_deg": round(float(np.rad2deg(tolerance)), 10),
+    }
 
 
 def recording_header(

@@ -28,6 +28,7 @@ import numpy as np
 from canimucal.analysis.calibrate import SiteConditions
 from canimucal.device.bus import BusSettings, describe, open_bus
 from canimucal.device.client import NOTIFIER_CYCLE_S, Identity, ImuClient
+from canimucal.errors import NoDeviceError
 from canimucal.io.atomic import per_node_path
 from canimucal.model.layout import GyroSpec, JointSpec
 from canimucal.model.positions import Plan
@@ -136,6 +137,7 @@ class Devices:
             self.where = describe(config)
             bitrate = settings.bus.bitrate or config.get("bitrate")
             network = self._network(bus)
+        census = HeartbeatCensus(network)
         for nid in settings.node_ids:
             self.clients[nid] = ImuClient(
                 network,
@@ -145,8 +147,21 @@ class Devices:
                 bitrate_bps=int(bitrate) if bitrate else None,
             )
             if settings.find and settings.sim is None:
-                how = self.clients[nid].find_node(FIND_NODE_TIMEOUT_S)
+                how = self._find(nid, census)
                 log.info("node %d found by %s", nid, how)
+
+    def _find(self, nid: int, census: HeartbeatCensus) -> str:
+        """Find node ``nid``; when it is not there, name the nodes that are heartbeating."""
+        try:
+            return self.clients[nid].find_node(FIND_NODE_TIMEOUT_S)
+        except NoDeviceError as exc:
+            others = sorted(census.heard - {nid})
+            if others:
+                heard = ", ".join(f"{n} (0x{n:02X})" for n in others)
+                hint = f"heartbeating on {self.where}: node {heard}; check --node-id"
+            else:
+                hint = f"no node is heartbeating on {self.where}: check power, wiring, bit rate"
+            raise NoDeviceError(f"{exc}; {hint}") from exc
 
     def _network(self, bus: can.BusABC) -> canopen.Network:
         network = canopen.Network(bus)
@@ -210,6 +225,8 @@ class Devices:
         overwrite: bool = False,
         resume: bool = False,
         identities: dict[int, Identity] | None = None,
+        operator: str | None = None,
+        site_name: str | None = None,
         **config: Any,
     ) -> Session:
         """Build the guided session of ``plan`` over every node.
@@ -254,6 +271,8 @@ class Devices:
             backup_dir=backup_dir,
             overwrite=overwrite,
             operator_rng=None if seed is None else np.random.default_rng(seed + 1000),
+            operator=operator,
+            site_name=site_name,
         )
 
     def close(self) -> None:
@@ -282,6 +301,18 @@ class Devices:
         tb: TracebackType | None,
     ) -> None:
         self.close()
+
+
+class HeartbeatCensus:
+    """The node ids whose heartbeat or boot-up (0x701–0x77F) has been seen on a network."""
+
+    def __init__(self, network: canopen.Network) -> None:
+        self.heard: set[int] = set()
+        for nid in range(1, 128):
+            network.subscribe(0x700 + nid, self._seen)
+
+    def _seen(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        self.heard.add(can_id - 0x700)
 
 
 def open_devices(settings: DeviceSettings) -> Devices:

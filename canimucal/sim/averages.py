@@ -52,7 +52,7 @@ def simulate_averages(
     for p in positions:
         angles = p.angles
         if angle_errors:
-            angles = angles + rng.normal(0.0, p.tolerance, 3)
+            angles = angles + rng.normal(0.0, p.tolerances)
         c = position_dcm(
             angles[0], angles[1], angles[2], alpha0=alpha0, beta0=beta0, tilt_model=tilt_model
         )
@@ -67,7 +67,7 @@ def simulate_averages(
         n = int(round(p.seconds * sample_rate_hz))
         out.append(
             PositionAverage(
-                pose=Pose(p.alpha, p.beta, p.psi, p.tolerance),
+                pose=Pose(p.alpha, p.beta, p.psi, p.tolerance, psi_tolerance=p.psi_tolerance),
                 n=n,
                 mean_accel=mean_a,
                 cov_accel=cov_a,

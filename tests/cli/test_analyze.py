@@ -88,7 +88,7 @@ def test_plots_are_written_and_never_replace_a_file_unasked(tmp_path: Path, caps
     plots = tmp_path / "plots"
     assert main(["analyze", str(path), "--plots", str(plots)]) == 0
     images = {p.name: p.read_bytes() for p in plots.iterdir()}
-    assert set(images) == {"residuals.png", "allan.png"}  # and no temporary file left
+    assert set(images) == {"residuals.png", "allan.png", "session.png"}  # and no temp file left
     for data in images.values():
         assert data.startswith(PNG_SIGNATURE) and len(data) > 10_000
     # a second run refuses before any work, and the plots stay as they were

@@ -16,6 +16,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from canimucal.io.recording import read_recording
@@ -23,7 +24,7 @@ from canimucal.runtime.readback_check import readback_deviations
 from canimucal.sim.truth import Truth
 
 FAST = ["--headless", "--seconds", "4", "--time-scale", "30"]
-POSITIONS = {"two": 2, "five": 5, "recommended": 8}
+POSITIONS = {"two": 2, "five": 5, "recommended": 8, "vehicle": 8}
 
 
 def _check_node(out: Path, record: dict[str, Any], suffix: str, plan: str) -> None:
@@ -34,7 +35,7 @@ def _check_node(out: Path, record: dict[str, Any], suffix: str, plan: str) -> No
     deviations = readback_deviations(record, truth)
     estimated = {d.name for d in deviations}
     assert {"accel.bias[0]", "accel.K[1][1]", "gyro.bias[2]"} <= estimated
-    if plan == "recommended":
+    if plan in ("recommended", "vehicle"):
         assert "accel.K[0][1]" in estimated and "base_tilt.beta0 (deg)" in estimated
     worst = max(deviations, key=lambda d: abs(d.dev_sigma))
     assert abs(worst.dev_sigma) < 4.0, worst
@@ -47,9 +48,29 @@ def _check_node(out: Path, record: dict[str, Any], suffix: str, plan: str) -> No
     assert (out / f"verification{suffix}.csv").is_file()
     certificate = (out / f"certificate{suffix}.md").read_text()
     assert "## Acceptance limits" in certificate and "after write (re-read)" in certificate
+    # the verdicts: in the JSON and on both pages of the certificate
+    acceptance, verification = record["acceptance"], record["verification"]
+    assert set(acceptance["limits"]) >= {"max_bias_sigma_mg", "max_verify_norm_error_mg"}
+    assert acceptance["passed"] is all(
+        acceptance["values"][k] <= acceptance["limits"][k]
+        for k in acceptance["values"]
+        if k.startswith("max_")
+    ) and all(acceptance["values"][k] >= acceptance["limits"][k] for k in ["min_fit_p"])
+    assert verification["done"] is True and verification["written"] is True
+    assert verification["passed"] is (
+        verification["values"]["max_verify_norm_error_mg"]
+        <= verification["limits"]["max_verify_norm_error_mg"]
+    )
+    page = (out / f"certificate{suffix}.html").read_text()
+    for text in (certificate, page):
+        assert "k = 1" in text and "Warm-up" in text and "not required" in text
+        assert "Written to the device" in text and "Operator" in text
+        assert "Units: biases in counts" in text
+    assert "Written to the device: yes" in certificate
+    assert page.startswith("<!DOCTYPE html>") and "<script" not in page
 
 
-@pytest.mark.parametrize("plan", ["two", "five", "recommended"])
+@pytest.mark.parametrize("plan", ["two", "five", "recommended", "vehicle"])
 def test_headless_demo_per_plan_reads_back_the_truth(
     cli: Callable[[Sequence[str]], Any], tmp_path: Path, plan: str
 ) -> None:
@@ -67,6 +88,7 @@ def test_headless_demo_per_plan_reads_back_the_truth(
             out,
             "--json",
             tmp_path / "cal.json",
+            *(["--operator", "A. Operator & Co", "--site", "Bay <3>"] if plan == "vehicle" else []),
         ]
     )
     assert result.code == 0, result.err
@@ -76,6 +98,16 @@ def test_headless_demo_per_plan_reads_back_the_truth(
     _check_node(out, record, "", plan)
     assert "read back from the device" in result.out
     assert list((out / "backups").glob("*.json"))
+    _solve_agrees_with_the_session(cli, out, record)
+    if plan == "vehicle":  # what ≤ 10° tilts cannot separate is held at a stated prior
+        priors = {p["name"]: p for p in record["priors"]}
+        assert priors["accel.K[1][1]"]["sigma"] == pytest.approx(0.01 * 2048 / 9.80665)
+        assert priors["accel.K[1][1]"]["source"] == "factory K"
+        assert "held at the stated prior" in (out / "certificate.md").read_text()
+        page = (out / "certificate.html").read_text()
+        assert "A. Operator &amp; Co" in page and "Bay &lt;3&gt;" in page
+    else:
+        assert "priors" not in record
 
 
 def test_headless_demo_with_two_nodes_gives_one_result_per_node(
@@ -120,3 +152,23 @@ def test_demo_rejects_bad_input_with_exit_2(
     result = cli(["demo", "--headless", "--out", tmp_path / "o", *argv])
     assert result.code == 2
     assert message in result.err
+
+
+def _solve_agrees_with_the_session(
+    cli: Callable[[Sequence[str]], Any], out: Path, record: dict[str, Any]
+) -> None:
+    """`solve` of the session's recording, no flags: the session's model, numbers and priors."""
+    run = cli(["solve", out / "recording.csv", "--no-check", "--json", "-"])
+    assert run.code == 0, run.err
+    solved = json.loads(run.out)
+    assert solved["plan"] == record["plan"]
+    assert solved["covariance"]["order"] == record["covariance"]["order"]
+    assert solved.get("priors") == record.get("priors")
+    for block, key in (("accel", "bias"), ("accel", "K"), ("gyro", "bias")):
+        mine = np.array(solved[block][key], dtype=float)
+        theirs = np.array(record[block][key], dtype=float)
+        sigma = np.array(record[block][f"{key}_sigma"], dtype=float)
+        np.testing.assert_allclose(mine, theirs, rtol=0, atol=1e-6 * np.nanmax(sigma))
+        np.testing.assert_allclose(
+            np.array(solved[block][f"{key}_sigma"], dtype=float), sigma, rtol=1e-6
+        )

@@ -329,7 +329,7 @@ def test_record_interrupted_keeps_what_was_recorded(tmp_path: Path) -> None:
     partial = tmp_path / "cut.csv.partial"
     try:
         for _ in range(300):  # until rows are being written (≤ 30 s)
-            if partial.exists() and partial.stat().st_size > 5_000:
+            if partial.exists() and partial.stat().st_size > 10_000:
                 break
             time_module.sleep(0.1)
         proc.send_signal(signal.SIGINT)
@@ -384,3 +384,76 @@ def test_hidden_gyro_s_recovered_through_the_canopen_path(cli: Cli, tmp_path: Pa
     assert after["readback"] == to_plain(expected)  # S⁻¹ (0x2111) and G (0x2112) bit-exact
     held = np.linalg.inv(np.array(after["readback"]["gyro_correction"], dtype=float))
     np.testing.assert_allclose(held, s, rtol=1e-5)  # float32 of S⁻¹, inverted back
+
+
+def test_write_params_refuses_a_failed_calibration_unless_no_check(
+    cli: Cli, tmp_path: Path, truth_file: Path
+) -> None:
+    cal = calibration_file(tmp_path, SERIAL)
+    document = json.loads(cal.read_text())
+    document["acceptance"] = {
+        "passed": False,
+        "limits": {"max_bias_sigma_mg": 5.0, "min_fit_p": 1e-4},
+        "values": {"max_bias_sigma_mg": 8.2, "min_fit_p": 0.3},
+    }
+    cal.write_text(json.dumps(document))
+    state = tmp_path / "state.json"
+    flags = sim_flags(truth_file, state)
+    run = cli(["write-params", cal, *flags, "--backup-dir", tmp_path / "bk"])
+    assert run.code == 2 and run.err.count("\n") == 1
+    assert "acceptance failed (max_bias_sigma_mg)" in run.err and "--no-check" in run.err
+    assert not state.exists() and not (tmp_path / "bk").exists()  # refused before connecting
+    run = cli(["write-params", cal, *flags, "--no-check", "--backup-dir", tmp_path / "bk"])
+    assert run.code == 0, run.err
+    assert read_params(cli, flags, tmp_path / "r.json")["readback"]["valid"] == 1
+
+
+def test_record_prompted_refuses_a_pose_the_unit_is_not_at(tmp_path: Path) -> None:
+    """The operator first leaves the unit level at the 45° pose: refused, prompted again."""
+    import can
+
+    from canimucal.device.client import ImuClient
+    from canimucal.io.recording_writer import RecordingWriter
+    from canimucal.model.plan import builtin_plan
+    from canimucal.runtime.recorder import Recorder
+    from canimucal.simnode.node import SimulatedImuNode
+
+    channel = f"canimucal-refuse-{os.getpid()}"
+    node_bus, client_bus = (can.Bus(interface="virtual", channel=channel) for _ in range(2))
+    node = SimulatedImuNode(node_bus, 0x10, make_truth(), time_scale=10.0, seed=4).start()
+    plan = builtin_plan("two").with_total_seconds(2.0)
+    prompts: list[int] = []
+    refusals: list[tuple[int, str]] = []
+
+    def prompt(index: int, position: Any) -> None:
+        prompts.append(index)
+        if prompts.count(index) > 1 or index == 0:  # the second time, the pose is set
+            node.set_pose(position.alpha, position.beta, position.psi)
+
+    out = tmp_path / "refused.csv"
+    try:
+        with ImuClient(client_bus, 0x10) as client:
+            header = {"sample_rate_hz": 200.0, "device_serial": SERIAL}
+            with RecordingWriter.open(out, header) as writer:
+                recorder = Recorder([(client, writer, 200.0)])
+                recorder.start()
+                try:
+                    recorder.record_prompted(
+                        plan, prompt, settle_s=1.0, refused=lambda i, why: refusals.append((i, why))
+                    )
+                finally:
+                    recorder.stop()
+    finally:
+        node.stop()
+        node_bus.shutdown()
+        client_bus.shutdown()
+    assert prompts == [0, 1, 1]
+    assert [i for i, _ in refusals] == [1]
+    assert "against target +45.0°, +5.0°" in refusals[0][1] and "> 3°" in refusals[0][1]
+    rec = read_recording(out)
+    for index, position in enumerate(plan.positions):  # only the pose the unit was at
+        rows = rec.position == index
+        assert rows.sum() == 200
+        x = np.nanmean(rec.accel[rows, 0]) * od.to_float32(9.80665 / 2048.0)
+        expected = -9.80665 * np.sin(position.alpha) * np.cos(position.beta)
+        assert abs(x - expected) < 0.5, (index, x, expected)

@@ -203,3 +203,35 @@ def test_allan_too_short_is_exit_2(cli: Cli, simulated: Callable[..., Any]) -> N
     run = cli(["allan", simulated("two", "level", 2.0).path])
     assert run.code == 2
     assert run.err.startswith("error: ") and run.err.count("\n") == 1
+
+
+def test_vehicle_plan_lists_positions_minutes_and_its_stated_prior(cli: Cli) -> None:
+    doc = plan_json(cli, "--plan", "vehicle", "--with-tolerance")
+    assert len(doc["positions"]) == 8
+    assert max(abs(p["alpha_deg"]) + abs(p["beta_deg"]) for p in doc["positions"]) == 10.0
+    assert {p["psi_deg"] for p in doc["positions"]} == {0.0, 90.0, 180.0, 270.0}
+    assert doc["operator_minutes"] == pytest.approx((8 * 60 + 8 * 180) / 60)
+    r = rows(doc)
+    k_nominal = 1.0 / DEFAULT_ACCEL_LSB
+    assert r["accel.K[1][1]"]["prior"]["sigma"] == pytest.approx(0.01 * k_nominal)
+    assert "prior" not in r["accel.bias[1]"]
+    # a 5× looser prior widens what the poses cannot separate, by less than 5× (the poses
+    # do see K_yy a little: cos 10° = 0.985)
+    loose = rows(plan_json(cli, "--plan", "vehicle", "--with-tolerance", "--prior-k-sigma", "0.05"))
+    ratio = loose["accel.bias[1]"]["sigma"] / r["accel.bias[1]"]["sigma"]
+    assert 3.0 < ratio < 5.0
+    text = cli(["plan", "--plan", "vehicle"])
+    assert "prior: factory K" in text.out
+    assert max(len(line) for line in text.out.splitlines()) <= 80
+
+
+def test_plan_compare_ranks_builtin_plans_by_bound_and_minutes(cli: Cli) -> None:
+    run = cli(["plan", "--compare", "--with-tolerance", "--json", "-"])
+    assert run.code == 0, run.err
+    plans = {d["plan"]: d for d in json.loads(run.out)["plans"]}
+    assert set(plans) == {"two", "five", "recommended", "vehicle"}
+    assert plans["two"]["worst_case_counts"] is None  # two positions: tilt undetermined
+    assert plans["recommended"]["worst_case_counts"] < plans["vehicle"]["worst_case_counts"]
+    assert plans["vehicle"]["operator_minutes"] > plans["recommended"]["operator_minutes"]
+    text = cli(["plan", "--compare"]).out
+    assert re.search(r"vehicle\s+\d", text) and "K ±1%" in text

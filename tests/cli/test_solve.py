@@ -80,7 +80,7 @@ def deviations(doc: dict[str, Any], truth: Truth) -> dict[str, float]:
 
 
 def solve_json(cli: Cli, path: Path, *flags: str) -> tuple[dict[str, Any], Any]:
-    run = cli(["solve", str(path), *flags, "--json", "-"])
+    run = cli(["solve", str(path), *flags, "--no-check", "--json", "-"])
     assert run.code == 0, run.err
     return json.loads(run.out), run
 
@@ -92,10 +92,17 @@ def test_two_positions_json_document(cli: Cli, simulated: Sim, tmp_path: Path) -
     sim = simulated("two", "level")
     target = tmp_path / "cal.json"
     run = cli(["solve", sim.path, "--json", target])
-    assert run.code == 0, run.err
+    # two positions see K_zz only through sin 5°: σ 4 % fails the 3000 ppm limit; the
+    # JSON is written first, with the verdict, and the exit status says it failed
+    assert run.code == 3, run.err
+    assert "worst scale σ" in run.out and "FAILED" in run.out
+    assert run.err.strip().endswith("--no-check to exit 0)")
     assert f"wrote {target}" in run.out
     record = read_calibration(target)  # validates schema, keys, shapes, covariance
     doc = json.loads(target.read_text())
+    assert record.acceptance is not None and record.acceptance.passed is False
+    assert doc["acceptance"]["limits"]["max_scale_sigma_ppm"] == 3000.0
+    assert doc["acceptance"]["values"]["max_scale_sigma_ppm"] > 3000.0
     assert record.plan == "two" and doc["plan"] == "two"
     assert record.device.serial == sim.truth.serial
     est = estimates(doc)
@@ -166,7 +173,7 @@ def test_recommended_full_model_recovers_cross_axis_and_tilt(cli: Cli, simulated
 
 def test_two_positions_full_model_is_null_with_reason(cli: Cli, simulated: Sim) -> None:
     sim = simulated("two", "level")
-    run = cli(["solve", sim.path, "--model", "full"])
+    run = cli(["solve", sim.path, "--model", "full", "--no-check"])
     assert run.code == 0, run.err
     off = [f"accel.K[{i}][{j}]" for i in range(3) for j in range(3) if i != j]
     for name in off:
@@ -186,7 +193,7 @@ def test_two_positions_full_model_is_null_with_reason(cli: Cli, simulated: Sim) 
 
 def test_json_dash_prints_only_json(cli: Cli, simulated: Sim) -> None:
     sim = simulated("two", "level")
-    run = cli(["solve", sim.path, "--json", "-"])
+    run = cli(["solve", sim.path, "--json", "-", "--no-check"])
     assert run.code == 0
     assert run.out.startswith("{") and run.out.rstrip().endswith("}")
     doc = json.loads(run.out)
@@ -203,7 +210,7 @@ def test_existing_json_target_needs_overwrite(cli: Cli, simulated: Sim, tmp_path
     assert target.read_text() == "keep me\n"
     assert run.err.count("\n") == 1 and run.err.startswith("error: ")
     assert run.out == ""
-    run = cli(["solve", sim.path, "--json", target, "--overwrite"])
+    run = cli(["solve", sim.path, "--json", target, "--overwrite", "--no-check"])
     assert run.code == 0, run.err
     read_calibration(target)
 
@@ -285,7 +292,7 @@ def test_nonexistent_file(cli: Cli, tmp_path: Path) -> None:
 def test_python_dash_m_runs_solve(simulated: Sim) -> None:
     sim = simulated("two", "level")
     proc = subprocess.run(
-        [sys.executable, "-m", "canimucal", "solve", str(sim.path), "--json", "-"],
+        [sys.executable, "-m", "canimucal", "solve", str(sim.path), "--json", "-", "--no-check"],
         capture_output=True,
         text=True,
         timeout=120,
@@ -326,6 +333,7 @@ def test_imucal_session_gyro_moves_agree_with_imucal(cli: Cli, tmp_path: Path) -
             "moves",
             "--model",
             "full",
+            "--no-check",  # imucal's hand-held poses fail the accelerometer's limits
             "--json",
             out,
         ]
@@ -358,6 +366,63 @@ def test_gyro_moves_on_a_recording_without_angles_is_refused(
 
 
 def test_gyro_scale_left_unchecked_is_said(cli: Cli, simulated: Sim) -> None:
-    run = cli(["solve", simulated("two", "level").path])
+    run = cli(["solve", simulated("two", "level").path, "--no-check"])
     assert run.code == 0
     assert "warning: gyro scale and misalignment were not checked" in run.err
+
+
+def test_acceptance_limits_come_from_the_user_config(
+    cli: Cli, simulated: Sim, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    sim = simulated("recommended", "full")
+    run = cli(["solve", sim.path, "--model", "full", "--tilt", "--json", "-"])
+    assert run.code == 0, run.err  # the recommended plan meets the built-in limits
+    assert json.loads(run.out)["acceptance"]["passed"] is True
+    config = tmp_path / "xdg"
+    (config / "canimucal").mkdir(parents=True)
+    (config / "canimucal" / "acceptance.toml").write_text("max_bias_sigma_mg = 0.001\n")
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(config))
+    run = cli(["solve", sim.path, "--model", "full", "--tilt", "--json", "-"])
+    assert run.code == 3
+    doc = json.loads(run.out)
+    assert doc["acceptance"]["passed"] is False
+    assert doc["acceptance"]["limits"]["max_bias_sigma_mg"] == 0.001
+    assert doc["acceptance"]["limits"]["max_scale_sigma_ppm"] == 3000.0  # default kept
+    (config / "canimucal" / "acceptance.toml").write_text("max_bias_sigma = 1\n")
+    run = cli(["solve", sim.path])
+    assert run.code == 2 and "unknown key 'max_bias_sigma'" in run.err
+    assert run.err.count("\n") == 1
+
+
+def test_vehicle_recording_with_a_factory_k_holds_it_as_a_stated_prior(
+    cli: Cli, simulated: Sim, tmp_path: Path
+) -> None:
+    sim = simulated("vehicle", "diag")
+    factory = tmp_path / "factory.json"
+    k = np.asarray(sim.truth.accel.K, dtype=float)  # the maker's K, known to 0.1 %
+    factory.write_text(
+        json.dumps(
+            {
+                "schema": "canimucal.calibration/1",
+                "device": {"serial": 1},
+                "accel": {"bias": [0.0, 0.0, 0.0], "K": k.tolist()},
+            }
+        )
+    )
+    prior = ("--prior-k", str(factory), "--prior-k-sigma", "0.001")
+    flags = ("--tilt", "--tolerance-deg", "0.5", *prior)  # no header: say the tolerance
+    doc, run = solve_json(cli, sim.path, *flags)
+    priors = {p["name"]: p for p in doc["priors"]}
+    assert set(priors) == {f"accel.K[{i}][{i}]" for i in range(3)}
+    assert priors["accel.K[1][1]"]["mean"] == pytest.approx(k[1, 1])
+    assert priors["accel.K[1][1]"]["source"] == "K from factory.json"
+    assert "held at the stated prior (K from factory.json" in run.err
+    dev = deviations(doc, sim.truth)
+    assert max(abs(d) for d in dev.values()) < MAX_DEVIATION_SIGMA, dev
+    # with bias y tied to K_yy, its σ is about g·σ(K_yy): 0.1 % of 2048 counts
+    bias_y_sigma = estimates(doc)["accel.bias[1]"][1]
+    assert bias_y_sigma is not None and 1.0 < bias_y_sigma < 4.0
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"schema": "canimucal.calibration/1", "device": {"serial": 1}}')
+    run = cli(["solve", sim.path, "--prior-k", bad])
+    assert run.code == 2 and run.err.count("\n") == 1

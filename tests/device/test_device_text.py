@@ -40,7 +40,7 @@ def test_markdown_and_markup_escaping() -> None:
 def test_certificate_cannot_be_forged_by_the_device_name() -> None:
     record = Calibration.from_dict(calibration(1.0, 0.0))
     identity = Identity(1, 2, 3, 4242, printable(MARKDOWN), "<b>hw</b>", "# sw")
-    failed = AcceptanceReport((Check("max_bias_sigma_mg", "worst bias σ", 9.0, 5.0, "mg", False),))
+    failed = AcceptanceReport((Check("worst bias σ", 9.0, 5.0, "mg", False, "max_bias_sigma_mg"),))
     text = certificate_markdown(record, identity, failed, AcceptanceLimits(), [])
     headings = [line for line in text.splitlines() if line.startswith("#")]
     assert headings[0].startswith("# Calibration certificate — IMU\\\\x0a\\\\x0a\\#\\#")

@@ -161,8 +161,8 @@ def test_factory_block_is_in_range() -> None:
         (0x2120, 2, -0.21, False),
         (0x2121, 5, 1, True),
         (0x2121, 5, 2, False),
-        (0x2121, 2, 5, True),
-        (0x2121, 2, 6, False),
+        (0x2121, 2, 6, True),  # vehicle
+        (0x2121, 2, 7, False),
         (0x2121, 4, -0.1, False),
         (0x2121, 3, math.nan, False),
         (0x2010, 3, 250, True),

@@ -15,6 +15,7 @@ from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.procedure.machine import Phase
 from canimucal.runtime.operator import run_automatic
+from canimucal.runtime.session import WriteOptions
 from canimucal.runtime.wiring import Devices, demo_settings, open_devices
 from canimucal.sim.truth import Truth
 
@@ -74,3 +75,35 @@ def test_the_session_saves_the_record_before_writing_and_adds_the_readback(
     assert list((tmp_path / "backups").glob(f"{truth.serial}-*.json"))
     after = [e for e in history if isinstance(e, ev.LevelChecked) and e.stage == "after"]
     assert len(after) == 1 and abs(after[0].norm_error_calibrated_ms2) < 0.01
+
+
+def test_a_session_interrupted_after_the_write_records_the_verification_as_not_done(
+    tmp_path: Path,
+) -> None:
+    with _rig() as rig:
+        session = rig.session(
+            builtin_plan("two"),
+            tmp_path,
+            plan_name="two",
+            warmup=True,  # the automatic operator skips it: the certificate must say so
+            averaging=AveragingPolicy(fixed_s=3.0),
+            verify_seconds=2.0,
+        )
+        write = session.write
+
+        def write_then_ctrl_c(options: WriteOptions | None = None) -> list[ev.Event]:
+            write(options)
+            raise KeyboardInterrupt  # the operator quits before the level re-read
+
+        session.write = write_then_ctrl_c  # type: ignore[method-assign]
+        with pytest.raises(KeyboardInterrupt):
+            run_automatic(session, write_anyway=True)
+    record = read_calibration(tmp_path / "calibration.json")
+    assert record.readback is not None and record.readback.valid == 1  # it was written
+    assert record.acceptance is not None and "max_bias_sigma_mg" in record.acceptance.limits
+    assert record.verification is not None
+    assert record.verification.written is True
+    assert record.verification.done is False and record.verification.passed is False
+    for page in ("certificate.md", "certificate.html"):
+        text = (tmp_path / page).read_text()
+        assert "NOT DONE" in text and "skipped by the operator" in text, page

@@ -1,0 +1,177 @@
+"""Which model to solve, and the model a recording's session solved (DESIGN §9 header keys).
+
+A session writes ``plan``, ``model``, ``tilt``, ``gyro`` and ``tolerance_deg`` into its
+recording. An option given (a flag, a keyword of ``cm.calibrate``) wins over the header;
+without either, the defaults are bias + diagonal K, no tilt, gyro ``mems`` when there are
+gyro data, 0.1°.
+When ``plan`` names a built-in plan whose poses the recording's positions match, each
+position takes that plan's own tolerances (a vehicle's turn: 5°) and the plan's prior on K.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from canimucal.errors import InputError
+from canimucal.io.calibration import PLANS, Calibration
+from canimucal.io.plans import BUILTIN_PLANS, DEFAULT_TOLERANCE_DEG
+from canimucal.io.recording import Recording
+from canimucal.model.layout import GyroSpec, JointSpec
+from canimucal.model.plan import VEHICLE_PRIOR_K_SIGMA, builtin_plan, plan_prior
+from canimucal.model.positions import Plan, PositionAverage
+
+_MATCH_DEG = 0.05
+"""Recorded angles within this of a plan's are that plan's poses."""
+
+ModelName = Literal["diag", "full"]
+TiltModel = Literal["rigid", "additive"]
+GyroChoice = Literal["none", "mems", "moves", "nav"]
+
+
+@dataclass(frozen=True)
+class ModelChoice:
+    """Which model to solve: the options of ``canimucal solve`` (same names, same defaults).
+
+    ``None`` fields come from the recording's header (:func:`session_model`), else the
+    defaults above. ``gyro`` None means ``mems`` when every position has gyro data;
+    ``moves`` adds S from the moves (:mod:`canimucal.analysis.gyro_moves`) to the ``mems``
+    fit. ``latitude_deg`` and ``g`` override the header; ``prior_k`` is a file holding the
+    factory K (a calibration JSON or ``read-params --json`` output).
+    """
+
+    model: ModelName | None = None
+    tilt: bool | None = None
+    tilt_model: TiltModel | None = None
+    gyro: GyroChoice | None = None
+    gyro_g: bool = False
+    latitude_deg: float | None = None
+    g: float | None = None
+    tolerance_deg: float | None = None
+    prior_k_sigma: float | None = None
+    prior_k: str | None = None
+
+    def spec(self, *, has_gyro: bool) -> JointSpec:
+        """Build the :class:`JointSpec` of this choice (InputError: ``nav`` without latitude)."""
+        gyro: GyroSpec = (
+            "mems" if self.gyro == "moves" else self.gyro or ("mems" if has_gyro else "none")
+        )
+        if gyro == "nav" and self.latitude_deg is None:
+            raise InputError(
+                "--gyro nav needs --latitude-deg (the gyro scale comes from Earth rate)"
+            )
+        model = self.model or "diag"
+        return JointSpec(
+            accel_k=model,
+            tilt=(self.tilt_model or "rigid") if self.tilt else "none",
+            gyro=gyro,
+            gyro_s=model,
+            gyro_g=self.gyro_g,
+        )
+
+
+@dataclass(frozen=True)
+class SessionModel:
+    """What the header says about the session: its plan, tolerance and prior."""
+
+    plan_name: str | None
+    plan: Plan | None
+    tolerance_deg: float
+    prior_k_sigma: float | None
+    plan_tolerances: bool = True
+    factory_k: NDArray[np.float64] | None = None
+    prior_source: str = "factory K"
+
+    def tolerances(self, averages: Sequence[PositionAverage]) -> list[PositionAverage]:
+        """Give each average its plan position's tolerances when the poses are the plan's."""
+        plan = self.plan
+        if not self.plan_tolerances or plan is None or len(plan.positions) != len(averages):
+            return list(averages)
+        planned = np.array([p.angles for p in plan.positions])
+        recorded = np.array([a.pose.angles for a in averages])
+        if not np.allclose(planned, recorded, atol=np.deg2rad(_MATCH_DEG)):
+            return list(averages)
+        return [
+            replace(a, pose=replace(a.pose, tolerance=p.tolerance, psi_tolerance=p.psi_tolerance))
+            for a, p in zip(averages, plan.positions, strict=True)
+        ]
+
+    def prior(self, spec: JointSpec, accel_lsb: float) -> dict[str, tuple[float, float]]:
+        """Return the prior on K the plan (or the flags) hold: the factory K, else nominal.
+
+        ``--prior-k`` alone, with a plan that names no σ, holds K at 1 % (the vehicle
+        plan's own value).
+        """
+        plan = self.plan or Plan("custom", ())
+        sigma = self.prior_k_sigma
+        if sigma is None and self.factory_k is not None and plan.prior_k_sigma is None:
+            sigma = VEHICLE_PRIOR_K_SIGMA
+        return plan_prior(plan, spec, accel_lsb, factory_k=self.factory_k, k_sigma=sigma)
+
+
+def session_model(rec: Recording, choice: ModelChoice) -> tuple[ModelChoice, SessionModel]:
+    """Fill the options ``choice`` leaves unset from the header; the session's plan and prior."""
+    header = rec.header
+    model = choice.model or str(header.get("model", "diag"))
+    if model not in ("diag", "full"):
+        raise InputError(f"header model must be diag or full, got {model!r}")
+    tilt, tilt_model = choice.tilt, choice.tilt_model
+    if tilt is None:
+        header_tilt = str(header.get("tilt", "none"))
+        tilt = header_tilt != "none"
+        if tilt_model is None and tilt:
+            tilt_model = header_tilt  # type: ignore[assignment]
+    gyro = choice.gyro
+    if gyro is None and "gyro" in header:
+        gyro = str(header["gyro"])  # type: ignore[assignment]
+    tolerance = choice.tolerance_deg
+    if tolerance is None:
+        value = header.get("tolerance_deg", DEFAULT_TOLERANCE_DEG)
+        tolerance = float(value) if isinstance(value, int | float) else DEFAULT_TOLERANCE_DEG
+    if not (np.isfinite(tolerance) and tolerance >= 0):
+        raise InputError(f"--tolerance-deg must be a finite number >= 0, got {tolerance:g}")
+    if choice.prior_k_sigma is not None and not choice.prior_k_sigma > 0:
+        raise InputError(f"--prior-k-sigma must be > 0, got {choice.prior_k_sigma:g}")
+    name = header.get("plan")
+    plan = builtin_plan(name) if isinstance(name, str) and name in BUILTIN_PLANS else None
+    plan_name = name if isinstance(name, str) and name in PLANS else None
+    factory_k, source = (None, "factory K")
+    if choice.prior_k:
+        factory_k, source = read_factory_k(choice.prior_k), f"K from {Path(choice.prior_k).name}"
+    resolved = replace(
+        choice,
+        model=model,  # type: ignore[arg-type]
+        tilt=tilt,
+        tilt_model=tilt_model or "rigid",
+        gyro=gyro,
+        tolerance_deg=tolerance,
+    )
+    session = SessionModel(
+        plan_name,
+        plan,
+        tolerance,
+        choice.prior_k_sigma,
+        plan_tolerances=choice.tolerance_deg is None,
+        factory_k=factory_k,
+        prior_source=source,
+    )
+    return resolved, session
+
+
+def read_factory_k(path: str) -> NDArray[np.float64]:
+    """Return the accelerometer K of a calibration JSON or of ``read-params --json`` output."""
+    from canimucal.schema import parse_json, read_text
+
+    document = parse_json(read_text(path), path)
+    if isinstance(document, dict) and isinstance(document.get("calibration"), dict):
+        document = document["calibration"]  # read-params output: the block the node holds
+    record = Calibration.from_dict(document)
+    k = np.array([[np.nan if v is None else v for v in row] for row in record.accel.K or ()])
+    if k.shape != (3, 3) or not np.all(np.isfinite(k)):
+        raise InputError(f"{path}: --prior-k needs a complete accel.K (3×3, no nulls)")
+    return k

@@ -1,0 +1,65 @@
+"""The certificate's verdicts: verification against its limit, and escaped device text."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from canimucal.analysis.acceptance import AcceptanceLimits, AcceptanceReport, Check
+from canimucal.device.client import Identity
+from canimucal.io.calibration import Device, record_from_estimates
+from canimucal.procedure.events import LevelChecked
+from canimucal.runtime.certificate import (
+    SessionFacts,
+    certificate_html,
+    certificate_markdown,
+    verification_of,
+)
+
+G = 9.80665
+LIMITS = AcceptanceLimits()
+
+
+def _after(norm_error_ms2: float) -> LevelChecked:
+    return LevelChecked(16, "after", 0.1, (0.0, 0.0), norm_error_ms2, (0.0, 0.0))
+
+
+def test_verification_passes_within_its_limit_and_is_not_done_without_a_reread() -> None:
+    ok = verification_of(_after(0.004 * G / 1000), True, LIMITS, G)  # 0.004 mg
+    assert ok.done and ok.passed and ok.written
+    assert ok.limits == {"max_verify_norm_error_mg": 5.0}
+    bad = verification_of(_after(-0.06), True, LIMITS, G)  # 6.1 mg > 5 mg
+    assert bad.done and not bad.passed
+    assert np.isclose(bad.values["max_verify_norm_error_mg"], 0.06 / G * 1000)
+    interrupted = verification_of(None, True, LIMITS, G)  # written, then the session ended
+    assert not interrupted.done and not interrupted.passed and interrupted.written
+    unwritten = verification_of(_after(0.0), False, LIMITS, G)
+    assert not unwritten.done and unwritten.written is False
+
+
+def test_certificate_states_the_verdicts_and_escapes_device_text() -> None:
+    record = record_from_estimates(
+        ["accel.bias[0]", "accel.bias[1]", "accel.bias[2]"],
+        [1.0, 2.0, 3.0],
+        np.eye(3),
+        device=Device(serial=7, node_id=16),
+        plan="vehicle",
+    )
+    identity = Identity(1, 2, 3, 7, "<script>alert(1)</script> *imu*")
+    report = AcceptanceReport((Check("worst bias σ", 8.2, 5.0, "mg", False, "max_bias_sigma_mg"),))
+    facts = SessionFacts(
+        operator="A. <b>Tester</b>",
+        site="Bay 3",
+        written=True,
+        verification=verification_of(None, True, LIMITS, G),
+        warmup="skipped by the operator",
+    )
+    args = (record, identity, report, LIMITS, [])
+    markdown = certificate_markdown(*args, warnings=["held at the stated prior"], facts=facts)
+    page = certificate_html(*args, warnings=["held at the stated prior"], facts=facts)
+    for text in (markdown, page):
+        assert "k = 1" in text and "NOT PASSED" in text and "skipped by the operator" in text
+        assert "NOT DONE" in text and "held at the stated prior" in text and "Bay 3" in text
+    assert "Written to the device: yes" in markdown
+    assert r"\*imu\*" in markdown and "&lt;script&gt;" in markdown and "<script>" not in markdown
+    assert "<script>" not in page and "&lt;script&gt;" in page
+    assert "&lt;b&gt;Tester&lt;/b&gt;" in page and "<b>" not in page
