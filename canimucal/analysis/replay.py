@@ -10,6 +10,7 @@ rms and lack of fit should match the measured ones after the extension, not befo
 from __future__ import annotations
 
 import copy
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -53,17 +54,28 @@ def _base_fit_row(label: str, a: Analysis, truth_doc: dict[str, Any], seed: int)
     rec = simulate_plan_recording(truth, plan, seed=seed)
     session = session_from_recording(
         rec, g=a.session.g, latitude=a.session.latitude, heading=a.session.heading,
-        tolerance_deg=float(np.rad2deg(plan.positions[0].tolerance)),
+        tolerance_deg=_scatter_deg(a),
     )  # fmt: skip
     prepared, res = fit_known(session)
     return ReplayRow(label, res.rms_accel_ms2, prepared.chi2 / max(prepared.dof, 1))
+
+
+def _scatter_deg(a: Analysis) -> float:
+    """Return the pose-setting scatter the analysis used (estimated, header, flag), degrees."""
+    noise = a.result.noise
+    return noise.pose_scatter.value_deg if noise is not None else 0.0
 
 
 def replay(a: Analysis, *, seeds: tuple[int, ...] = (1, 2, 3)) -> list[ReplayRow] | None:
     """Measured, base-truth and extended-truth replays (mean over ``seeds``); None if scalar."""
     if not a.session.known_positions:
         return None
-    prepared, res = fit_known(a.session)
+    tol = float(np.deg2rad(_scatter_deg(a)))
+    averages = tuple(
+        dataclasses.replace(x, pose=dataclasses.replace(x.pose, tolerance=tol))
+        for x in a.session.averages
+    )
+    prepared, res = fit_known(dataclasses.replace(a.session, averages=averages))
     rows = [ReplayRow("measured", res.rms_accel_ms2, prepared.chi2 / max(prepared.dof, 1))]
     ext = extended_truth(a)
     for label, doc in (("simulated, base model", base_truth(ext)), ("simulated, extended", ext)):

@@ -55,9 +55,15 @@ def session_from_recording(
     g: float,
     latitude: float | None,
     heading: float = 0.0,
-    tolerance_deg: float = 0.1,
+    tolerance_deg: float | None = None,
 ) -> SessionData:
-    """Group ``rec`` into positions; ``latitude``/``heading`` radians (None: no Earth rate)."""
+    """Group ``rec`` into positions; ``latitude``/``heading`` radians (None: no Earth rate).
+
+    The pose-setting scatter is ``tolerance_deg`` when given (source ``flag``), else the
+    recording's ``tolerance_deg`` header (``header``), else left to be estimated from the
+    data (``estimated``: the poses carry no tolerance).
+    """
+    tolerance_deg, source = scatter_source(rec, tolerance_deg)
     groups, labelled = position_rows(rec)
     known = labelled and has_angles(rec)
     gyro_ok = bool(np.isfinite(rec.gyro).any())
@@ -93,17 +99,37 @@ def session_from_recording(
         accel_lsb=_lsb(rec, "accel_lsb", DEFAULT_ACCEL_LSB),
         gyro_lsb=_lsb(rec, "gyro_lsb", DEFAULT_GYRO_LSB if known else 1.0),
         known_positions=known,
+        scatter_source=source,
     )
 
 
+def scatter_source(rec: Recording, tolerance_deg: float | None) -> tuple[float, str]:
+    """Return the pose tolerance (degrees) and its source: flag, header, else estimated."""
+    if tolerance_deg is not None:
+        if not (np.isfinite(tolerance_deg) and tolerance_deg >= 0):
+            raise InputError(f"--tolerance-deg must be a finite number >= 0, got {tolerance_deg}")
+        return float(tolerance_deg), "flag"
+    value = rec.header.get("tolerance_deg")
+    if value is not None:
+        try:
+            header = float(value)
+        except (TypeError, ValueError):
+            header = float("nan")
+        if not (np.isfinite(header) and header >= 0):
+            raise InputError(f"header tolerance_deg must be a finite number >= 0, got {value!r}")
+        return header, "header"
+    return 0.0, "estimated"
+
+
 def simulate_session(
-    truth: Truth, plan: Plan, *, seed: int, transient_s: float = 2.0
+    truth: Truth, plan: Plan, *, seed: int, transient_s: float = 2.0, estimate_scatter: bool = False
 ) -> SessionData:
     """Simulate a plan position by position, grouped as :func:`session_from_recording` would.
 
     The fast path of the Monte Carlo tests: the unit is set to each pose plus an angle error
     drawn from the pose's tolerance (labelled with the nominal angles), time runs on for
     ``transient_s`` between positions (the warm-up goes on), and no recording is built.
+    With ``estimate_scatter`` the poses carry no tolerance and the analysis estimates it.
     """
     sim = ImuSimulator(truth, seed=seed)
     rng = np.random.default_rng(seed)
@@ -115,7 +141,7 @@ def simulate_session(
         if transient_s > 0:
             sim.next_block(int(round(transient_s * fs)))
         block = sim.next_block(int(round(p.seconds * fs)))
-        pose = Pose(p.alpha, p.beta, p.psi, p.tolerance)
+        pose = Pose(p.alpha, p.beta, p.psi, 0.0 if estimate_scatter else p.tolerance)
         temp = float(np.mean(block.temp_c))
         averages.append(average_position(pose, block.accel, block.gyro, fs, temp))
         windows.append(Window(block.t_s, block.accel, block.gyro, block.temp_c))
@@ -128,4 +154,5 @@ def simulate_session(
         accel_lsb=truth.accel.nominal_lsb,
         gyro_lsb=truth.gyro.nominal_lsb,
         known_positions=True,
+        scatter_source="estimated" if estimate_scatter else "plan",
     )

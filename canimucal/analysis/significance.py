@@ -26,6 +26,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats
 
+from canimucal.analysis.noise_model import ScatterModel, profile_loglik
+
 Array = NDArray[np.float64]
 
 RANK_TOLERANCE = 1e-8
@@ -40,6 +42,8 @@ class LinearProblem:
     whitened Jacobian; ``block`` ``(N,)`` the position of each row (for cross-validation);
     ``unwhiten`` ``(N, N)`` maps whitened rows back to raw residuals; ``si_scale`` ``(N,)``
     turns a raw residual into SI units (nominal LSB); ``sensor`` ``(N,)`` ``accel``/``gyro``.
+    ``scatter``, when given, is the noise family whose pose-setting scatter each nested test
+    re-estimates within each of its two models (:mod:`.noise_model`).
     """
 
     residual_w: Array
@@ -48,6 +52,7 @@ class LinearProblem:
     unwhiten: Array
     si_scale: Array
     sensor: NDArray[np.str_]
+    scatter: ScatterModel | None = None
 
 
 @dataclass(frozen=True)
@@ -127,7 +132,11 @@ def nested_test(
     *,
     use_f: bool = False,
 ) -> NestedTest:
-    """Test ``smaller + [term]`` against ``smaller``: LR χ² (known noise) or F (noise unknown)."""
+    """Test ``smaller + [term]`` against ``smaller``: LR χ² (known noise) or F (noise unknown).
+
+    With ``problem.scatter`` (and no F test) the LR statistic is ``2 (ℓ_big − ℓ_small)`` of
+    the profile likelihoods, the pose-setting scatter maximised within each model.
+    """
     q = effective_rank(problem, np.hstack([columns[t] for t in smaller] + [columns[term]]))
     q -= effective_rank(problem, np.hstack([columns[t] for t in smaller])) if smaller else 0
     if q <= 0:
@@ -138,6 +147,16 @@ def nested_test(
     if use_f and big.dof > 0:
         f = (delta / q) / max(big.chi2 / big.dof, 1e-300)
         return NestedTest(term, f, q, float(stats.f.sf(f, q, big.dof)), "F")
+    if problem.scatter is not None and problem.scatter.fixed is None:
+        raw_r = problem.unwhiten @ problem.residual_w
+        small_x = problem.unwhiten @ _design(problem, columns, smaller)
+        big_x = problem.unwhiten @ _design(problem, columns, [*smaller, term])
+        lr = 2.0 * (
+            profile_loglik(problem.scatter, raw_r, big_x)[1]
+            - profile_loglik(problem.scatter, raw_r, small_x)[1]
+        )
+        lr = max(lr, 0.0)
+        return NestedTest(term, lr, q, float(stats.chi2.sf(lr, q)), "LR")
     return NestedTest(term, delta, q, float(stats.chi2.sf(delta, q)), "LR")
 
 

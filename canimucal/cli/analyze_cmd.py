@@ -45,7 +45,11 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("--g", type=float, help="local gravity, m/s² (default: header, latitude)")
     p.add_argument("--latitude-deg", type=float, help="latitude (Earth rate in the gyro model)")
     p.add_argument(
-        "--tolerance-deg", type=float, default=0.1, help="angle-setting 1σ of each position"
+        "--tolerance-deg",
+        type=float,
+        default=None,
+        help="angle-setting 1σ of each position (default: the recording's tolerance_deg "
+        "header, else estimated from the data)",
     )
     p.add_argument("--truth-out", metavar="F", help="write the extended model as truth JSON")
     p.add_argument("--poses-out", metavar="F", help="write the observed poses (pose schedule)")
@@ -191,10 +195,28 @@ def _residual_table(a: Analysis) -> list[str]:
 
 def _lack_of_fit(a: Analysis) -> str:
     chi2, dof, p = a.result.lack_of_fit
-    return (
+    noise = a.result.noise
+    against = "the noise predicted from the scatter inside each position"
+    if noise is not None and noise.pose_scatter.source != "none":
+        est = noise.pose_scatter
+        low, high = est.ci95_deg
+        how = {
+            "estimated": f"estimated from the data (REML, 95 % {low:.3g}–{high:.3g}°)",
+            "header": "from the recording's tolerance_deg header",
+            "flag": "from --tolerance-deg",
+            "plan": "from the plan",
+        }.get(est.source, est.source)
+        against += f" and a pose-setting scatter of {est.value_deg:.3g}° {how}"
+    text = (
         f"  lack of fit: χ² = {chi2:.1f} on {dof} dof (χ²/dof = {chi2 / max(dof, 1):.2f}, "
-        f"p = {p:.2g}) against the noise predicted from the scatter inside each position"
+        f"p = {p:.2g}) against {against}"
     )
+    if noise is not None:
+        text += (
+            f"\n  extended model under the same noise model: χ²/dof = "
+            f"{noise.chi2 / max(noise.dof, 1):.2f} on {noise.dof} dof"
+        )
+    return text
 
 
 def _allan_lines(a: Analysis) -> list[str]:

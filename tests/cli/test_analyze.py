@@ -170,10 +170,14 @@ def test_imucal_session_replays_through_canopen(tmp_path: Path, capsys: Any) -> 
     base = [d["sensors"]["accel"]["base_model"]["rms"] for d in (measured, replay)]
     assert 0.8 < base[1] / base[0] < 1.25, base  # m/s², ≈ 0.078 both
     found = {f["effect"]: f for f in replay["findings"] if f["sensor"] == "accel"}
-    assert set(found) == {"cross_axis"}
-    size = next(f["size"] for f in measured["findings"] if f["effect"] == "cross_axis")
-    term = re.match(r"K\[0\]\[1\] = \S+ ± (\S+) ", found["cross_axis"]["evidence"])
+    named = {f["effect"] for f in measured["findings"] if f["sensor"] == "accel"}
+    assert "cross_axis" in named
+    assert set(found) == named
+    cross = next(f for f in measured["findings"] if f["effect"] == "cross_axis")
+    size, entry = cross["size"], cross["evidence"].split(" = ")[0]
+    term = re.match(r"(K\[\d\]\[\d\]) = \S+ ± (\S+) ", found["cross_axis"]["evidence"])
     assert term is not None, found["cross_axis"]["evidence"]
-    # K[0][1] in the data's units (counts of 1 m/s²) from the replay's counts of `lsb`, 4σ
-    sigma = float(term.group(1)) * lsb
+    assert term.group(1) == entry
+    # the same K entry in the data's units (counts of 1 m/s²) from the replay's counts, 4σ
+    sigma = float(term.group(2)) * lsb
     assert found["cross_axis"]["size"] * lsb == pytest.approx(size, abs=4 * sigma)
