@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.analysis.data import SessionData, Window
+from canimucal.analysis.pose_scatter import header_tolerance_deg
 from canimucal.errors import InputError
 from canimucal.io.grouping import has_angles
 from canimucal.io.recording import Recording
@@ -109,14 +110,8 @@ def scatter_source(rec: Recording, tolerance_deg: float | None) -> tuple[float, 
         if not (np.isfinite(tolerance_deg) and tolerance_deg >= 0):
             raise InputError(f"--tolerance-deg must be a finite number >= 0, got {tolerance_deg}")
         return float(tolerance_deg), "flag"
-    value = rec.header.get("tolerance_deg")
-    if value is not None:
-        try:
-            header = float(value)
-        except (TypeError, ValueError):
-            header = float("nan")
-        if not (np.isfinite(header) and header >= 0):
-            raise InputError(f"header tolerance_deg must be a finite number >= 0, got {value!r}")
+    header = header_tolerance_deg(rec)
+    if header is not None:
         return header, "header"
     return 0.0, "estimated"
 

@@ -10,13 +10,15 @@ from typing import Any
 import numpy as np
 
 from canimucal.analysis.calibrate import SiteConditions, Solution, solve_positions, solve_scalar
+from canimucal.analysis.pose_scatter import fit_scatter, header_tolerance_deg
 from canimucal.cli.conditions import recording_conditions
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.cli.spec_options import add_model_options, spec_from_args
-from canimucal.errors import InputError
+from canimucal.errors import InputError, ModelError
 from canimucal.io.calibration import Device, RecordingRef, calibration_to_dict, sha256_of
 from canimucal.io.grouping import has_angles, position_averages
 from canimucal.io.recording import Recording, read_recording
+from canimucal.model.layout import JointSpec
 from canimucal.model.positions import Pose, PositionAverage, average_position
 from canimucal.model.static import detect_static_intervals
 
@@ -57,10 +59,19 @@ def run(args: argparse.Namespace) -> int:
     device = Device(serial=_serial(rec), node_id=_node_id(rec))
     ref = RecordingRef(file=Path(args.recording).name, sha256=sha256_of(args.recording))
     if has_angles(rec):
-        averages = position_averages(rec)
+        averages = position_averages(rec, tolerance_deg=header_tolerance_deg(rec) or 0.0)
         has_gyro = all(a.mean_gyro is not None for a in averages)
         spec = spec_from_args(args, has_gyro=has_gyro)
+        averages, note = _with_pose_scatter(rec, averages, spec, site)
         solution = solve_positions(averages, spec, site, device, recording=ref)
+        if note:
+            print(f"note: {note}", file=sys.stderr)
+        if solution.joint is not None and solution.joint.dof < MIN_DOF:
+            print(
+                f"warning: only {solution.joint.dof} residual degrees of freedom: the σ "
+                "and the fit's χ² rest on very few residuals (add positions)",
+                file=sys.stderr,
+            )
     else:
         averages = _unlabelled_averages(rec)
         solution = solve_scalar(averages, site, device, full=args.model == "full", recording=ref)
@@ -68,6 +79,31 @@ def run(args: argparse.Namespace) -> int:
         print(f"warning: {warning}", file=sys.stderr)
     emit(args, calibration_to_dict(solution.record), solution_report(solution, cond.g_source))
     return 0
+
+
+MIN_DOF = 10
+"""Below this many residual degrees of freedom `solve` warns (DESIGN §9)."""
+
+
+def _with_pose_scatter(
+    rec: Recording, averages: list[PositionAverage], spec: JointSpec, site: SiteConditions
+) -> tuple[list[PositionAverage], str | None]:
+    """Give the poses the header's scatter when it has one, else the one the data show."""
+    if header_tolerance_deg(rec) is not None:
+        return averages, None
+    try:
+        out, est = fit_scatter(
+            averages, spec, g=site.g, latitude=site.latitude, heading=site.heading,
+            accel_lsb=site.accel_lsb, gyro_lsb=site.gyro_lsb,
+        )  # fmt: skip
+    except ModelError:
+        return averages, None  # the solve itself says what is wrong with these positions
+    low, high = est.ci95_deg
+    if est.source == "assumed":
+        how = "assumed: too few residuals to estimate it"
+    else:
+        how = f"estimated from the data (REML, 95 % {low:.3g}–{high:.3g}°)"
+    return out, f"pose-setting scatter {est.value_deg:.3g}° {how}; no tolerance_deg header"
 
 
 def _serial(rec: Recording) -> int:

@@ -263,6 +263,13 @@ def _positive(raw: str) -> float:
     return number
 
 
+def _non_negative(raw: str) -> float:
+    number = _finite(raw)
+    if number < 0.0:
+        raise ValueError("must be >= 0")
+    return number
+
+
 def _nonzero(raw: str) -> float:
     number = _finite(raw)
     if number == 0.0:
@@ -317,6 +324,7 @@ HEADER_PARSERS: Mapping[str, Callable[[str], HeaderValue]] = {
     "accel_units": _text,
     "gyro_units": _text,
     "offset_binary": _bool,
+    "tolerance_deg": _non_negative,
 }
 """Every header key DESIGN §5 allows, with the parser of its value; any other is refused."""
 

@@ -294,3 +294,22 @@ def test_python_dash_m_runs_solve(simulated: Sim) -> None:
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["plan"] == "two"
     assert "Traceback" not in proc.stderr
+
+
+def _with_tolerance_header(head: list[str], rows: list[str]) -> list[str]:
+    return [head[0], "# tolerance_deg: 0.05\n", *head[1:], *rows]
+
+
+def test_pose_scatter_from_header_else_estimated(cli: Cli, simulated: Sim, tmp_path: Path) -> None:
+    """No header: the scatter is estimated (recommended plan, dof ≥ 10) or, with too few
+    residuals (two positions), assumed, and `solve` says which; a header is used silently."""
+    run = cli(["solve", simulated("recommended", "diag").path])
+    assert run.code == 0, run.err
+    assert "pose-setting scatter" in run.err and "estimated from the data (REML" in run.err
+    run = cli(["solve", simulated("two", "level").path])
+    assert "assumed: too few residuals" in run.err
+    assert "warning: only 3 residual degrees of freedom" in run.err
+    path = _rewrite(simulated("two", "level").path, tmp_path / "hdr.csv", _with_tolerance_header)
+    run = cli(["solve", path])
+    assert run.code == 0, run.err
+    assert "pose-setting scatter" not in run.err
