@@ -105,6 +105,8 @@ class SensorScore:
     base_cv_rms: float
     extended_rms: float
     extended_cv_rms: float
+    cv_rms_ratio_ci95: tuple[float, float] = (1.0, 1.0)
+    claimed: bool = False
 
     @property
     def rms_ratio(self) -> float:
@@ -176,3 +178,4 @@ class DiscrepancyResult:
     base_sigmas: Mapping[str, float]
     drift_found: bool
     noise: NoiseSummary | None = None
+    warnings: tuple[str, ...] = ()

@@ -45,6 +45,7 @@ from canimucal.analysis.data import (
     TestRecord,
 )
 from canimucal.analysis.drift import DriftTest, drift_test, random_walk_covariance
+from canimucal.analysis.holdout import MIN_GAIN_DOF, Holdout, Selector, refit_holdout
 from canimucal.analysis.noise_model import ScatterEstimate, ScatterModel, estimate_scatter
 from canimucal.analysis.significance import (
     LinearProblem,
@@ -57,6 +58,7 @@ from canimucal.analysis.significance import (
     nested_test,
     score_model,
     significant_columns,
+    significant_masks,
 )
 from canimucal.errors import ModelError
 
@@ -100,6 +102,7 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
     fit = fit_terms(problem.linear, columns, chosen)
     findings = _findings(tests, fit, {c.key: c for c in candidates}, drifts, prepared, data, alpha)
     sparse = significant_columns(problem.linear, columns, chosen)
+    held = refit_holdout(problem.linear, columns, _selector(alpha, family, use_f), extended=chosen)
     values, sigmas = named_values(prepared)
     base = fit_terms(problem.linear, columns, [])
     lack = (prepared.chi2, prepared.dof)
@@ -114,7 +117,7 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
         findings=tuple(findings),
         untestable=untestable,
         tests=tuple(tests),
-        scores=_scores(problem.linear, sparse, chosen),
+        scores=_scores(problem.linear, sparse, chosen, held),
         params=_extended(
             prepared, fit_terms(problem.linear, sparse, chosen), drifts, drifting, data
         ),
@@ -122,6 +125,7 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
         base_sigmas=sigmas,
         drift_found=bool(drifting),
         noise=NoiseSummary(tau, fit.chi2, fit.dof) if data.known_positions else None,
+        warnings=_warnings(chosen, held),
     )
 
 
@@ -343,8 +347,9 @@ def _column_finding(
 
 
 def _scores(
-    problem: LinearProblem, columns: Mapping[str, Array], chosen: Sequence[str]
+    problem: LinearProblem, columns: Mapping[str, Array], chosen: Sequence[str], held: Holdout
 ) -> dict[str, SensorScore]:
+    """Score each sensor: the fit's rms, and cv_rms from :mod:`.holdout` (refits)."""
     base = score_model(problem, columns, [])
     ext = score_model(problem, columns, chosen)
     out = {}
@@ -355,11 +360,44 @@ def _scores(
             base_terms,
             base_terms + terms,
             base.rms[sensor],
-            base.cv_rms[sensor],
+            held.base_cv_rms[sensor],
             ext.rms[sensor] if terms else base.rms[sensor],
-            ext.cv_rms[sensor] if terms else base.cv_rms[sensor],
+            held.extended_cv_rms[sensor],
+            held.ratio_ci95[sensor],
+            held.claimed[sensor],
         )
     return out
+
+
+def _selector(alpha: float, family: int, use_f: bool) -> Selector:
+    """Return the full data's term selection, for each fold of :func:`refit_holdout`."""
+
+    def select(
+        sub: LinearProblem, cols: Mapping[str, Array]
+    ) -> tuple[list[str], Mapping[str, NDArray[np.bool_]]]:
+        terms = forward_select(sub, cols, alpha=alpha, family_size=family, use_f=use_f)
+        terms = confirm_by_cv(sub, cols, terms)
+        return terms, significant_masks(sub, cols, terms)
+
+    return select
+
+
+def _warnings(chosen: Sequence[str], held: Holdout) -> tuple[str, ...]:
+    out = []
+    for sensor, dof in held.dof.items():
+        if dof < MIN_GAIN_DOF:
+            out.append(
+                f"{sensor}: only {dof} residual degrees of freedom: too few to claim a gain "
+                "or to trust the tests' p-values; add positions"
+            )
+    for sensor, claimed in held.claimed.items():
+        if any(t.startswith(sensor + ".") for t in chosen) and not claimed:
+            low, high = held.ratio_ci95[sensor]
+            out.append(
+                f"{sensor}: no gain claimed (held-out cv_rms ratio 95 % {low:.2f}–{high:.2f}, "
+                f"{held.dof[sensor]} residual dof)"
+            )
+    return tuple(out)
 
 
 def _extended(

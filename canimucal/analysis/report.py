@@ -122,7 +122,12 @@ def _sensor_block(a: Analysis, sensor: str) -> dict[str, Any]:
             "rms": score.extended_rms,
             "cv_rms": score.extended_cv_rms,
         },
-        "gain": {"rms_ratio": score.rms_ratio, "cv_rms_ratio": score.cv_rms_ratio},
+        "gain": {
+            "rms_ratio": score.rms_ratio,
+            "cv_rms_ratio": score.cv_rms_ratio,
+            "cv_rms_ratio_ci95": list(score.cv_rms_ratio_ci95),
+            "claimed": score.claimed,
+        },
     }
 
 
@@ -159,6 +164,7 @@ def analysis_document(a: Analysis) -> dict[str, Any]:
         "gyro_white": input_referred_white(a, "gyro"),
         "best_averaging_s": best,
     }
+    noise["warnings"] = list(a.result.warnings)
     summary = a.result.noise
     if summary is not None:
         est = summary.pose_scatter

@@ -270,6 +270,20 @@ SPARSE_Z = 3.0
 """In cross-validation a term keeps only its entries beyond this many σ (at least one)."""
 
 
+def significant_masks(
+    problem: LinearProblem, columns: Mapping[str, Array], kept: Sequence[str]
+) -> dict[str, NDArray[np.bool_]]:
+    """Mark the entries of each kept term that earn their place (|z| ≥ SPARSE_Z, ≥ 1)."""
+    fit = fit_terms(problem, columns, kept)
+    out = {}
+    for term in kept:
+        z = np.abs(fit.coefficients[term]) / np.where(
+            fit.sigmas[term] > 0, fit.sigmas[term], np.inf
+        )
+        out[term] = z >= min(SPARSE_Z, float(np.max(z)))
+    return out
+
+
 def significant_columns(
     problem: LinearProblem, columns: Mapping[str, Array], kept: Sequence[str]
 ) -> dict[str, Array]:
@@ -278,13 +292,8 @@ def significant_columns(
     The columns keep their shape (a zero column gets a zero coefficient from the
     minimum-norm least squares), so coefficients still line up with the entry labels.
     """
-    fit = fit_terms(problem, columns, kept)
     out = dict(columns)
-    for term in kept:
-        z = np.abs(fit.coefficients[term]) / np.where(
-            fit.sigmas[term] > 0, fit.sigmas[term], np.inf
-        )
-        keep = z >= min(SPARSE_Z, float(np.max(z)))
+    for term, keep in significant_masks(problem, columns, kept).items():
         out[term] = columns[term] * keep
     return out
 

@@ -140,14 +140,22 @@ def report_text(a: Analysis, reference: Reference | None, replayed: list[ReplayR
     if not r.findings:
         lines.append("  none: the base model explains the data")
     lines += [f"  untestable {k}: {v}" for k, v in r.untestable.items()]
-    lines += ["", "Gain (rms of the per-position means, before → after; cv = leave-one-out):"]
+    lines += [
+        "",
+        "Gain (rms of the per-position means, before → after; cv = refit with each position "
+        "left out, term selection included):",
+    ]
     for sensor, sc in r.scores.items():
         unit = "m/s²" if sensor == "accel" else _gyro_unit(a)
+        low, high = sc.cv_rms_ratio_ci95
+        verdict = "gain claimed" if sc.claimed else "no gain claimed"
         lines.append(
             f"  {sensor}: rms {sc.base_rms:.4g} → {sc.extended_rms:.4g} {unit} "
             f"(×{sc.rms_ratio:.2f}); cv_rms {sc.base_cv_rms:.4g} → {sc.extended_cv_rms:.4g} "
-            f"(×{sc.cv_rms_ratio:.2f}); terms {', '.join(sc.extended_terms)}"
+            f"(×{sc.cv_rms_ratio:.2f}, 95 % {low:.2f}–{high:.2f}; {verdict}); "
+            f"terms {', '.join(sc.extended_terms)}"
         )
+    lines += [f"warning: {w}" for w in r.warnings]
     lines += _replay_lines(replayed)
     return "\n".join(lines) + "\n"
 

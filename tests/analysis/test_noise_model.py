@@ -87,11 +87,12 @@ def test_profile_likelihood_is_maximal_at_its_estimate() -> None:
 
 @pytest.mark.parametrize("effect", ["scale_nonlinearity", "cross_axis"])
 def test_exact_poses_effect_named_and_chi2_near_one(effect: str) -> None:
-    """Twelve exact poses with one hidden term at 7σ, 12 seeds: named exactly in >= 11
-    (P(Bin(12, 0.98) <= 10) = 0.024); the extended model's χ²/dof averages 1 within 0.15
-    (its spread is √(2/dof)/√12 ≈ 0.05 at dof ≈ 58); the scatter's interval holds 0 in >= 10."""
+    """Twelve exact poses with one hidden term at 7σ, 10 seeds: named exactly in >= 9
+    (P(Bin(10, 0.98) <= 8) = 0.016); the extended model's χ²/dof averages 1 within 0.15
+    (its spread is √(2/dof)/√10 ≈ 0.06 at dof ≈ 58); the scatter's interval holds 0 in >= 8
+    (P(Bin(10, 0.95) <= 7) = 0.012)."""
     named, ratios, holds_zero = 0, [], 0
-    for seed in range(12):
+    for seed in range(10):
         doc, _ = hide_effect(
             clean_truth(seed), effect, np.random.default_rng(20_000 + seed), twelve_sigmas(),
             low=7.0, high=7.0,
@@ -105,16 +106,16 @@ def test_exact_poses_effect_named_and_chi2_near_one(effect: str) -> None:
         ratios.append(result.noise.chi2 / result.noise.dof)
         holds_zero += result.noise.pose_scatter.ci95[0] == 0.0
         assert result.noise.pose_scatter.source == "estimated"
-    assert named >= 11
+    assert named >= 9
     assert abs(np.mean(ratios) - 1.0) < 0.15
-    assert holds_zero >= 10
+    assert holds_zero >= 8
 
 
 def test_scattered_poses_interval_covers_the_scatter() -> None:
-    """0.1° scatter, clean units, 12 seeds: the interval covers 0.1° in >= 10, nothing named
-    in >= 11."""
+    """0.1° scatter, clean units, 10 seeds: the interval covers 0.1° in >= 8, nothing named
+    in >= 9 (family-wise 1 %: P(Bin(10, 0.01) >= 2) = 0.004)."""
     covered, quiet = 0, 0
-    for seed in range(12):
+    for seed in range(10):
         session = simulate_session(
             Truth.from_dict(clean_truth(seed)), twelve(0.1), seed=seed, estimate_scatter=True
         )
@@ -123,8 +124,8 @@ def test_scattered_poses_interval_covers_the_scatter() -> None:
         low, high = result.noise.pose_scatter.ci95_deg
         covered += low <= 0.1 <= high
         quiet += not result.findings
-    assert covered >= 10
-    assert quiet >= 11
+    assert covered >= 8
+    assert quiet >= 9
 
 
 def test_scatter_source_flag_then_header_then_estimated() -> None:
