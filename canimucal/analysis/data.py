@@ -144,6 +144,19 @@ class ExtendedParams:
 
 
 @dataclass(frozen=True)
+class Ambiguity:
+    """Two candidates the data cannot tell apart (analysis JSON ``ambiguous``).
+
+    ``correlation`` is that of their most correlated entries' estimates in the model holding
+    both.
+    """
+
+    sensor: str
+    candidates: tuple[str, str]
+    correlation: float
+
+
+@dataclass(frozen=True)
 class NoiseSummary:
     """The noise model the tests used: pose-setting scatter, and the chosen model's fit.
 
@@ -179,3 +192,4 @@ class DiscrepancyResult:
     drift_found: bool
     noise: NoiseSummary | None = None
     warnings: tuple[str, ...] = ()
+    ambiguous: tuple[Ambiguity, ...] = ()

@@ -36,6 +36,7 @@ from canimucal.analysis.candidates import SCALAR_UNITS, UNITS, Candidate
 from canimucal.analysis.data import (
     AXIS_SIGN_SIGMAS,
     FAMILY_ALPHA,
+    Ambiguity,
     DiscrepancyResult,
     ExtendedParams,
     Finding,
@@ -52,6 +53,7 @@ from canimucal.analysis.significance import (
     TermFit,
     confirm_by_cv,
     effective_rank,
+    entry_correlation,
     fit_terms,
     forward_select,
     holm_adjust,
@@ -101,6 +103,9 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
     tests = _final_tests(problem.linear, columns, chosen, use_f, drifts, prepared, data)
     fit = fit_terms(problem.linear, columns, chosen)
     findings = _findings(tests, fit, {c.key: c for c in candidates}, drifts, prepared, data, alpha)
+    duel = _head_to_head(problem.linear, columns, chosen, alpha, family, use_f)
+    unresolved = {f"{a.sensor}.{a.candidates[0]}" for a in duel}
+    findings = [f for f in findings if f"{f.sensor}.{f.effect}" not in unresolved]
     sparse = significant_columns(problem.linear, columns, chosen)
     held = refit_holdout(problem.linear, columns, _selector(alpha, family, use_f), extended=chosen)
     values, sigmas = named_values(prepared)
@@ -126,7 +131,46 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
         drift_found=bool(drifting),
         noise=NoiseSummary(tau, fit.chi2, fit.dof) if data.known_positions else None,
         warnings=_warnings(chosen, held),
+        ambiguous=tuple(duel),
     )
+
+
+RIVAL_P = 0.05
+"""A cause is named only when each rival, in the model holding both, has p above this."""
+
+
+def _head_to_head(
+    problem: LinearProblem,
+    columns: Mapping[str, Array],
+    chosen: Sequence[str],
+    alpha: float,
+    family: int,
+    use_f: bool,
+) -> list[Ambiguity]:
+    """Pit each chosen term against each rival that could stand in for it (DESIGN §9).
+
+    A rival is a candidate of the same sensor, not chosen, that is significant (Holm, at the
+    family's first step) in place of the term. In the model holding both, the term must stay
+    significant (``p · family < alpha``) and the rival must not (``p > RIVAL_P``); otherwise
+    the pair is ambiguous and the term is not named.
+    """
+    out = []
+    for term in chosen:
+        sensor = term.split(".", 1)[0]
+        others = [c for c in chosen if c != term]
+        for rival in columns:
+            if rival in chosen or not rival.startswith(sensor + "."):
+                continue
+            if nested_test(problem, columns, others, rival, use_f=use_f).p_value * family >= alpha:
+                continue
+            p_term = nested_test(problem, columns, [*others, rival], term, use_f=use_f).p_value
+            p_rival = nested_test(problem, columns, [*others, term], rival, use_f=use_f).p_value
+            if p_term * family < alpha and p_rival > RIVAL_P:
+                continue
+            r = entry_correlation(problem, columns, [*others, term, rival], term, rival)
+            pair = (term.split(".", 1)[1], rival.split(".", 1)[1])
+            out.append(Ambiguity(sensor, pair, r))
+    return out
 
 
 def _base_under(

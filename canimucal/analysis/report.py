@@ -178,6 +178,10 @@ def analysis_document(a: Analysis) -> dict[str, Any]:
         "sensors": {s: _sensor_block(a, s) for s in ("accel", "gyro") if s in a.result.scores},
         "findings": findings,
         "untestable": untestable,
+        "ambiguous": [
+            {"sensor": x.sensor, "candidates": list(x.candidates), "correlation": x.correlation}
+            for x in a.result.ambiguous
+        ],
         "noise": noise,
     }
 

@@ -313,3 +313,20 @@ def confirm_by_cv(
         if _press(problem, sparse, kept) > _press(problem, sparse, without):
             kept.remove(term)
     return kept
+
+
+def entry_correlation(
+    problem: LinearProblem, columns: Mapping[str, Array], terms: Sequence[str], a: str, b: str
+) -> float:
+    """Largest |correlation| (signed) between an entry of ``a`` and one of ``b``, both in."""
+    design = _design(problem, columns, terms)
+    cov = np.linalg.pinv(design.T @ design)
+    start, k = {}, problem.base_w.shape[1]
+    for t in terms:
+        start[t] = (k, k + columns[t].shape[1])
+        k += columns[t].shape[1]
+    sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
+    corr = cov / np.outer(sd, sd)
+    block = corr[start[a][0] : start[a][1], start[b][0] : start[b][1]]
+    i, j = np.unravel_index(int(np.argmax(np.abs(block))), block.shape)
+    return float(block[i, j])

@@ -139,6 +139,11 @@ def report_text(a: Analysis, reference: Reference | None, replayed: list[ReplayR
     lines += [f"  {f.effect} ({f.sensor}): {f.evidence}; p = {f.p_value:.2g}" for f in r.findings]
     if not r.findings:
         lines.append("  none: the base model explains the data")
+    lines += [
+        f"  ambiguous ({x.sensor}): {x.candidates[0]} or {x.candidates[1]} (estimates correlated "
+        f"{x.correlation:+.2f} in the model holding both; neither is named)"
+        for x in r.ambiguous
+    ]
     lines += [f"  untestable {k}: {v}" for k, v in r.untestable.items()]
     lines += [
         "",
