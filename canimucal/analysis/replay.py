@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy import stats
 
 from canimucal.analysis.base_fit import fit_known
 from canimucal.analysis.report import Analysis, extended_truth, observed_poses
@@ -30,6 +31,8 @@ class ReplayRow:
     label: str
     accel_rms: float
     chi2_per_dof: float
+    runs_rms: tuple[float, ...] = ()
+    runs_chi2: tuple[float, ...] = ()
 
 
 def base_truth(extended: dict[str, Any]) -> dict[str, Any]:
@@ -85,6 +88,32 @@ def replay(a: Analysis, *, seeds: tuple[int, ...] = (1, 2, 3)) -> list[ReplayRow
                 label,
                 float(np.mean([r.accel_rms for r in runs])),
                 float(np.mean([r.chi2_per_dof for r in runs])),
+                tuple(r.accel_rms for r in runs),
+                tuple(r.chi2_per_dof for r in runs),
             )
         )
     return rows
+
+
+def replay_ratios(rows: list[ReplayRow] | None) -> dict[str, Any] | None:
+    """Compare the extended replay with the measurement: rms ratio, its 95 %, χ² ratio.
+
+    The interval is the prediction interval of one replay's ratio from the seeds' spread,
+    ``mean ± t(0.975, n−1) · sd · √(1 + 1/n)``: a measurement the extended model reproduces
+    has its ratio 1 inside it. None without a replay (orientations unknown).
+    """
+    if not rows:
+        return None
+    measured = rows[0]
+    ext = rows[-1]
+    ratios = np.array(ext.runs_rms) / measured.accel_rms
+    n = ratios.size
+    mean = float(np.mean(ratios))
+    half = float("nan")
+    if n >= 2:
+        half = float(stats.t.ppf(0.975, n - 1) * np.std(ratios, ddof=1) * np.sqrt(1 + 1 / n))
+    return {
+        "rms_ratio": mean,
+        "rms_ratio_ci95": [mean - half, mean + half],
+        "chi2_ratio": ext.chi2_per_dof / max(measured.chi2_per_dof, 1e-300),
+    }

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from canimucal.analysis.reference import Reference, reference_for
-from canimucal.analysis.replay import ReplayRow, replay
+from canimucal.analysis.replay import ReplayRow, replay, replay_ratios
 from canimucal.analysis.report import (
     Analysis,
     analyse_recording,
@@ -109,6 +109,9 @@ def run(args: argparse.Namespace) -> int:
     plan = _checked_poses(analysis, args.poses_out)
     replayed = replay(analysis)
     document = analysis_document(analysis)
+    ratios = replay_ratios(replayed)
+    if ratios is not None:
+        document["noise"]["replay"] = ratios
     emit(args, document, report_text(analysis, reference, replayed))
     if args.truth_out:
         write_truth(args.truth_out, extended_truth(analysis), overwrite=args.overwrite)
@@ -254,4 +257,12 @@ def _replay_lines(rows: list[ReplayRow] | None) -> list[str]:
         f"  {r.label:<24} accel rms {r.accel_rms:.4g} m/s², χ²/dof {r.chi2_per_dof:.2f}"
         for r in rows
     ]
+    ratios = replay_ratios(rows)
+    if ratios is not None:
+        low, high = ratios["rms_ratio_ci95"]
+        verdict = "within" if low <= 1.0 <= high else "OUTSIDE"
+        out.append(
+            f"  extended replay / measured: rms ×{ratios['rms_ratio']:.2f} (one replay's 95 % "
+            f"{low:.2f}–{high:.2f}: measurement {verdict} it), χ²/dof ×{ratios['chi2_ratio']:.2f}"
+        )
     return out

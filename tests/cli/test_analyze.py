@@ -65,6 +65,9 @@ def test_clean_recording_names_nothing(tmp_path: Path, capsys: Any) -> None:
     assert main(["analyze", str(path), "--json", "-"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["findings"] == []
+    replayed = doc["noise"]["replay"]  # the extended (here: base) model reproduces the data
+    low, high = replayed["rms_ratio_ci95"]
+    assert low <= 1.0 <= high, replayed
     gain = doc["sensors"]["accel"]["gain"]
     assert (gain["rms_ratio"], gain["cv_rms_ratio"], gain["claimed"]) == (1.0, 1.0, False)
     assert len(doc["noise"]["accel_white"]) == 3
