@@ -57,6 +57,13 @@ class PreparedBase:
     residual_labels: tuple[str, ...]
     chi2: float
     dof: int
+    within_covariance: Array | None = None
+    angle_unit_covariance: Array | None = None
+    pose_tolerance: float = 0.0
+
+
+UNIT_PROBE_RAD = 1e-4
+"""Angle scatter at which the per-radian angle covariance is probed (second order negligible)."""
 
 
 def _rows_meta(
@@ -109,15 +116,27 @@ def fit_known(data: SessionData) -> tuple[PreparedBase, JointResult]:
     prepared = PreparedBase(
         "joint", res.residuals.ravel(), jac, cov, block, scale, sensor, channel,
         tuple(cands), res.names, res.values, sig, res.residuals, labels, res.chi2, res.dof,
+        _block_covariance(data, np.zeros_like(moments.covariance)),
+        _block_covariance(data, _unit_angle_covariance(layout, res.values, angles, ctx), False),
+        float(np.max(tol)),
     )  # fmt: skip
     return prepared, res
 
 
-def _block_covariance(data: SessionData, angle_cov: Array) -> Array:
+def _unit_angle_covariance(
+    layout: ParameterLayout, theta: Array, angles: Array, ctx: ModelContext
+) -> Array:
+    """``A_i = J_i J_iᵀ``: each mean's covariance per rad² of angle scatter (noise_model eq. 1)."""
+    probe = np.full(angles.shape[0], UNIT_PROBE_RAD)
+    cov = angle_error_moments(layout, theta, angles, ctx, probe).covariance
+    return np.asarray(cov / UNIT_PROBE_RAD**2, dtype=float)
+
+
+def _block_covariance(data: SessionData, angle_cov: Array, within: bool = True) -> Array:
     """Covariance of the stacked means: within-position scatter plus angle errors (eq. 15)."""
     n, m = angle_cov.shape[:2]
     blocks = angle_cov.copy()
-    for k, a in enumerate(data.averages):
+    for k, a in enumerate(data.averages if within else ()):
         blocks[k, :3, :3] += a.cov_accel
         if m == 6 and a.cov_gyro is not None:
             blocks[k, 3:, 3:] += a.cov_gyro

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from canimucal.analysis.noise_model import ScatterEstimate
 from canimucal.model.positions import PositionAverage
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
 
@@ -47,6 +48,9 @@ class SessionData:
 
     ``latitude``/``heading`` radians (None: no Earth-rate term); ``known_positions`` says
     whether the averages carry real angles (else only the scalar ``|f| = g`` fit applies).
+    ``scatter_source`` says where the pose-setting scatter comes from: ``"estimated"`` (from
+    the data; the poses' tolerances are then ignored), ``"header"`` or ``"flag"`` (the poses'
+    tolerances hold it), ``"plan"`` (the poses' tolerances, as a simulation drew them).
     """
 
     averages: tuple[PositionAverage, ...]
@@ -57,6 +61,7 @@ class SessionData:
     accel_lsb: float = DEFAULT_ACCEL_LSB
     gyro_lsb: float = DEFAULT_GYRO_LSB
     known_positions: bool = True
+    scatter_source: str = "plan"
 
     @property
     def has_gyro(self) -> bool:
@@ -100,6 +105,8 @@ class SensorScore:
     base_cv_rms: float
     extended_rms: float
     extended_cv_rms: float
+    cv_rms_ratio_ci95: tuple[float, float] = (1.0, 1.0)
+    claimed: bool = False
 
     @property
     def rms_ratio(self) -> float:
@@ -137,6 +144,32 @@ class ExtendedParams:
 
 
 @dataclass(frozen=True)
+class Ambiguity:
+    """Two candidates the data cannot tell apart (analysis JSON ``ambiguous``).
+
+    ``correlation`` is that of their most correlated entries' estimates in the model holding
+    both.
+    """
+
+    sensor: str
+    candidates: tuple[str, str]
+    correlation: float
+
+
+@dataclass(frozen=True)
+class NoiseSummary:
+    """The noise model the tests used: pose-setting scatter, and the chosen model's fit.
+
+    ``chi2``/``dof`` are the extended model's whitened residuals under that noise model
+    (χ²/dof near 1 when the model holds).
+    """
+
+    pose_scatter: ScatterEstimate
+    chi2: float
+    dof: int
+
+
+@dataclass(frozen=True)
 class DiscrepancyResult:
     """What the base model gets wrong, the named causes and the gain of the extension.
 
@@ -157,3 +190,6 @@ class DiscrepancyResult:
     base_values: Mapping[str, float]
     base_sigmas: Mapping[str, float]
     drift_found: bool
+    noise: NoiseSummary | None = None
+    warnings: tuple[str, ...] = ()
+    ambiguous: tuple[Ambiguity, ...] = ()

@@ -36,25 +36,31 @@ from canimucal.analysis.candidates import SCALAR_UNITS, UNITS, Candidate
 from canimucal.analysis.data import (
     AXIS_SIGN_SIGMAS,
     FAMILY_ALPHA,
+    Ambiguity,
     DiscrepancyResult,
     ExtendedParams,
     Finding,
+    NoiseSummary,
     SensorScore,
     SessionData,
     TestRecord,
 )
 from canimucal.analysis.drift import DriftTest, drift_test, random_walk_covariance
+from canimucal.analysis.holdout import MIN_GAIN_DOF, Holdout, Selector, refit_holdout
+from canimucal.analysis.noise_model import ScatterEstimate, ScatterModel, estimate_scatter
 from canimucal.analysis.significance import (
     LinearProblem,
     TermFit,
     confirm_by_cv,
     effective_rank,
+    entry_correlation,
     fit_terms,
     forward_select,
     holm_adjust,
     nested_test,
     score_model,
     significant_columns,
+    significant_masks,
 )
 from canimucal.errors import ModelError
 
@@ -78,34 +84,105 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
     drifts = _drift_tests(data, temps)
     family = len(candidates) + len(drifts) + (1 if data.known_positions else 0)
     drifting = {s for s, d in drifts.items() if d.p_value < alpha / family}
-    problem = _whitened(prepared, drifts, drifting, data)
-    columns = {c.key: problem.whiten @ c.columns for c in candidates}
+    raw_columns = {c.key: c.columns for c in candidates}
+    scatter = _scatter_model(prepared, drifts, drifting, data)
+    tau = _scatter_in(scatter, prepared, raw_columns, list(raw_columns))
+    problem = _whitened(prepared, scatter, tau.value)
+    columns = {k: problem.whiten @ col for k, col in raw_columns.items()}
     for key in [k for k, col in columns.items() if effective_rank(problem.linear, col) == 0]:
         untestable.setdefault(key.split(".", 1)[1], "not identifiable from these positions")
         del columns[key]
+        del raw_columns[key]
     use_f = bool(drifting)
     chosen = forward_select(problem.linear, columns, alpha=alpha, family_size=family, use_f=use_f)
+    if scatter.fixed is None:
+        tau = _scatter_in(scatter, prepared, raw_columns, chosen)
+        problem = _whitened(prepared, scatter, tau.value)
+        columns = {k: problem.whiten @ col for k, col in raw_columns.items()}
     chosen = confirm_by_cv(problem.linear, columns, chosen)
     tests = _final_tests(problem.linear, columns, chosen, use_f, drifts, prepared, data)
     fit = fit_terms(problem.linear, columns, chosen)
     findings = _findings(tests, fit, {c.key: c for c in candidates}, drifts, prepared, data, alpha)
+    duel = _head_to_head(problem.linear, columns, chosen, alpha, family, use_f)
+    unresolved = {f"{a.sensor}.{a.candidates[0]}" for a in duel}
+    findings = [f for f in findings if f"{f.sensor}.{f.effect}" not in unresolved]
     sparse = significant_columns(problem.linear, columns, chosen)
+    held = refit_holdout(problem.linear, columns, _selector(alpha, family, use_f), extended=chosen)
     values, sigmas = named_values(prepared)
+    base = fit_terms(problem.linear, columns, [])
+    lack = (prepared.chi2, prepared.dof)
+    if prepared.method == "joint":
+        lack = (base.chi2, base.dof)
+        values, sigmas = _base_under(problem.linear, prepared, base)
     return DiscrepancyResult(
         method=prepared.method,
         residuals=prepared.residual_table,
         residual_labels=prepared.residual_labels,
-        lack_of_fit=(prepared.chi2, prepared.dof, _chi2_sf(prepared.chi2, prepared.dof)),
+        lack_of_fit=(lack[0], lack[1], _chi2_sf(*lack)),
         findings=tuple(findings),
         untestable=untestable,
         tests=tuple(tests),
-        scores=_scores(problem.linear, sparse, chosen),
+        scores=_scores(problem.linear, sparse, chosen, held),
         params=_extended(
             prepared, fit_terms(problem.linear, sparse, chosen), drifts, drifting, data
         ),
         base_values=values,
         base_sigmas=sigmas,
         drift_found=bool(drifting),
+        noise=NoiseSummary(tau, fit.chi2, fit.dof) if data.known_positions else None,
+        warnings=_warnings(chosen, held),
+        ambiguous=tuple(duel),
+    )
+
+
+RIVAL_P = 0.05
+"""A cause is named only when each rival, in the model holding both, has p above this."""
+
+
+def _head_to_head(
+    problem: LinearProblem,
+    columns: Mapping[str, Array],
+    chosen: Sequence[str],
+    alpha: float,
+    family: int,
+    use_f: bool,
+) -> list[Ambiguity]:
+    """Pit each chosen term against each rival that could stand in for it (DESIGN §9).
+
+    A rival is a candidate of the same sensor, not chosen, that is significant (Holm, at the
+    family's first step) in place of the term. In the model holding both, the term must stay
+    significant (``p · family < alpha``) and the rival must not (``p > RIVAL_P``); otherwise
+    the pair is ambiguous and the term is not named.
+    """
+    out = []
+    for term in chosen:
+        sensor = term.split(".", 1)[0]
+        others = [c for c in chosen if c != term]
+        for rival in columns:
+            if rival in chosen or not rival.startswith(sensor + "."):
+                continue
+            if nested_test(problem, columns, others, rival, use_f=use_f).p_value * family >= alpha:
+                continue
+            p_term = nested_test(problem, columns, [*others, rival], term, use_f=use_f).p_value
+            p_rival = nested_test(problem, columns, [*others, term], rival, use_f=use_f).p_value
+            if p_term * family < alpha and p_rival > RIVAL_P:
+                continue
+            r = entry_correlation(problem, columns, [*others, term, rival], term, rival)
+            pair = (term.split(".", 1)[1], rival.split(".", 1)[1])
+            out.append(Ambiguity(sensor, pair, r))
+    return out
+
+
+def _base_under(
+    problem: LinearProblem, prepared: PreparedBase, base: TermFit
+) -> tuple[dict[str, float], dict[str, float]]:
+    """Return the base estimates and σ under the noise model used (one Gauss–Newton step)."""
+    cov = np.linalg.pinv(problem.base_w.T @ problem.base_w)
+    values = prepared.values + base.base_delta
+    sig = np.sqrt(np.abs(np.diag(cov)))
+    return (
+        dict(zip(prepared.names, map(float, values), strict=True)),
+        dict(zip(prepared.names, map(float, sig), strict=True)),
     )
 
 
@@ -155,13 +232,50 @@ class _Whitened:
         self.linear, self.whiten = linear, whiten
 
 
-def _whitened(
+def _scatter_model(
     prepared: PreparedBase,
     drifts: Mapping[str, DriftTest],
     drifting: set[str],
     data: SessionData,
-) -> _Whitened:
-    cov = prepared.covariance.copy()
+) -> ScatterModel:
+    """Build the noise family ``V(τ)`` of :mod:`.noise_model` (scalar fits: τ held at 0).
+
+    With a given scatter (header, flag, plan) ``V`` is the base fit's covariance (the poses'
+    tolerances, to second order) and τ is held; estimated, ``V(τ) = C + τ² A``.
+    """
+    extra = _walk_covariance(prepared, drifts, drifting, data)
+    if prepared.within_covariance is None or prepared.angle_unit_covariance is None:
+        return ScatterModel(prepared.covariance + extra, np.zeros_like(extra), "none", 0.0)
+    if data.scatter_source == "estimated":
+        base = prepared.within_covariance + extra
+        return ScatterModel(base, prepared.angle_unit_covariance, "estimated")
+    return ScatterModel(
+        prepared.covariance + extra, prepared.angle_unit_covariance, data.scatter_source, 0.0
+    )
+
+
+def _scatter_in(
+    scatter: ScatterModel,
+    prepared: PreparedBase,
+    raw_columns: Mapping[str, Array],
+    terms: Sequence[str],
+) -> ScatterEstimate:
+    """REML pose scatter in the model holding ``terms`` (or the one given, or none)."""
+    if scatter.fixed is not None:
+        tol = 0.0 if scatter.source == "none" else prepared.pose_tolerance
+        return ScatterEstimate(tol, (tol, tol), scatter.source, float("nan"))
+    design = np.hstack([prepared.jacobian] + [raw_columns[t] for t in terms])
+    return estimate_scatter(scatter, prepared.residual, design)
+
+
+def _walk_covariance(
+    prepared: PreparedBase,
+    drifts: Mapping[str, DriftTest],
+    drifting: set[str],
+    data: SessionData,
+) -> Array:
+    """Covariance a bias random walk adds to the position means (drift found only)."""
+    cov = np.zeros_like(prepared.covariance)
     mids = np.array([float(np.mean(w.t_s)) for w in data.windows])
     secs = np.array([float(w.t_s[-1] - w.t_s[0]) for w in data.windows])
     for sensor in drifting:
@@ -171,6 +285,15 @@ def _whitened(
             if prepared.method == "scalar" and sensor == "accel":
                 continue  # the scalar residual mixes axes: its variance is the F test's job
             cov[np.ix_(rows, rows)] += random_walk_covariance(mids, secs, float(q))
+    return cov
+
+
+def _whitened(prepared: PreparedBase, scatter: ScatterModel | None, tau: float) -> _Whitened:
+    """Whiten the base fit's linearisation by ``V(τ)`` (a held τ: the family's own)."""
+    if scatter is None:
+        cov = prepared.covariance
+    else:
+        cov = scatter.covariance(tau if scatter.fixed is None else scatter.fixed)
     chol = np.asarray(np.linalg.cholesky(0.5 * (cov + cov.T)), dtype=float)
     whiten = np.linalg.inv(chol)
     linear = LinearProblem(
@@ -180,6 +303,7 @@ def _whitened(
         unwhiten=chol,
         si_scale=prepared.si_scale,
         sensor=prepared.sensor,
+        scatter=scatter if scatter is not None and scatter.fixed is None else None,
     )
     return _Whitened(linear, whiten)
 
@@ -267,8 +391,9 @@ def _column_finding(
 
 
 def _scores(
-    problem: LinearProblem, columns: Mapping[str, Array], chosen: Sequence[str]
+    problem: LinearProblem, columns: Mapping[str, Array], chosen: Sequence[str], held: Holdout
 ) -> dict[str, SensorScore]:
+    """Score each sensor: the fit's rms, and cv_rms from :mod:`.holdout` (refits)."""
     base = score_model(problem, columns, [])
     ext = score_model(problem, columns, chosen)
     out = {}
@@ -279,11 +404,44 @@ def _scores(
             base_terms,
             base_terms + terms,
             base.rms[sensor],
-            base.cv_rms[sensor],
+            held.base_cv_rms[sensor],
             ext.rms[sensor] if terms else base.rms[sensor],
-            ext.cv_rms[sensor] if terms else base.cv_rms[sensor],
+            held.extended_cv_rms[sensor],
+            held.ratio_ci95[sensor],
+            held.claimed[sensor],
         )
     return out
+
+
+def _selector(alpha: float, family: int, use_f: bool) -> Selector:
+    """Return the full data's term selection, for each fold of :func:`refit_holdout`."""
+
+    def select(
+        sub: LinearProblem, cols: Mapping[str, Array]
+    ) -> tuple[list[str], Mapping[str, NDArray[np.bool_]]]:
+        terms = forward_select(sub, cols, alpha=alpha, family_size=family, use_f=use_f)
+        terms = confirm_by_cv(sub, cols, terms)
+        return terms, significant_masks(sub, cols, terms)
+
+    return select
+
+
+def _warnings(chosen: Sequence[str], held: Holdout) -> tuple[str, ...]:
+    out = []
+    for sensor, dof in held.dof.items():
+        if dof < MIN_GAIN_DOF:
+            out.append(
+                f"{sensor}: only {dof} residual degrees of freedom: too few to claim a gain "
+                "or to trust the tests' p-values; add positions"
+            )
+    for sensor, claimed in held.claimed.items():
+        if any(t.startswith(sensor + ".") for t in chosen) and not claimed:
+            low, high = held.ratio_ci95[sensor]
+            out.append(
+                f"{sensor}: no gain claimed (held-out cv_rms ratio 95 % {low:.2f}–{high:.2f}, "
+                f"{held.dof[sensor]} residual dof)"
+            )
+    return tuple(out)
 
 
 def _extended(
@@ -344,7 +502,7 @@ def effect_sigmas(data: SessionData) -> dict[str, Array]:
     residuals. Entries that the positions cannot determine are infinite.
     """
     prepared = fit_known(data)[0] if data.known_positions else fit_scalar_base(data)[0]
-    problem = _whitened(prepared, {}, set(), data)
+    problem = _whitened(prepared, None, 0.0)
     all_cols = {c.key: problem.whiten @ c.columns for c in prepared.candidates}
     out = {}
     for cand in prepared.candidates:

@@ -10,10 +10,12 @@ rms and lack of fit should match the measured ones after the extension, not befo
 from __future__ import annotations
 
 import copy
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy import stats
 
 from canimucal.analysis.base_fit import fit_known
 from canimucal.analysis.report import Analysis, extended_truth, observed_poses
@@ -29,6 +31,8 @@ class ReplayRow:
     label: str
     accel_rms: float
     chi2_per_dof: float
+    runs_rms: tuple[float, ...] = ()
+    runs_chi2: tuple[float, ...] = ()
 
 
 def base_truth(extended: dict[str, Any]) -> dict[str, Any]:
@@ -53,17 +57,28 @@ def _base_fit_row(label: str, a: Analysis, truth_doc: dict[str, Any], seed: int)
     rec = simulate_plan_recording(truth, plan, seed=seed)
     session = session_from_recording(
         rec, g=a.session.g, latitude=a.session.latitude, heading=a.session.heading,
-        tolerance_deg=float(np.rad2deg(plan.positions[0].tolerance)),
+        tolerance_deg=_scatter_deg(a),
     )  # fmt: skip
     prepared, res = fit_known(session)
     return ReplayRow(label, res.rms_accel_ms2, prepared.chi2 / max(prepared.dof, 1))
+
+
+def _scatter_deg(a: Analysis) -> float:
+    """Return the pose-setting scatter the analysis used (estimated, header, flag), degrees."""
+    noise = a.result.noise
+    return noise.pose_scatter.value_deg if noise is not None else 0.0
 
 
 def replay(a: Analysis, *, seeds: tuple[int, ...] = (1, 2, 3)) -> list[ReplayRow] | None:
     """Measured, base-truth and extended-truth replays (mean over ``seeds``); None if scalar."""
     if not a.session.known_positions:
         return None
-    prepared, res = fit_known(a.session)
+    tol = float(np.deg2rad(_scatter_deg(a)))
+    averages = tuple(
+        dataclasses.replace(x, pose=dataclasses.replace(x.pose, tolerance=tol))
+        for x in a.session.averages
+    )
+    prepared, res = fit_known(dataclasses.replace(a.session, averages=averages))
     rows = [ReplayRow("measured", res.rms_accel_ms2, prepared.chi2 / max(prepared.dof, 1))]
     ext = extended_truth(a)
     for label, doc in (("simulated, base model", base_truth(ext)), ("simulated, extended", ext)):
@@ -73,6 +88,32 @@ def replay(a: Analysis, *, seeds: tuple[int, ...] = (1, 2, 3)) -> list[ReplayRow
                 label,
                 float(np.mean([r.accel_rms for r in runs])),
                 float(np.mean([r.chi2_per_dof for r in runs])),
+                tuple(r.accel_rms for r in runs),
+                tuple(r.chi2_per_dof for r in runs),
             )
         )
     return rows
+
+
+def replay_ratios(rows: list[ReplayRow] | None) -> dict[str, Any] | None:
+    """Compare the extended replay with the measurement: rms ratio, its 95 %, χ² ratio.
+
+    The interval is the prediction interval of one replay's ratio from the seeds' spread,
+    ``mean ± t(0.975, n−1) · sd · √(1 + 1/n)``: a measurement the extended model reproduces
+    has its ratio 1 inside it. None without a replay (orientations unknown).
+    """
+    if not rows:
+        return None
+    measured = rows[0]
+    ext = rows[-1]
+    ratios = np.array(ext.runs_rms) / measured.accel_rms
+    n = ratios.size
+    mean = float(np.mean(ratios))
+    half = float("nan")
+    if n >= 2:
+        half = float(stats.t.ppf(0.975, n - 1) * np.std(ratios, ddof=1) * np.sqrt(1 + 1 / n))
+    return {
+        "rms_ratio": mean,
+        "rms_ratio_ci95": [mean - half, mean + half],
+        "chi2_ratio": ext.chi2_per_dof / max(measured.chi2_per_dof, 1e-300),
+    }

@@ -70,7 +70,7 @@ def analyze(
     *,
     g: float | None = None,
     latitude_deg: float | None = None,
-    tolerance_deg: float = 0.1,
+    tolerance_deg: float | None = None,
 ) -> Analysis:
     """Run the discrepancy loop as ``canimucal analyze`` does (g: flag, header, latitude)."""
     cond = recording_conditions(recording, g)
@@ -94,9 +94,13 @@ def analyse_recording(
     g_source: str = "given",
     latitude: float | None = None,
     heading: float = 0.0,
-    tolerance_deg: float = 0.1,
+    tolerance_deg: float | None = None,
 ) -> Analysis:
-    """Run the discrepancy loop on ``rec`` (``latitude``/``heading`` radians)."""
+    """Run the discrepancy loop on ``rec`` (``latitude``/``heading`` radians).
+
+    ``tolerance_deg`` fixes the pose-setting scatter; None takes the recording's
+    ``tolerance_deg`` header, else estimates it from the data.
+    """
     session = session_from_recording(
         rec, g=g, latitude=latitude, heading=heading, tolerance_deg=tolerance_deg
     )
@@ -142,7 +146,12 @@ def _sensor_block(a: Analysis, sensor: str) -> dict[str, Any]:
             "rms": score.extended_rms,
             "cv_rms": score.extended_cv_rms,
         },
-        "gain": {"rms_ratio": score.rms_ratio, "cv_rms_ratio": score.cv_rms_ratio},
+        "gain": {
+            "rms_ratio": score.rms_ratio,
+            "cv_rms_ratio": score.cv_rms_ratio,
+            "cv_rms_ratio_ci95": list(score.cv_rms_ratio_ci95),
+            "claimed": score.claimed,
+        },
     }
 
 
@@ -174,16 +183,30 @@ def analysis_document(a: Analysis) -> dict[str, Any]:
     ]
     untestable = [{"effect": k, "reason": v} for k, v in a.result.untestable.items()]
     best = max((c.best_averaging_s for c in a.allan.values()), default=float("nan"))
+    noise: dict[str, Any] = {
+        "accel_white": input_referred_white(a, "accel"),
+        "gyro_white": input_referred_white(a, "gyro"),
+        "best_averaging_s": best,
+    }
+    noise["warnings"] = list(a.result.warnings)
+    summary = a.result.noise
+    if summary is not None:
+        est = summary.pose_scatter
+        noise["pose_scatter_deg"] = {
+            "value": est.value_deg,
+            "ci95": list(est.ci95_deg),
+            "source": est.source,
+        }
     return {
         "schema": ANALYSIS_SCHEMA,
         "sensors": {s: _sensor_block(a, s) for s in ("accel", "gyro") if s in a.result.scores},
         "findings": findings,
         "untestable": untestable,
-        "noise": {
-            "accel_white": input_referred_white(a, "accel"),
-            "gyro_white": input_referred_white(a, "gyro"),
-            "best_averaging_s": best,
-        },
+        "ambiguous": [
+            {"sensor": x.sensor, "candidates": list(x.candidates), "correlation": x.correlation}
+            for x in a.result.ambiguous
+        ],
+        "noise": noise,
     }
 
 
@@ -270,15 +293,20 @@ def _temperature_profile(a: Analysis) -> tuple[list[tuple[float, float]], float]
 
 
 def observed_poses(a: Analysis) -> Plan | None:
-    """Return the observed poses and durations as a pose schedule (None: orientations unknown)."""
+    """Return the observed poses and durations as a pose schedule (None: orientations unknown).
+
+    Each pose's tolerance is the pose-setting scatter the analysis used.
+    """
     if not a.session.known_positions:
         return None
     positions = []
+    noise = a.result.noise
     for avg, w in zip(a.session.averages, a.session.windows, strict=True):
         p = avg.pose
         seconds = max(float(w.t_s[-1] - w.t_s[0]), 1.0)
         alpha, beta, psi = (_wrap(x) for x in (p.alpha, p.beta, p.psi))
-        positions.append(PlannedPosition(alpha, beta, psi, p.tolerance, seconds))
+        tol = p.tolerance if noise is None else noise.pose_scatter.value
+        positions.append(PlannedPosition(alpha, beta, psi, tol, seconds))
     return Plan("custom", tuple(positions))
 
 

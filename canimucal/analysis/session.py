@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.analysis.data import SessionData, Window
+from canimucal.analysis.pose_scatter import header_tolerance_deg
 from canimucal.errors import InputError
 from canimucal.io.grouping import has_angles, position_rows
 from canimucal.io.recording import Recording
@@ -40,9 +41,15 @@ def session_from_recording(
     g: float,
     latitude: float | None,
     heading: float = 0.0,
-    tolerance_deg: float = 0.1,
+    tolerance_deg: float | None = None,
 ) -> SessionData:
-    """Group ``rec`` into positions; ``latitude``/``heading`` radians (None: no Earth rate)."""
+    """Group ``rec`` into positions; ``latitude``/``heading`` radians (None: no Earth rate).
+
+    The pose-setting scatter is ``tolerance_deg`` when given (source ``flag``), else the
+    recording's ``tolerance_deg`` header (``header``), else left to be estimated from the
+    data (``estimated``: the poses carry no tolerance).
+    """
+    tolerance_deg, source = scatter_source(rec, tolerance_deg)
     groups, labelled = position_rows(rec)
     known = labelled and has_angles(rec)
     gyro_ok = bool(np.isfinite(rec.gyro).any())
@@ -78,4 +85,17 @@ def session_from_recording(
         accel_lsb=_lsb(rec, "accel_lsb", DEFAULT_ACCEL_LSB),
         gyro_lsb=_lsb(rec, "gyro_lsb", DEFAULT_GYRO_LSB if known else 1.0),
         known_positions=known,
+        scatter_source=source,
     )
+
+
+def scatter_source(rec: Recording, tolerance_deg: float | None) -> tuple[float, str]:
+    """Return the pose tolerance (degrees) and its source: flag, header, else estimated."""
+    if tolerance_deg is not None:
+        if not (np.isfinite(tolerance_deg) and tolerance_deg >= 0):
+            raise InputError(f"--tolerance-deg must be a finite number >= 0, got {tolerance_deg}")
+        return float(tolerance_deg), "flag"
+    header = header_tolerance_deg(rec)
+    if header is not None:
+        return header, "header"
+    return 0.0, "estimated"

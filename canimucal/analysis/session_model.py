@@ -86,6 +86,9 @@ class SessionModel:
     plan_tolerances: bool = True
     factory_k: NDArray[np.float64] | None = None
     prior_source: str = "factory K"
+    tolerance_source: str = "default"
+    """Where ``tolerance_deg`` came from: ``flag``, ``header``, else ``default`` (then the
+    solve estimates the scatter from the data)."""
 
     def tolerances(self, averages: Sequence[PositionAverage]) -> list[PositionAverage]:
         """Give each average its plan position's tolerances when the poses are the plan's."""
@@ -129,9 +132,10 @@ def session_model(rec: Recording, choice: ModelChoice) -> tuple[ModelChoice, Ses
     gyro = choice.gyro
     if gyro is None and "gyro" in header:
         gyro = str(header["gyro"])  # type: ignore[assignment]
-    tolerance = choice.tolerance_deg
+    tolerance, tolerance_source = choice.tolerance_deg, "flag"
     if tolerance is None:
-        value = header.get("tolerance_deg", DEFAULT_TOLERANCE_DEG)
+        value = header.get("tolerance_deg")
+        tolerance_source = "header" if isinstance(value, int | float) else "default"
         tolerance = float(value) if isinstance(value, int | float) else DEFAULT_TOLERANCE_DEG
     if not (np.isfinite(tolerance) and tolerance >= 0):
         raise InputError(f"--tolerance-deg must be a finite number >= 0, got {tolerance:g}")
@@ -159,6 +163,7 @@ def session_model(rec: Recording, choice: ModelChoice) -> tuple[ModelChoice, Ses
         plan_tolerances=choice.tolerance_deg is None,
         factory_k=factory_k,
         prior_source=source,
+        tolerance_source=tolerance_source,
     )
     return resolved, session
 

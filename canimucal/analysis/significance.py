@@ -26,6 +26,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats
 
+from canimucal.analysis.noise_model import ScatterModel, profile_loglik
+
 Array = NDArray[np.float64]
 
 RANK_TOLERANCE = 1e-8
@@ -40,6 +42,8 @@ class LinearProblem:
     whitened Jacobian; ``block`` ``(N,)`` the position of each row (for cross-validation);
     ``unwhiten`` ``(N, N)`` maps whitened rows back to raw residuals; ``si_scale`` ``(N,)``
     turns a raw residual into SI units (nominal LSB); ``sensor`` ``(N,)`` ``accel``/``gyro``.
+    ``scatter``, when given, is the noise family whose pose-setting scatter each nested test
+    re-estimates within each of its two models (:mod:`.noise_model`).
     """
 
     residual_w: Array
@@ -48,6 +52,7 @@ class LinearProblem:
     unwhiten: Array
     si_scale: Array
     sensor: NDArray[np.str_]
+    scatter: ScatterModel | None = None
 
 
 @dataclass(frozen=True)
@@ -127,7 +132,11 @@ def nested_test(
     *,
     use_f: bool = False,
 ) -> NestedTest:
-    """Test ``smaller + [term]`` against ``smaller``: LR χ² (known noise) or F (noise unknown)."""
+    """Test ``smaller + [term]`` against ``smaller``: LR χ² (known noise) or F (noise unknown).
+
+    With ``problem.scatter`` (and no F test) the LR statistic is ``2 (ℓ_big − ℓ_small)`` of
+    the profile likelihoods, the pose-setting scatter maximised within each model.
+    """
     q = effective_rank(problem, np.hstack([columns[t] for t in smaller] + [columns[term]]))
     q -= effective_rank(problem, np.hstack([columns[t] for t in smaller])) if smaller else 0
     if q <= 0:
@@ -138,6 +147,16 @@ def nested_test(
     if use_f and big.dof > 0:
         f = (delta / q) / max(big.chi2 / big.dof, 1e-300)
         return NestedTest(term, f, q, float(stats.f.sf(f, q, big.dof)), "F")
+    if problem.scatter is not None and problem.scatter.fixed is None:
+        raw_r = problem.unwhiten @ problem.residual_w
+        small_x = problem.unwhiten @ _design(problem, columns, smaller)
+        big_x = problem.unwhiten @ _design(problem, columns, [*smaller, term])
+        lr = 2.0 * (
+            profile_loglik(problem.scatter, raw_r, big_x)[1]
+            - profile_loglik(problem.scatter, raw_r, small_x)[1]
+        )
+        lr = max(lr, 0.0)
+        return NestedTest(term, lr, q, float(stats.chi2.sf(lr, q)), "LR")
     return NestedTest(term, delta, q, float(stats.chi2.sf(delta, q)), "LR")
 
 
@@ -251,6 +270,20 @@ SPARSE_Z = 3.0
 """In cross-validation a term keeps only its entries beyond this many σ (at least one)."""
 
 
+def significant_masks(
+    problem: LinearProblem, columns: Mapping[str, Array], kept: Sequence[str]
+) -> dict[str, NDArray[np.bool_]]:
+    """Mark the entries of each kept term that earn their place (|z| ≥ SPARSE_Z, ≥ 1)."""
+    fit = fit_terms(problem, columns, kept)
+    out = {}
+    for term in kept:
+        z = np.abs(fit.coefficients[term]) / np.where(
+            fit.sigmas[term] > 0, fit.sigmas[term], np.inf
+        )
+        out[term] = z >= min(SPARSE_Z, float(np.max(z)))
+    return out
+
+
 def significant_columns(
     problem: LinearProblem, columns: Mapping[str, Array], kept: Sequence[str]
 ) -> dict[str, Array]:
@@ -259,13 +292,8 @@ def significant_columns(
     The columns keep their shape (a zero column gets a zero coefficient from the
     minimum-norm least squares), so coefficients still line up with the entry labels.
     """
-    fit = fit_terms(problem, columns, kept)
     out = dict(columns)
-    for term in kept:
-        z = np.abs(fit.coefficients[term]) / np.where(
-            fit.sigmas[term] > 0, fit.sigmas[term], np.inf
-        )
-        keep = z >= min(SPARSE_Z, float(np.max(z)))
+    for term, keep in significant_masks(problem, columns, kept).items():
         out[term] = columns[term] * keep
     return out
 
@@ -285,3 +313,20 @@ def confirm_by_cv(
         if _press(problem, sparse, kept) > _press(problem, sparse, without):
             kept.remove(term)
     return kept
+
+
+def entry_correlation(
+    problem: LinearProblem, columns: Mapping[str, Array], terms: Sequence[str], a: str, b: str
+) -> float:
+    """Largest |correlation| (signed) between an entry of ``a`` and one of ``b``, both in."""
+    design = _design(problem, columns, terms)
+    cov = np.linalg.pinv(design.T @ design)
+    start, k = {}, problem.base_w.shape[1]
+    for t in terms:
+        start[t] = (k, k + columns[t].shape[1])
+        k += columns[t].shape[1]
+    sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
+    corr = cov / np.outer(sd, sd)
+    block = corr[start[a][0] : start[a][1], start[b][0] : start[b][1]]
+    i, j = np.unravel_index(int(np.argmax(np.abs(block))), block.shape)
+    return float(block[i, j])

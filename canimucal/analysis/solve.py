@@ -20,6 +20,7 @@ from canimucal.analysis.acceptance import AcceptanceLimits, Verdict, judge, load
 from canimucal.analysis.calibrate import SiteConditions, Solution, solve_positions, solve_scalar
 from canimucal.analysis.conditions import recording_conditions
 from canimucal.analysis.gyro_moves import solve_gyro_moves
+from canimucal.analysis.pose_scatter import fit_scatter
 from canimucal.analysis.session_model import (
     GyroChoice,
     ModelChoice,
@@ -27,11 +28,12 @@ from canimucal.analysis.session_model import (
     TiltModel,
     session_model,
 )
-from canimucal.errors import InputError
+from canimucal.errors import InputError, ModelError
 from canimucal.io.calibration import Calibration, Device, RecordingRef, sha256_of
 from canimucal.io.grouping import average_rows, has_angles, position_averages, position_rows
 from canimucal.io.importers import read_any
 from canimucal.io.recording import Recording
+from canimucal.model.layout import JointSpec
 from canimucal.model.positions import PositionAverage
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, STANDARD_GRAVITY
 
@@ -43,6 +45,8 @@ class RecordingSolution:
     solution: Solution
     g_source: str
     verdict: Verdict | None = None
+    notes: tuple[str, ...] = ()
+    """How the noise model was chosen (e.g. the pose scatter estimated from the data)."""
 
     @property
     def record(self) -> Calibration:
@@ -83,12 +87,15 @@ def solve_recording(
     """
     limits = load_limits() if limits is None else limits  # a bad file: exit 2 before work
     choice, session = session_model(rec, choice or ModelChoice())
+    notes: tuple[str, ...] = ()
     site, g_source = site_of(rec, choice)
     serial, node_id = _header_int(rec, "device_serial"), _header_int(rec, "node_id")
     device = Device(serial=serial or 0, node_id=node_id)
     if has_angles(rec):
         averages = session.tolerances(position_averages(rec, tolerance_deg=session.tolerance_deg))
         spec = choice.spec(has_gyro=all(a.mean_gyro is not None for a in averages))
+        if session.tolerance_source == "default":  # no flag, no header: the data say
+            averages, notes = _estimated_scatter(averages, spec, site)
         solution = solve_positions(
             averages,
             spec,
@@ -111,10 +118,44 @@ def solve_recording(
             full=choice.model == "full",
             recording=recording,
         )
-    solution = replace(solution, warnings=solution.warnings + _unchecked_gyro(solution))
+    warnings = solution.warnings + _unchecked_gyro(solution) + _few_dof(solution)
     verdict = judge(solution, site, limits)
-    solution = replace(solution, record=replace(solution.record, acceptance=verdict.block))
-    return RecordingSolution(solution, g_source, verdict)
+    record = replace(solution.record, acceptance=verdict.block)
+    return RecordingSolution(
+        replace(solution, record=record, warnings=warnings), g_source, verdict, notes
+    )
+
+
+MIN_DOF = 10
+"""Below this many residual degrees of freedom `solve` warns (DESIGN §9)."""
+
+
+def _few_dof(solution: Solution) -> tuple[str, ...]:
+    if solution.joint is None or solution.joint.dof >= MIN_DOF:
+        return ()
+    return (
+        f"only {solution.joint.dof} residual degrees of freedom: the σ and the fit's χ² rest "
+        "on very few residuals (add positions)",
+    )
+
+
+def _estimated_scatter(
+    averages: list[PositionAverage], spec: JointSpec, site: SiteConditions
+) -> tuple[list[PositionAverage], tuple[str, ...]]:
+    """Give the poses the scatter the data show (REML, :mod:`canimucal.analysis.pose_scatter`)."""
+    try:
+        out, est = fit_scatter(
+            averages, spec, g=site.g, latitude=site.latitude, heading=site.heading,
+            accel_lsb=site.accel_lsb, gyro_lsb=site.gyro_lsb,
+        )  # fmt: skip
+    except ModelError:
+        return averages, ()  # the solve itself says what is wrong with these positions
+    low, high = est.ci95_deg
+    if est.source == "assumed":
+        how = "assumed: too few residuals to estimate it"
+    else:
+        how = f"estimated from the data (REML, 95 % {low:.3g}–{high:.3g}°)"
+    return out, (f"pose-setting scatter {est.value_deg:.3g}° {how}; no tolerance_deg header",)
 
 
 def _unchecked_gyro(solution: Solution) -> tuple[str, ...]:

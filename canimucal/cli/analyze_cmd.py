@@ -10,7 +10,7 @@ import numpy as np
 
 from canimucal.analysis.conditions import recording_conditions
 from canimucal.analysis.reference import Reference, reference_for
-from canimucal.analysis.replay import ReplayRow, replay
+from canimucal.analysis.replay import ReplayRow, replay, replay_ratios
 from canimucal.analysis.report import (
     Analysis,
     analyse_recording,
@@ -45,7 +45,11 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("--g", type=float, help="local gravity, m/s² (default: header, latitude)")
     p.add_argument("--latitude-deg", type=float, help="latitude (Earth rate in the gyro model)")
     p.add_argument(
-        "--tolerance-deg", type=float, default=0.1, help="angle-setting 1σ of each position"
+        "--tolerance-deg",
+        type=float,
+        default=None,
+        help="angle-setting 1σ of each position (default: the recording's tolerance_deg "
+        "header, else estimated from the data)",
     )
     p.add_argument("--truth-out", metavar="F", help="write the extended model as truth JSON")
     p.add_argument("--poses-out", metavar="F", help="write the observed poses (pose schedule)")
@@ -105,6 +109,9 @@ def run(args: argparse.Namespace) -> int:
     plan = _checked_poses(analysis, args.poses_out)
     replayed = replay(analysis)
     document = analysis_document(analysis)
+    ratios = replay_ratios(replayed)
+    if ratios is not None:
+        document["noise"]["replay"] = ratios
     emit(args, document, report_text(analysis, reference, replayed))
     if args.truth_out:
         write_truth(args.truth_out, extended_truth(analysis), overwrite=args.overwrite)
@@ -135,15 +142,28 @@ def report_text(a: Analysis, reference: Reference | None, replayed: list[ReplayR
     lines += [f"  {f.effect} ({f.sensor}): {f.evidence}; p = {f.p_value:.2g}" for f in r.findings]
     if not r.findings:
         lines.append("  none: the base model explains the data")
+    lines += [
+        f"  ambiguous ({x.sensor}): {x.candidates[0]} or {x.candidates[1]} (estimates correlated "
+        f"{x.correlation:+.2f} in the model holding both; neither is named)"
+        for x in r.ambiguous
+    ]
     lines += [f"  untestable {k}: {v}" for k, v in r.untestable.items()]
-    lines += ["", "Gain (rms of the per-position means, before → after; cv = leave-one-out):"]
+    lines += [
+        "",
+        "Gain (rms of the per-position means, before → after; cv = refit with each position "
+        "left out, term selection included):",
+    ]
     for sensor, sc in r.scores.items():
         unit = "m/s²" if sensor == "accel" else _gyro_unit(a)
+        low, high = sc.cv_rms_ratio_ci95
+        verdict = "gain claimed" if sc.claimed else "no gain claimed"
         lines.append(
             f"  {sensor}: rms {sc.base_rms:.4g} → {sc.extended_rms:.4g} {unit} "
             f"(×{sc.rms_ratio:.2f}); cv_rms {sc.base_cv_rms:.4g} → {sc.extended_cv_rms:.4g} "
-            f"(×{sc.cv_rms_ratio:.2f}); terms {', '.join(sc.extended_terms)}"
+            f"(×{sc.cv_rms_ratio:.2f}, 95 % {low:.2f}–{high:.2f}; {verdict}); "
+            f"terms {', '.join(sc.extended_terms)}"
         )
+    lines += [f"warning: {w}" for w in r.warnings]
     lines += _replay_lines(replayed)
     return "\n".join(lines) + "\n"
 
@@ -191,10 +211,28 @@ def _residual_table(a: Analysis) -> list[str]:
 
 def _lack_of_fit(a: Analysis) -> str:
     chi2, dof, p = a.result.lack_of_fit
-    return (
+    noise = a.result.noise
+    against = "the noise predicted from the scatter inside each position"
+    if noise is not None and noise.pose_scatter.source != "none":
+        est = noise.pose_scatter
+        low, high = est.ci95_deg
+        how = {
+            "estimated": f"estimated from the data (REML, 95 % {low:.3g}–{high:.3g}°)",
+            "header": "from the recording's tolerance_deg header",
+            "flag": "from --tolerance-deg",
+            "plan": "from the plan",
+        }.get(est.source, est.source)
+        against += f" and a pose-setting scatter of {est.value_deg:.3g}° {how}"
+    text = (
         f"  lack of fit: χ² = {chi2:.1f} on {dof} dof (χ²/dof = {chi2 / max(dof, 1):.2f}, "
-        f"p = {p:.2g}) against the noise predicted from the scatter inside each position"
+        f"p = {p:.2g}) against {against}"
     )
+    if noise is not None:
+        text += (
+            f"\n  extended model under the same noise model: χ²/dof = "
+            f"{noise.chi2 / max(noise.dof, 1):.2f} on {noise.dof} dof"
+        )
+    return text
 
 
 def _allan_lines(a: Analysis) -> list[str]:
@@ -219,4 +257,12 @@ def _replay_lines(rows: list[ReplayRow] | None) -> list[str]:
         f"  {r.label:<24} accel rms {r.accel_rms:.4g} m/s², χ²/dof {r.chi2_per_dof:.2f}"
         for r in rows
     ]
+    ratios = replay_ratios(rows)
+    if ratios is not None:
+        low, high = ratios["rms_ratio_ci95"]
+        verdict = "within" if low <= 1.0 <= high else "OUTSIDE"
+        out.append(
+            f"  extended replay / measured: rms ×{ratios['rms_ratio']:.2f} (one replay's 95 % "
+            f"{low:.2f}–{high:.2f}: measurement {verdict} it), χ²/dof ×{ratios['chi2_ratio']:.2f}"
+        )
     return out

@@ -35,7 +35,7 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument(
         "--tolerance-deg",
         type=float,
-        help="1σ angle-setting error of each position (default: header, else 0.1)",
+        help="1σ angle-setting error of each position (default: header, else estimated)",
     )
     p.add_argument(
         "--prior-k-sigma",
@@ -67,6 +67,8 @@ def run(args: argparse.Namespace) -> int:
     rec = load_any(args.recording, args.second, fmt=fmt, sample_rate_hz=args.sample_rate_hz)
     ref = RecordingRef(file=Path(args.recording).name, sha256=sha256_of(args.recording))
     solved = solve_recording(rec, choice_from_args(args), recording=ref)
+    for note in solved.notes:
+        print(f"note: {note}", file=sys.stderr)
     for warning in solved.solution.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     verdict = solved.verdict

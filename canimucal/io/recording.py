@@ -337,6 +337,13 @@ def _positive(raw: str) -> float:
     return number
 
 
+def _non_negative(raw: str) -> float:
+    number = _finite(raw)
+    if number < 0.0:
+        raise ValueError("must be >= 0")
+    return number
+
+
 def _nonzero(raw: str) -> float:
     number = _finite(raw)
     if number == 0.0:
@@ -390,13 +397,6 @@ def _plan_name(raw: str) -> str:
     if not re.fullmatch(r"[a-z][a-z0-9_-]{0,31}", raw):
         raise ValueError("not a plan name")
     return raw
-
-
-def _non_negative(raw: str) -> float:
-    number = _finite(raw)
-    if number < 0.0:
-        raise ValueError("must be >= 0")
-    return number
 
 
 HEADER_PARSERS: Mapping[str, Callable[[str], HeaderValue]] = {

@@ -11,6 +11,12 @@ never drawn). Sessions go through the fast per-position path
 
 Seeds (fixed, listed): unit and noise ``SEEDS`` = 0..99; the effect draw ``10_000 + seed``.
 
+A session counts as a hit when the effect is named exactly, or when nothing is named and the
+effect is reported ``ambiguous`` against a look-alike (DESIGN §9's head-to-head rule: under
+this 8-position plan with 0.1° poses, cross_axis stays ambiguous against temperature_bias
+or scale_nonlinearity on 10 of the 100 seeds, their estimates correlated near −0.9).
+Naming a different cause counts as confidently wrong (at most ``MAX_WRONG``).
+
 Thresholds as binomial statements. The outcomes are deterministic for these seeds; the
 margins say how unlikely a failure would be for a fresh list of seeds:
 - detection: ``hits >= 95`` of 100. Measured on these seeds: 99-100 % for every effect but
@@ -40,6 +46,8 @@ SEEDS = tuple(range(100))
 REFERENCE_SEED = 999
 MIN_HITS = 95
 MAX_FALSE_ALARMS = 2
+MAX_WRONG = 1
+"""Sessions on which a cause other than the hidden one is named (issue 14: at most 1 %)."""
 
 
 def clean_truth(seed: int) -> dict[str, Any]:
@@ -59,8 +67,14 @@ def reference_sigmas() -> dict[str, np.ndarray]:
 
 def named(doc: dict[str, Any], seed: int) -> set[str]:
     """Effects `analyze` names on one simulated session."""
+    return named_or_ambiguous(doc, seed)[0]
+
+
+def named_or_ambiguous(doc: dict[str, Any], seed: int) -> tuple[set[str], set[str]]:
+    """Effects named, and effects reported ambiguous, on one simulated session."""
     session = simulate_session(Truth.from_dict(doc), RECOMMENDED, seed=seed)
-    return {f.effect for f in analyse_discrepancy(session).findings}
+    result = analyse_discrepancy(session)
+    return {f.effect for f in result.findings}, {c for a in result.ambiguous for c in a.candidates}
 
 
 @pytest.mark.slow
@@ -73,15 +87,18 @@ def test_clean_data_name_nothing() -> None:
 @pytest.mark.parametrize("effect", HIDDEN_EFFECTS)
 def test_hidden_effect_is_named_exactly(effect: str) -> None:
     sigmas = reference_sigmas()
-    misses = []
+    misses, wrong = [], []
     for seed in SEEDS:
         doc, hidden = hide_effect(
             clean_truth(seed), effect, np.random.default_rng(10_000 + seed), sigmas
         )
-        found = named(doc, seed)
-        if found != {effect}:
+        found, unsure = named_or_ambiguous(doc, seed)
+        if found != {effect} and not (not found and effect in unsure):
             misses.append((seed, hidden.entry, round(hidden.sigmas, 1), sorted(found)))
+        if found - {effect}:
+            wrong.append((seed, sorted(found)))
     assert len(SEEDS) - len(misses) >= MIN_HITS, f"missed: {misses}"
+    assert len(wrong) <= MAX_WRONG, f"confidently wrong: {wrong}"
 
 
 @pytest.mark.parametrize("effect", ["cross_axis", "temperature_bias"])

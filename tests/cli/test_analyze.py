@@ -65,7 +65,11 @@ def test_clean_recording_names_nothing(tmp_path: Path, capsys: Any) -> None:
     assert main(["analyze", str(path), "--json", "-"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["findings"] == []
-    assert doc["sensors"]["accel"]["gain"] == {"rms_ratio": 1.0, "cv_rms_ratio": 1.0}
+    replayed = doc["noise"]["replay"]  # the extended (here: base) model reproduces the data
+    low, high = replayed["rms_ratio_ci95"]
+    assert low <= 1.0 <= high, replayed
+    gain = doc["sensors"]["accel"]["gain"]
+    assert (gain["rms_ratio"], gain["cv_rms_ratio"], gain["claimed"]) == (1.0, 1.0, False)
     assert len(doc["noise"]["accel_white"]) == 3
     # default noise density 1.5e-3 m/s²/√Hz (truth default), read from Allan at short τ
     assert doc["noise"]["accel_white"][0] == pytest.approx(1.5e-3, rel=0.2)
@@ -170,10 +174,14 @@ def test_imucal_session_replays_through_canopen(tmp_path: Path, capsys: Any) -> 
     base = [d["sensors"]["accel"]["base_model"]["rms"] for d in (measured, replay)]
     assert 0.8 < base[1] / base[0] < 1.25, base  # m/s², ≈ 0.078 both
     found = {f["effect"]: f for f in replay["findings"] if f["sensor"] == "accel"}
-    assert set(found) == {"cross_axis"}
-    size = next(f["size"] for f in measured["findings"] if f["effect"] == "cross_axis")
-    term = re.match(r"K\[0\]\[1\] = \S+ ± (\S+) ", found["cross_axis"]["evidence"])
+    named = {f["effect"] for f in measured["findings"] if f["sensor"] == "accel"}
+    assert "cross_axis" in named
+    assert set(found) == named
+    cross = next(f for f in measured["findings"] if f["effect"] == "cross_axis")
+    size, entry = cross["size"], cross["evidence"].split(" = ")[0]
+    term = re.match(r"(K\[\d\]\[\d\]) = \S+ ± (\S+) ", found["cross_axis"]["evidence"])
     assert term is not None, found["cross_axis"]["evidence"]
-    # K[0][1] in the data's units (counts of 1 m/s²) from the replay's counts of `lsb`, 4σ
-    sigma = float(term.group(1)) * lsb
+    assert term.group(1) == entry
+    # the same K entry in the data's units (counts of 1 m/s²) from the replay's counts, 4σ
+    sigma = float(term.group(2)) * lsb
     assert found["cross_axis"]["size"] * lsb == pytest.approx(size, abs=4 * sigma)

@@ -426,3 +426,22 @@ def test_vehicle_recording_with_a_factory_k_holds_it_as_a_stated_prior(
     bad.write_text('{"schema": "canimucal.calibration/1", "device": {"serial": 1}}')
     run = cli(["solve", sim.path, "--prior-k", bad])
     assert run.code == 2 and run.err.count("\n") == 1
+
+
+def _with_tolerance_header(head: list[str], rows: list[str]) -> list[str]:
+    return [head[0], "# tolerance_deg: 0.05\n", *head[1:], *rows]
+
+
+def test_pose_scatter_from_header_else_estimated(cli: Cli, simulated: Sim, tmp_path: Path) -> None:
+    """No header: the scatter is estimated (recommended plan, dof ≥ 10) or, with too few
+    residuals (two positions), assumed, and `solve` says which; a header is used silently."""
+    run = cli(["solve", simulated("recommended", "diag").path, "--no-check"])
+    assert run.code == 0, run.err
+    assert "pose-setting scatter" in run.err and "estimated from the data (REML" in run.err
+    run = cli(["solve", simulated("two", "level").path, "--no-check"])
+    assert "assumed: too few residuals" in run.err
+    assert "warning: only 3 residual degrees of freedom" in run.err
+    path = _rewrite(simulated("two", "level").path, tmp_path / "hdr.csv", _with_tolerance_header)
+    run = cli(["solve", path, "--no-check"])
+    assert run.code == 0, run.err
+    assert "pose-setting scatter" not in run.err

@@ -11,13 +11,14 @@ from canimucal.sim.truth import Truth
 
 
 def simulate_session(
-    truth: Truth, plan: Plan, *, seed: int, transient_s: float = 2.0
+    truth: Truth, plan: Plan, *, seed: int, transient_s: float = 2.0, estimate_scatter: bool = False
 ) -> SessionData:
     """Simulate a plan position by position, grouped as :func:`session_from_recording` would.
 
     The fast path of the Monte Carlo tests: the unit is set to each pose plus an angle error
     drawn from the pose's tolerance (labelled with the nominal angles), time runs on for
     ``transient_s`` between positions (the warm-up goes on), and no recording is built.
+    With ``estimate_scatter`` the poses carry no tolerance and the analysis estimates it.
     """
     sim = ImuSimulator(truth, seed=seed)
     rng = np.random.default_rng(seed)
@@ -29,7 +30,7 @@ def simulate_session(
         if transient_s > 0:
             sim.next_block(int(round(transient_s * fs)))
         block = sim.next_block(int(round(p.seconds * fs)))
-        pose = Pose(p.alpha, p.beta, p.psi, p.tolerance)
+        pose = Pose(p.alpha, p.beta, p.psi, 0.0 if estimate_scatter else p.tolerance)
         temp = float(np.mean(block.temp_c))
         averages.append(average_position(pose, block.accel, block.gyro, fs, temp))
         windows.append(Window(block.t_s, block.accel, block.gyro, block.temp_c))
@@ -42,4 +43,5 @@ def simulate_session(
         accel_lsb=truth.accel.nominal_lsb,
         gyro_lsb=truth.gyro.nominal_lsb,
         known_positions=True,
+        scatter_source="estimated" if estimate_scatter else "plan",
     )

@@ -1,0 +1,191 @@
+"""The noise model of the position means: within-position scatter plus pose-setting scatter.
+
+The residual vector ``r`` of the per-position means (raw units, position-major) is modelled as
+
+    r = X γ + e,    e ~ N(0, V(τ)),    V(τ) = C + τ² A                        (1)
+
+with ``X`` the design (the base fit's Jacobian and the columns of the terms in the model),
+``C`` the covariance of the means from the scatter inside each position (and a random walk
+when drift was found), and ``A`` the covariance that a 1 rad angle-setting error on every
+angle of every position adds, to first order: ``A_i = J_i J_iᵀ`` with ``J_i`` the derivative
+of position i's predicted mean with respect to its three angles (errors in variables).
+``τ`` (radians, one value for all positions and angles) is the pose-setting scatter, the one
+variance component estimated from the data.
+
+With ``L = chol(V)``, ``X_w = L⁻¹X`` and ``r_w = L⁻¹r``, and ``P`` the projection off the
+column space of ``X_w`` (rank ``p``):
+
+- profile (maximum) likelihood ``ℓ(τ) = −½ (log|V| + r_wᵀ P r_w)``, and
+- restricted (REML) likelihood ``ℓ_R(τ) = ℓ(τ) − ½ log|X_wᵀ X_w|`` (over the ``p``
+  non-zero singular values), which accounts for the ``p`` directions the fit uses up
+  (Patterson & Thompson 1971; Harville 1977, eq. 2.4).
+
+``τ`` is estimated by maximising ``ℓ_R`` over ``[0, TAU_MAX_RAD]`` (a log grid refined by a
+bounded search), and its 95 % interval is the profile-likelihood set
+``2 (ℓ_R(τ̂) − ℓ_R(τ)) ≤ χ²₁(0.95) = 3.84``. Nested models are compared by the likelihood
+ratio of the profile likelihoods, each maximised over ``τ`` in its own model, so that a term
+the smaller model lacks is not absorbed into a larger scatter under the smaller model only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import optimize, stats
+from scipy.linalg import solve_triangular
+
+Array = NDArray[np.float64]
+
+TAU_MAX_RAD = float(np.deg2rad(10.0))
+"""Largest pose-setting scatter considered (10°): beyond it the first-order model fails."""
+
+_GRID = np.concatenate([[0.0], np.geomspace(np.deg2rad(1e-4), TAU_MAX_RAD, 31)])
+_CHI2_95_1 = float(stats.chi2.ppf(0.95, 1))
+_RANK_TOL = 1e-9
+
+
+@dataclass(frozen=True)
+class ScatterModel:
+    """``V(τ) = base + τ² unit`` of eq. (1); ``fixed`` the τ given by a header or flag.
+
+    ``source`` is ``"estimated"``, ``"header"``, ``"flag"`` or ``"plan"`` (the poses'
+    own tolerances, as in simulations).
+    """
+
+    base: Array
+    unit: Array
+    source: str
+    fixed: float | None = None
+
+    def covariance(self, tau: float) -> Array:
+        """``V(τ)`` of eq. (1)."""
+        return self.base + tau * tau * self.unit
+
+    @cached_property
+    def basis(self) -> tuple[Array, Array, float]:
+        """``(W, λ, log|C|)`` with ``W V(τ) Wᵀ = I + τ² diag(λ)`` (see :class:`_Rotated`)."""
+        chol = np.asarray(np.linalg.cholesky(0.5 * (self.base + self.base.T)), dtype=float)
+        inv = _solve_lower(chol, np.eye(chol.shape[0]))
+        half = inv @ self.unit @ inv.T
+        lam, q = np.linalg.eigh(0.5 * (half + half.T))
+        logdet = 2.0 * float(np.sum(np.log(np.diag(chol))))
+        return np.asarray(q.T @ inv, dtype=float), np.maximum(lam, 0.0), logdet
+
+
+@dataclass(frozen=True)
+class ScatterEstimate:
+    """The pose-setting scatter (radians) with its 95 % interval and where it came from."""
+
+    value: float
+    ci95: tuple[float, float]
+    source: str
+    loglik: float
+
+    @property
+    def value_deg(self) -> float:
+        """The scatter in degrees."""
+        return float(np.rad2deg(self.value))
+
+    @property
+    def ci95_deg(self) -> tuple[float, float]:
+        """The 95 % interval in degrees."""
+        return float(np.rad2deg(self.ci95[0])), float(np.rad2deg(self.ci95[1]))
+
+
+@dataclass(frozen=True)
+class _Rotated:
+    """``r`` and ``X`` in the basis where ``V(τ)`` is diagonal: ``W V(τ) Wᵀ = I + τ² diag(λ)``.
+
+    ``W = Qᵀ L⁻¹`` with ``C = L Lᵀ`` and ``L⁻¹ A L⁻ᵀ = Q diag(λ) Qᵀ`` (a generalised
+    eigenproblem), so every τ costs one small SVD instead of a Cholesky of ``V``.
+    """
+
+    residual: Array
+    design: Array
+    lam: Array
+    logdet_base: float
+
+
+def _rotate(model: ScatterModel, residual: Array, design: Array) -> _Rotated:
+    w, lam, logdet = model.basis
+    return _Rotated(w @ residual, w @ design, lam, logdet)
+
+
+def _loglik(rot: _Rotated, tau: float, restricted: bool) -> float:
+    d = 1.0 + tau * tau * rot.lam
+    scale = 1.0 / np.sqrt(d)
+    rw = rot.residual * scale
+    logdet = rot.logdet_base + float(np.sum(np.log(d)))
+    if rot.design.shape[1] == 0:
+        return -0.5 * (logdet + float(rw @ rw))
+    u, s, _vt = np.linalg.svd(rot.design * scale[:, None], full_matrices=False)
+    keep = s > _RANK_TOL * max(float(s[0]) if s.size else 0.0, 1e-300)
+    uk = u[:, keep]
+    proj = rw - uk @ (uk.T @ rw)
+    out = -0.5 * (logdet + float(proj @ proj))
+    if restricted:
+        out -= float(np.sum(np.log(s[keep])))
+    return out
+
+
+def log_likelihood(
+    model: ScatterModel, residual: Array, design: Array, tau: float, *, restricted: bool
+) -> float:
+    """``ℓ(τ)`` or ``ℓ_R(τ)`` of the module doc (constants dropped; same for every τ)."""
+    return _loglik(_rotate(model, residual, design), tau, restricted)
+
+
+def _solve_lower(chol: Array, b: Array) -> Array:
+    return np.asarray(solve_triangular(chol, b, lower=True), dtype=float)
+
+
+def _maximise(rot: _Rotated, restricted: bool) -> tuple[float, float]:
+    """``(τ̂, ℓ(τ̂))`` over ``[0, TAU_MAX_RAD]``: grid, then a bounded search around its best."""
+
+    def f(t: float) -> float:
+        return _loglik(rot, t, restricted)
+
+    values = np.array([f(t) for t in _GRID])
+    k = int(np.argmax(values))
+    best_t, best_v = float(_GRID[k]), float(values[k])
+    lo, hi = float(_GRID[max(k - 1, 0)]), float(_GRID[min(k + 1, _GRID.size - 1)])
+    if hi > lo:
+        res = optimize.minimize_scalar(
+            lambda t: -f(t), bounds=(lo, hi), method="bounded", options={"xatol": 1e-3 * hi}
+        )
+        if res.success and -float(res.fun) > best_v:
+            best_t, best_v = float(res.x), -float(res.fun)
+    return best_t, best_v
+
+
+def profile_loglik(model: ScatterModel, residual: Array, design: Array) -> tuple[float, float]:
+    """Profile likelihood maximised over τ (or at the fixed τ): ``(τ, ℓ)``."""
+    rot = _rotate(model, residual, design)
+    if model.fixed is not None:
+        return model.fixed, _loglik(rot, model.fixed, False)
+    return _maximise(rot, restricted=False)
+
+
+def estimate_scatter(model: ScatterModel, residual: Array, design: Array) -> ScatterEstimate:
+    """REML estimate of τ with its profile-likelihood 95 % interval (module doc).
+
+    A fixed τ (header or flag) is returned as given, its interval a single point.
+    """
+    rot = _rotate(model, residual, design)
+    if model.fixed is not None:
+        ll = _loglik(rot, model.fixed, True)
+        return ScatterEstimate(model.fixed, (model.fixed, model.fixed), model.source, ll)
+    tau, best = _maximise(rot, restricted=True)
+    cut = best - 0.5 * _CHI2_95_1
+
+    def g(t: float) -> float:
+        return _loglik(rot, t, True) - cut
+
+    low = 0.0 if g(0.0) >= 0.0 else float(optimize.brentq(g, 0.0, tau, xtol=1e-9))
+    high = TAU_MAX_RAD
+    if g(TAU_MAX_RAD) < 0.0:
+        high = float(optimize.brentq(g, tau, TAU_MAX_RAD, xtol=1e-9))
+    return ScatterEstimate(tau, (low, high), model.source, best)

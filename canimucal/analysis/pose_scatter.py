@@ -1,0 +1,127 @@
+"""The pose-setting scatter of a calibration fit, estimated from its own positions.
+
+``solve`` (and :func:`canimucal.analysis.calibrate.solve_positions`' callers) weight each
+position by its within-position scatter plus the angle-setting scatter (errors in
+variables, :mod:`canimucal.model.joint`). When no recording header gives that scatter, it is
+estimated here with the same noise model as ``analyze`` (:mod:`.noise_model`, eq. 1): the
+joint fit's residuals, its Jacobian as the design, ``C`` from the within-position scatter
+and ``A`` from the angle derivatives of the predicted means, τ by REML. The fit is then
+repeated with every pose's tolerance set to τ̂ (twice: τ̂ moves the estimate only slightly).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from canimucal.analysis.base_fit import UNIT_PROBE_RAD
+from canimucal.analysis.noise_model import ScatterEstimate, ScatterModel, estimate_scatter
+from canimucal.errors import InputError
+from canimucal.io.recording import Recording
+from canimucal.model.joint import JointResult, solve_joint
+from canimucal.model.layout import (
+    JointSpec,
+    ModelContext,
+    ParameterLayout,
+    angle_error_moments,
+    nominal_theta,
+    predict,
+)
+from canimucal.model.positions import DEFAULT_TOLERANCE_RAD, PositionAverage
+
+Array = NDArray[np.float64]
+
+PASSES = 2
+"""Fit → estimate τ → refit rounds."""
+
+MIN_SCATTER_DOF = 10
+"""With fewer residual degrees of freedom τ is not estimated; the plan default is assumed."""
+
+
+def header_tolerance_deg(rec: Recording) -> float | None:
+    """Return the recording's ``tolerance_deg`` header (angle-setting 1σ), None without one."""
+    value = rec.header.get("tolerance_deg")
+    if value is None:
+        return None
+    try:
+        tol = float(value)
+    except (TypeError, ValueError):
+        tol = float("nan")
+    if not (np.isfinite(tol) and tol >= 0):
+        raise InputError(f"header tolerance_deg must be a finite number >= 0, got {value!r}")
+    return tol
+
+
+def with_tolerance(averages: Sequence[PositionAverage], tol_rad: float) -> list[PositionAverage]:
+    """Copy ``averages`` with every pose's tolerance set to ``tol_rad``."""
+    return [
+        dataclasses.replace(a, pose=dataclasses.replace(a.pose, tolerance=tol_rad))
+        for a in averages
+    ]
+
+
+def fit_scatter(
+    averages: Sequence[PositionAverage],
+    spec: JointSpec,
+    *,
+    g: float,
+    latitude: float | None = None,
+    heading: float = 0.0,
+    accel_lsb: float,
+    gyro_lsb: float,
+) -> tuple[list[PositionAverage], ScatterEstimate]:
+    """Estimate the pose scatter under ``spec``; return the averages carrying it as tolerance.
+
+    With fewer than :data:`MIN_SCATTER_DOF` residual degrees of freedom the scatter cannot
+    be told from the fit's own residuals: the plan default (0.1°) is returned, source
+    ``"assumed"``.
+    """
+    dof = len(averages) * spec.channels - ParameterLayout.of(spec).size
+    if dof < MIN_SCATTER_DOF:
+        tol = DEFAULT_TOLERANCE_RAD
+        return with_tolerance(averages, tol), ScatterEstimate(tol, (tol, tol), "assumed", np.nan)
+    current = with_tolerance(averages, 0.0)
+    estimate = ScatterEstimate(0.0, (0.0, 0.0), "estimated", float("nan"))
+    for _ in range(PASSES):
+        res = solve_joint(
+            current, spec, g=g, latitude=latitude, heading=heading,
+            accel_lsb=accel_lsb, gyro_lsb=gyro_lsb, allow_undetermined=True,
+        )  # fmt: skip
+        estimate = scatter_of(res, current, ModelContext.build(g, latitude, heading, gyro_lsb))
+        current = with_tolerance(averages, estimate.value)
+    return current, estimate
+
+
+def scatter_of(
+    res: JointResult, averages: Sequence[PositionAverage], ctx: ModelContext
+) -> ScatterEstimate:
+    """REML pose scatter of one joint fit (noise_model eq. 1, design = the fit's Jacobian)."""
+    layout = ParameterLayout.of(res.spec)
+    nominal = nominal_theta(layout, res.accel_lsb, res.gyro_lsb)
+    theta = np.where(np.isnan(res.values), nominal, res.values)
+    angles = np.array([a.pose.angles for a in averages])
+    n, m = res.residuals.shape
+    design = predict(layout, theta, angles, ctx).d_theta.reshape(n * m, layout.size)
+    probe = np.full(n, UNIT_PROBE_RAD)
+    unit_blocks = angle_error_moments(layout, theta, angles, ctx, probe).covariance
+    unit_blocks = unit_blocks / UNIT_PROBE_RAD**2
+    within = np.zeros((n, m, m))
+    for k, a in enumerate(averages):
+        within[k, :3, :3] = a.cov_accel
+        if m == 6 and a.cov_gyro is not None:
+            within[k, 3:, 3:] = a.cov_gyro
+    model = ScatterModel(_block_diag(within), _block_diag(unit_blocks), "estimated")
+    # residuals are observed − predicted; the angle mean shift is zero at τ = 0 and small
+    # beside the noise for the τ that exact poses give
+    return estimate_scatter(model, res.residuals.ravel(), design)
+
+
+def _block_diag(blocks: Array) -> Array:
+    n, m = blocks.shape[:2]
+    out = np.zeros((n * m, n * m))
+    for k in range(n):
+        out[k * m : (k + 1) * m, k * m : (k + 1) * m] = blocks[k]
+    return out
