@@ -18,14 +18,13 @@ import numpy as np
 
 from canimucal.cli.bus_options import add_bus_options, device_settings, node_ids
 from canimucal.errors import InputError
-from canimucal.io.plans import resolve_plan
+from canimucal.io.plans import BUILTIN_PLANS, resolve_plan
 from canimucal.model.gravity import normal_gravity
 from canimucal.model.plan import builtin_plan
+from canimucal.model.positions import Plan
 from canimucal.model.sensor import STANDARD_GRAVITY
 
 log = logging.getLogger(__name__)
-
-BUILTIN = ("two", "five", "recommended")
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -37,7 +36,9 @@ def add_subparser(subparsers: Any) -> None:
         "review the result and write it transactionally.",
     )
     add_bus_options(p)
-    p.add_argument("--plan", default="recommended", help="two, five, recommended or a plan file")
+    p.add_argument(
+        "--plan", default="recommended", help="two, five, recommended, vehicle or a plan file"
+    )
     p.add_argument("--gyro", choices=("mems", "nav"), default="mems", help="gyro grade")
     p.add_argument("--out", default="canimucal-out", help="directory for records and recordings")
     p.add_argument("--backup-dir", help="where device backups go (default: XDG state dir)")
@@ -82,14 +83,19 @@ def _where(args: argparse.Namespace) -> str:
     return " ".join(p for p in parts if p) + f" · nodes {', '.join(map(str, node_ids(args)))}"
 
 
+def plan_choice(name_or_path: str) -> tuple[Plan, str]:
+    """Return the plan ``--plan`` names and its name in the TUI (a built-in's, else custom)."""
+    plan = resolve_plan(name_or_path, builtin_plan)
+    return plan, plan.name if plan.name in BUILTIN_PLANS else "custom"
+
+
 def run(args: argparse.Namespace) -> int:
     """Open the TUI on the bus the flags name."""
     from canimucal.runtime.resume import load_resume_state
     from canimucal.tui.app import make_app
     from canimucal.tui.source import DeviceSource
 
-    plan = resolve_plan(args.plan, builtin_plan)
-    plan_name = plan.name if plan.name in BUILTIN else "custom"
+    plan, plan_name = plan_choice(args.plan)
     if args.resume:  # a different plan or an unreadable recording: exit 2 before the TUI
         load_resume_state(args.resume, plan)
     source = DeviceSource(
