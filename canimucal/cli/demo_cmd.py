@@ -80,7 +80,7 @@ def add_subparser(subparsers: Any) -> None:
         help=f"simulated seconds per wall second (default {DEFAULT_TIME_SCALE:g})",
     )
     p.add_argument("--out", default="demo-out", help="directory for the demo's files")
-    p.add_argument("--operator", help="operator's name, for the certificate (headless)")
+    p.add_argument("--operator", help="operator's name, for the certificate")
     p.add_argument("--site", help="where the calibration was done, for the certificate")
     p.add_argument(
         "--resume",
@@ -191,6 +191,7 @@ def _run_tui(
     source.seconds = seconds
     source.verify_seconds = min(seconds, 10.0) if seconds else 10.0
     source.resume = bool(args.resume)
+    source.operator, source.site_name = args.operator, args.site
     custom = plan if plan_name == "custom" else None
     app = make_app(source, plan_name=plan_name, gyro=args.gyro, custom_plan=custom)
     try:

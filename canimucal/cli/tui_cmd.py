@@ -12,20 +12,22 @@ import argparse
 import logging
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from canimucal.cli.bus_options import add_bus_options, device_settings, node_ids
 from canimucal.errors import InputError
-from canimucal.io.plans import resolve_plan
+from canimucal.io.plans import BUILTIN_PLANS, resolve_plan
 from canimucal.model.gravity import normal_gravity
 from canimucal.model.plan import builtin_plan
+from canimucal.model.positions import Plan
 from canimucal.model.sensor import STANDARD_GRAVITY
 
-log = logging.getLogger(__name__)
+if TYPE_CHECKING:
+    from canimucal.tui.source import DeviceSource
 
-BUILTIN = ("two", "five", "recommended")
+log = logging.getLogger(__name__)
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -37,7 +39,9 @@ def add_subparser(subparsers: Any) -> None:
         "review the result and write it transactionally.",
     )
     add_bus_options(p)
-    p.add_argument("--plan", default="recommended", help="two, five, recommended or a plan file")
+    p.add_argument(
+        "--plan", default="recommended", help="two, five, recommended, vehicle or a plan file"
+    )
     p.add_argument("--gyro", choices=("mems", "nav"), default="mems", help="gyro grade")
     p.add_argument("--out", default="canimucal-out", help="directory for records and recordings")
     p.add_argument("--backup-dir", help="where device backups go (default: XDG state dir)")
@@ -45,6 +49,9 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("--latitude-deg", type=float, help="latitude, degrees (nav gyro needs it)")
     p.add_argument("--height-m", type=float, default=0.0, help="height above the ellipsoid, m")
     p.add_argument("--heading-deg", type=float, default=0.0, help="azimuth of body z, degrees")
+    p.add_argument("--seconds", type=float, help="averaging seconds of every position")
+    p.add_argument("--operator", help="operator's name, for the certificate")
+    p.add_argument("--site", help="where the calibration was done, for the certificate")
     p.add_argument("--no-warmup", action="store_true", help="do not wait for warm-up")
     p.add_argument(
         "--resume",
@@ -82,25 +89,41 @@ def _where(args: argparse.Namespace) -> str:
     return " ".join(p for p in parts if p) + f" · nodes {', '.join(map(str, node_ids(args)))}"
 
 
-def run(args: argparse.Namespace) -> int:
-    """Open the TUI on the bus the flags name."""
-    from canimucal.runtime.resume import load_resume_state
-    from canimucal.tui.app import make_app
+def plan_choice(name_or_path: str) -> tuple[Plan, str]:
+    """Return the plan ``--plan`` names and its name in the TUI (a built-in's, else custom)."""
+    plan = resolve_plan(name_or_path, builtin_plan)
+    return plan, plan.name if plan.name in BUILTIN_PLANS else "custom"
+
+
+def device_source(args: argparse.Namespace) -> DeviceSource:
+    """Return the TUI's source of nodes and sessions the flags describe (nothing opened yet)."""
     from canimucal.tui.source import DeviceSource
 
-    plan = resolve_plan(args.plan, builtin_plan)
-    plan_name = plan.name if plan.name in BUILTIN else "custom"
-    if args.resume:  # a different plan or an unreadable recording: exit 2 before the TUI
-        load_resume_state(args.resume, plan)
-    source = DeviceSource(
+    if args.seconds is not None and not args.seconds > 0:
+        raise InputError(f"--seconds must be positive, got {args.seconds}")
+    return DeviceSource(
         device_settings(args, find=False),
         Path(args.resume or args.out),
         _where(args),
         site=_site(args),
         backup_dir=Path(args.backup_dir) if args.backup_dir else None,
         warmup=not args.no_warmup,
+        seconds=args.seconds,
+        operator=args.operator,
+        site_name=args.site,
         resume=bool(args.resume),
     )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Open the TUI on the bus the flags name."""
+    from canimucal.runtime.resume import load_resume_state
+    from canimucal.tui.app import make_app
+
+    plan, plan_name = plan_choice(args.plan)
+    if args.resume:  # a different plan or an unreadable recording: exit 2 before the TUI
+        load_resume_state(args.resume, plan)
+    source = device_source(args)
     custom = plan if plan_name == "custom" else None
     app = make_app(source, plan_name=plan_name, gyro=args.gyro, custom_plan=custom)
     try:

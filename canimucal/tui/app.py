@@ -21,6 +21,7 @@ from pathlib import Path
 from textual.app import App
 from textual.binding import Binding
 
+from canimucal.io.plans import BUILTIN_PLANS
 from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
 from canimucal.procedure.machine import Phase
@@ -40,7 +41,7 @@ RUNNER_STOP_TIMEOUT_S = 10.0
 WRITE_STOP_TIMEOUT_S = 60.0
 """How long quitting waits for a write in progress: it ends (verified, or rolled back) within
 its SDO and store timeouts, and the bus must not be closed under it."""
-BUILTIN = ("two", "five", "recommended")
+BUILTIN = BUILTIN_PLANS
 EXIT_OK = 0
 EXIT_INTERRUPTED = 130
 """Exit status of an interrupted session (DESIGN §7: what was recorded so far is kept)."""

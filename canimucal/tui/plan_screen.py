@@ -20,7 +20,7 @@ from canimucal.tui.source import NodeStatus
 from canimucal.tui.text import bound_rows, findings_text
 from canimucal.tui.widgets import passive_table
 
-PLAN_KEYS = {"2": "two", "5": "five", "r": "recommended", "u": "custom"}
+PLAN_KEYS = {"2": "two", "5": "five", "r": "recommended", "v": "vehicle", "u": "custom"}
 
 
 def bound_table(plan_name: str, plan: Plan, accel_lsb: float) -> BoundTable:
@@ -30,7 +30,7 @@ def bound_table(plan_name: str, plan: Plan, accel_lsb: float) -> BoundTable:
 
 
 class PlanScreen(Screen[None]):
-    """Plan choice (2, 5, r, u), gyro grade (g), start (enter).
+    """Plan choice (2, 5, r, v, u), gyro grade (g), start (enter).
 
     ``plans`` are the plans on offer by name; ``plan_name`` and ``gyro`` the first choice.
     """
@@ -40,6 +40,7 @@ class PlanScreen(Screen[None]):
         Binding("2", "plan('two')", "Two"),
         Binding("5", "plan('five')", "Five"),
         Binding("r", "plan('recommended')", "Recommended"),
+        Binding("v", "plan('vehicle')", "Vehicle"),
         Binding("u", "plan('custom')", "Custom"),
         Binding("g", "gyro", "Gyro grade"),
         Binding("escape", "back", "Back"),

@@ -100,7 +100,8 @@ class DeviceSource:
     """The nodes :class:`~canimucal.runtime.wiring.DeviceSettings` describe, opened on connect.
 
     ``site`` None takes the simulated truth's site (the demo). ``seconds`` fixes the
-    averaging time of every position (None: the procedure's rule).
+    averaging time of every position (None: the procedure's rule). ``operator`` and
+    ``site_name`` go into the records and the certificate.
     """
 
     settings: DeviceSettings
@@ -112,6 +113,8 @@ class DeviceSource:
     warmup: bool = True
     seconds: float | None = None
     verify_seconds: float = 10.0
+    operator: str | None = None
+    site_name: str | None = None
     resume: bool = False
     """Go on with the interrupted session in ``out_dir`` (:mod:`canimucal.runtime.resume`)."""
     devices: Devices | None = field(default=None, init=False)
@@ -148,6 +151,8 @@ class DeviceSource:
             resume=self.resume,
             identities={n: s.identity for n, s in self.statuses.items()},
             averaging=AveragingPolicy(fixed_s=self.seconds),
+            operator=self.operator,
+            site_name=self.site_name,
             warmup=self.warmup,
             verify_seconds=self.verify_seconds,
         )

@@ -92,6 +92,29 @@ async def test_plan_screen_shows_bounds_and_what_the_five_plan_cannot_separate(
         assert "gyro navigation" in screen_text(app)
 
 
+async def test_the_plan_screen_offers_the_vehicle_plan_with_its_prior_at_80x24(
+    tmp_path: Path,
+) -> None:
+    app = make_app(FakeSource(tmp_path), plan_name="vehicle", autoconnect=False)
+    assert app.plan_name == "vehicle"  # `tui --plan vehicle`, `demo --plan vehicle`
+    async with app.run_test(size=SIZE) as pilot:
+        await app.push_screen(PlanScreen([node_status()], app.plans, plan_name=app.plan_name))
+        await pilot.pause()
+        text = screen_text(app)
+        assert "plan vehicle: 8 positions, 480 s of averaging" in text
+        # its K prior (1 %) bounds the K columns its level poses leave open: finite σ
+        assert "accel.K[0][1]" in text and "undetermined" not in text
+        footer = text.splitlines()[-1]
+        assert "Recommended" in footer and "Quit" in footer and "Vehicle" not in footer
+        await pilot.press("r")
+        await pilot.pause()
+        assert "plan recommended: " in screen_text(app)
+        assert "v Vehicle" in screen_text(app).splitlines()[-1]  # whole, not cut at 80
+        await pilot.press("v")
+        await pilot.pause()
+        assert "plan vehicle: " in screen_text(app)
+
+
 def _instructed(index: int = 1, alpha_deg: float = 22.5) -> list[ev.Event]:
     pose = PlannedPosition(np.deg2rad(alpha_deg), 0.0, 0.0)
     words = f"tilt {alpha_deg:g}° about z (lower the +x end)"

@@ -1,0 +1,46 @@
+"""`canimucal tui`'s options, by parsing only: the TUI itself never starts here."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from canimucal.cli.main import build_parser
+from canimucal.cli.tui_cmd import device_source, plan_choice
+from canimucal.errors import InputError
+from canimucal.io.plans import plan_to_dict
+from canimucal.model.plan import builtin_plan
+
+
+def test_a_built_in_plan_keeps_its_name_and_a_file_is_custom(tmp_path: Path) -> None:
+    plan, name = plan_choice("vehicle")
+    assert name == "vehicle" and plan == builtin_plan("vehicle")
+    assert plan_choice("two")[1] == "two"
+    path = tmp_path / "mine.json"
+    path.write_text(json.dumps(plan_to_dict(builtin_plan("five"))))
+    assert plan_choice(str(path))[1] == "custom"
+
+
+def parse(*argv: str) -> Any:
+    return build_parser("tui").parse_args(["tui", *argv])
+
+
+def test_operator_site_and_seconds_go_to_the_source(tmp_path: Path) -> None:
+    args = parse(
+        "--sim", "--out", str(tmp_path), "--operator", "A. Tester", "--site", "Bay 3",
+        "--seconds", "7.5", "--g", "9.81",
+    )  # fmt: skip
+    source = device_source(args)
+    assert (source.operator, source.site_name, source.seconds) == ("A. Tester", "Bay 3", 7.5)
+    assert source.devices is None and source.out_dir == tmp_path  # nothing opened yet
+    plain = device_source(parse("--sim", "--g", "9.81"))
+    assert (plain.operator, plain.site_name, plain.seconds) == (None, None, None)
+
+
+@pytest.mark.parametrize("seconds", ["0", "-1", "nan"])
+def test_seconds_must_be_positive(seconds: str) -> None:
+    with pytest.raises(InputError, match="--seconds must be positive"):
+        device_source(parse("--sim", "--g", "9.81", "--seconds", seconds))
