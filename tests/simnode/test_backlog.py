@@ -58,7 +58,9 @@ def test_a_lagging_client_slows_the_clock_and_sdo_answers_stay_prompt(
         serial = remote.sdo.upload(0x1018, 4)
         latencies.append(time.monotonic() - t0)
         assert len(serial) == 4
-    assert max(latencies) < 0.25, latencies  # the SDO timeout of the client is 0.3 s
+    # every answer came within the client's 0.3 s SDO timeout (upload raises otherwise), and
+    # typically at once: a node stalled by the lagging client would push the median up too
+    assert float(np.median(latencies)) < 0.1 and max(latencies) < 0.3, latencies
     assert node.clock_slip_s > 1.0  # the clock slowed ...
     counters = [struct.unpack_from("<H", f.data, 6)[0] for f in bus_frames.frames(TPDO1)]
     assert len(counters) > 300
