@@ -30,29 +30,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.support
 from canimucal.analysis.discrepancy import analyse_discrepancy, effect_sigmas
 from canimucal.analysis.report import analyse_recording
 from canimucal.io.importers import load_any
-from canimucal.model.positions import Plan, PlannedPosition
+from canimucal.model.positions import Plan
 from canimucal.sim.effects import HIDDEN_EFFECTS, hide_effect, warm_up_profile
 from canimucal.sim.truth import Truth
+from tests.support.plans import twelve
 from tests.support.sessions import simulate_session
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
-TWELVE_DEG = (
-    [(0, 0, 0), (0, 0, 90), (0, 0, 180), (0, 0, 270)]
-    + [(45, 45, 0), (45, 45, 90), (45, 45, 180), (45, 45, 270)]
-    + [(30, 0, 0), (30, 0, 180), (0, 30, 90), (0, 30, 270)]
-)
-
-
-def twelve(tolerance_deg: float) -> Plan:
-    """Recommended plan's eight poses plus four single 30° tilts, 30 s each."""
-    tol = float(np.deg2rad(tolerance_deg))
-    return Plan(
-        "twelve",
-        tuple(
-            PlannedPosition(*(float(x) for x in np.deg2rad(d)), tolerance=tol, seconds=30.0)
-            for d in TWELVE_DEG
-        ),
-    )
 
 
 def clean_truth(seed: int) -> dict[str, Any]:

@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.support
+
 from canimucal.analysis.calibrate import SiteConditions
 from canimucal.analysis.gyro_bounds import gyro_move_bounds
 from canimucal.analysis.gyro_moves import fit_recording_moves, recording_moves
@@ -35,25 +37,13 @@ from canimucal.analysis.simulated import simulate_plan_recording
 from canimucal.io.importers import read_imucal
 from canimucal.model import moves as mv
 from canimucal.model.plan import builtin_plan
-from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.sim.truth import Truth
+from tests.support.moves import turns_plan
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 IMUCAL_PIP = (
     "imucal==2.6.0 numpy==2.4.6 pandas==3.1.1 python-dateutil==4.0.0 tzdata==2026.6 packaging==26.3"
 )
-TURN_POSES_DEG = [
-    (0, 0, 0),
-    (90, 0, 0),
-    (0, 0, 0),
-    (0, 90, 0),
-    (0, 0, 0),
-    (0, 0, 90),
-    (0, 0, 0),
-    (-90, 0, 0),
-    (0, -90, 0),
-]
-
 IMUCAL_SCRIPT = """
 import json, sys
 import pandas as pd
@@ -66,13 +56,6 @@ cal = FerrarisCalibration().compute(regions, sampling_rate_hz=102.4, from_acc_un
 print(json.dumps({"KgRg": (cal.K_g @ cal.R_g).tolist(), "b_g": cal.b_g.tolist(),
                   "K_ga": cal.K_ga.tolist()}))
 """
-
-
-def turns_plan(seconds: float = 5.0) -> Plan:
-    return Plan(
-        "turns",
-        tuple(PlannedPosition(*np.deg2rad(p), np.deg2rad(0.1), seconds) for p in TURN_POSES_DEG),
-    )
 
 
 def site_of(truth: Truth) -> SiteConditions:

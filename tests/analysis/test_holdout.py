@@ -13,8 +13,9 @@ from canimucal.model.positions import Plan
 from canimucal.sim.effects import hide_effect
 from canimucal.sim.truth import Truth
 from tests.analysis.test_hidden_effects import clean_truth
-from tests.analysis.test_noise_model import twelve, twelve_sigmas
+from tests.analysis.test_noise_model import twelve_sigmas
 from tests.analysis.test_recording_analysis import SPREAD
+from tests.support.plans import twelve
 from tests.support.sessions import simulate_session
 
 

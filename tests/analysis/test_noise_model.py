@@ -20,25 +20,8 @@ from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.sim.effects import hide_effect
 from canimucal.sim.truth import Truth
 from tests.analysis.test_hidden_effects import clean_truth
+from tests.support.plans import twelve
 from tests.support.sessions import simulate_session
-
-TWELVE_DEG = (
-    [(0, 0, 0), (0, 0, 90), (0, 0, 180), (0, 0, 270)]
-    + [(45, 45, 0), (45, 45, 90), (45, 45, 180), (45, 45, 270)]
-    + [(30, 0, 0), (30, 0, 180), (0, 30, 90), (0, 30, 270)]
-)
-
-
-def twelve(tolerance_deg: float) -> Plan:
-    """The twelve-position plan with every angle set to ``tolerance_deg`` (1σ)."""
-    tol = float(np.deg2rad(tolerance_deg))
-    return Plan(
-        "twelve",
-        tuple(
-            PlannedPosition(*(float(x) for x in np.deg2rad(d)), tolerance=tol, seconds=30.0)
-            for d in TWELVE_DEG
-        ),
-    )
 
 
 @cache
