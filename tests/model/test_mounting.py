@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 import pytest
 
@@ -19,19 +17,7 @@ from canimucal.model.mounting import (
 )
 from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Pose
-
-WORDS = ("forward", "back", "left", "right", "up", "down")
-
-
-def all_proper_maps() -> list[MountingMap]:
-    """The 24 rotations among the 48 signed permutations."""
-    maps = []
-    for words in itertools.product(WORDS, repeat=3):
-        try:
-            maps.append(MountingMap(*words))
-        except InputError:
-            continue
-    return maps
+from tests.support.mounts import all_proper_maps
 
 
 def test_exactly_the_24_rotations_are_accepted() -> None:
