@@ -57,3 +57,5 @@ class ProcedureConfig:
     """Positions an interrupted session accepted (:mod:`.resume`); the procedure goes on."""
     mounting: MountingMap | None = None
     """How the unit sits in the vehicle: instructions worded for the vehicle (None: body axes)."""
+    mounting_note: str = ""
+    """Where ``mounting`` came from, for the operator (asked, saved for the serial, default)."""
