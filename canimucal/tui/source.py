@@ -64,6 +64,10 @@ class SessionSource(Protocol):
 
     description: str
     out_dir: Path
+    mount: MountingMap | str | None
+    """How the unit sits in the vehicle (a map, ``"body"``, None: saved or default)."""
+    replace_mount: bool
+    """Save ``mount`` for the unit's serial even when another map is saved."""
 
     def connect(self) -> list[NodeStatus]:
         """Find every node and read identity and calibration (blocking)."""
