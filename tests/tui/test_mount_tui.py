@@ -4,13 +4,19 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from canimucal.io.mounting import save_mounting
+from canimucal.io.mounting import load_mounting, save_mounting
 from canimucal.model.mounting import MountingMap
+from canimucal.procedure.machine import Phase
+from canimucal.sim.truth import Truth
 from canimucal.tui.app import make_app
 from canimucal.tui.modals import MountModal
 from canimucal.tui.plan_screen import PlanScreen
+from canimucal.tui.position import PositionScreen
+from canimucal.tui.source import demo_source
+from tests.support.pilot_steps import press, until
 from tests.support.tui_fakes import SERIAL, FakeSource, node_status, screen_text
 
 pytestmark = pytest.mark.asyncio
@@ -59,3 +65,28 @@ async def test_a_saved_map_is_shown_and_a_bench_plan_keeps_body_axes(tmp_path: P
         await pilot.pause()
         assert isinstance(app.screen, PlanScreen)
         assert ", as saved" in screen_text(app)
+
+
+async def test_a_vehicle_session_words_its_first_pose_for_the_vehicle_and_says_which_mount(
+    tmp_path: Path,
+) -> None:
+    truth = Truth.random(np.random.default_rng(5), cross_axis_max=0.0)
+    source = demo_source([truth], tmp_path, time_scale=20.0, seed=5, seconds=5.0)
+    source.warmup = False
+    source.mount = MountingMap("left", "down", "back")
+    app = make_app(source, plan_name="vehicle")
+    async with app.run_test(size=SIZE) as pilot:
+        await until(pilot, lambda: app.screen.check_action("next", ()) is True, "the node")
+        await press(pilot, "enter")  # connection -> plan
+        await pilot.pause()
+        assert "vehicle wording: mount x=left,y=down,z=back" in screen_text(app)
+        await press(pilot, "enter")  # plan vehicle -> position
+        screen = app.screen
+        assert isinstance(screen, PositionScreen)
+        await until(pilot, lambda: screen.phase is Phase.INSTRUCT, "the first instruction")
+        await pilot.pause()
+        text = screen_text(app)
+        assert "park the vehicle level at the start heading" in text
+        assert "mounting x=left,y=down,z=back saved for serial" in text
+    serial = next(iter(source.statuses.values())).identity.serial
+    assert load_mounting(serial) == MountingMap("left", "down", "back")
