@@ -224,9 +224,10 @@ def _results(
 def _narrative(event: ev.Event) -> str:
     """One line per event worth telling (None for the rest)."""
     if isinstance(event, ev.PoseInstructed):
+        words = event.words.replace("\n", " ")  # one step a line in the TUI, one line here
         if event.verification:
-            return f"{event.words} ({event.seconds:g} s)"
-        return f"position {event.index + 1}/{event.total}: {event.words} ({event.seconds:g} s)"
+            return f"{words} ({event.seconds:g} s)"
+        return f"position {event.index + 1}/{event.total}: {words} ({event.seconds:g} s)"
     if isinstance(event, ev.PositionAveraged):
         parts = [f"n={a.n} lost={a.lost}" for a in event.averages.values()]
         return f"  averaged position {event.index + 1}: " + ", ".join(parts)

@@ -18,8 +18,10 @@ import numpy as np
 
 from canimucal.cli.bus_options import add_bus_options, device_settings, node_ids
 from canimucal.errors import InputError
+from canimucal.io.mounting import BODY
 from canimucal.io.plans import BUILTIN_PLANS, resolve_plan
 from canimucal.model.gravity import normal_gravity
+from canimucal.model.mounting import MountingMap
 from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import STANDARD_GRAVITY
@@ -53,6 +55,18 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("--operator", help="operator's name, for the certificate")
     p.add_argument("--site", help="where the calibration was done, for the certificate")
     p.add_argument("--no-warmup", action="store_true", help="do not wait for warm-up")
+    p.add_argument(
+        "--mount",
+        metavar="MAP",
+        help="how the unit sits in the vehicle, e.g. x=forward,y=down,z=left (each unit axis: "
+        "forward, back, left, right, up or down); saved for the unit's serial when none is; "
+        "'body' words the instructions in the unit's axes",
+    )
+    p.add_argument(
+        "--replace-mount",
+        action="store_true",
+        help="replace the mounting map saved for the unit's serial with --mount's",
+    )
     p.add_argument(
         "--resume",
         metavar="DIR",
@@ -101,6 +115,8 @@ def device_source(args: argparse.Namespace) -> DeviceSource:
 
     if args.seconds is not None and not args.seconds > 0:
         raise InputError(f"--seconds must be positive, got {args.seconds}")
+    if args.replace_mount and args.mount in (None, BODY):
+        raise InputError("--replace-mount needs --mount MAP (the map to save)")
     return DeviceSource(
         device_settings(args, find=False),
         Path(args.resume or args.out),
@@ -112,7 +128,16 @@ def device_source(args: argparse.Namespace) -> DeviceSource:
         operator=args.operator,
         site_name=args.site,
         resume=bool(args.resume),
+        mount=mount_choice(args.mount),
+        replace_mount=args.replace_mount,
     )
+
+
+def mount_choice(text: str | None) -> MountingMap | str | None:
+    """Return ``--mount`` parsed: a map, ``"body"`` or None (a bad map is exit 2 here)."""
+    if text is None or text.strip().lower() == BODY:
+        return None if text is None else BODY
+    return MountingMap.parse(text)
 
 
 def run(args: argparse.Namespace) -> int:

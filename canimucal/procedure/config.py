@@ -10,6 +10,7 @@ from canimucal.analysis.acceptance import AcceptanceLimits
 from canimucal.analysis.calibrate import SiteConditions
 from canimucal.io.calibration import Device
 from canimucal.model.layout import JointSpec
+from canimucal.model.mounting import MountingMap
 from canimucal.model.positions import Plan, PlannedPosition, PositionAverage
 from canimucal.procedure.averaging import AveragingPolicy
 
@@ -54,3 +55,7 @@ class ProcedureConfig:
     progress_period_s: float = 0.25
     resume_from: ResumeState | None = None
     """Positions an interrupted session accepted (:mod:`.resume`); the procedure goes on."""
+    mounting: MountingMap | None = None
+    """How the unit sits in the vehicle: instructions worded for the vehicle (None: body axes)."""
+    mounting_note: str = ""
+    """Where ``mounting`` came from, for the operator (asked, saved for the serial, default)."""

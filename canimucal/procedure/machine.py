@@ -398,7 +398,7 @@ class Procedure:
         pose = self.target
         total = len(self.config.plan.positions)
         seconds = self.seconds_for(self.index)
-        words = describe_pose(pose)
+        words = describe_pose(pose, self.config.mounting)
         if self.verifying:
             words = "verification: " + words
         return events + [ev.PoseInstructed(self.index, total, pose, words, seconds, self.verifying)]

@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.model.frames import position_dcm
+from canimucal.model.mounting import DEFAULT_MOUNTING
 from canimucal.model.positions import Plan, Pose
 from canimucal.procedure.posecheck import describe_pose
 
@@ -133,6 +134,10 @@ def field_guide(plans: Sequence[Plan]) -> tuple[str, dict[str, str]]:
         "level) and +z (blue), and gravity g. Angles: alpha about body z, then beta about",
         "the new x, then the turn psi about the unit's own y (DESIGN §2).",
         "",
+        "The vehicle plan's poses are also worded for the vehicle, through the mounting map",
+        f"`{DEFAULT_MOUNTING.text()}` (the unit flat, +x to the front: the TUI's default",
+        "when no map is saved for the unit's serial; `canimucal tui --mount MAP` sets it).",
+        "",
     ]
     for plan in plans:
         lines += [f"## {plan.name}", "", *_plan_summary(plan), ""]
@@ -146,7 +151,7 @@ def field_guide(plans: Sequence[Plan]) -> tuple[str, dict[str, str]]:
                 "",
                 f"![{plan.name} position {k}](field-guide/{name})",
                 "",
-                f"{describe_pose(position)}; {position.seconds:g} s; "
+                f"{_one_line(describe_pose(position))}; {position.seconds:g} s; "
                 f"±{np.rad2deg(position.tolerance):g}° 1σ"
                 + (
                     f" (turn ±{np.rad2deg(position.psi_tolerance):g}°)"
@@ -156,7 +161,15 @@ def field_guide(plans: Sequence[Plan]) -> tuple[str, dict[str, str]]:
                 + ".",
                 "",
             ]
+            if plan.name == "vehicle":
+                words = _one_line(describe_pose(position, DEFAULT_MOUNTING))
+                lines += [f"For the vehicle: {words}.", ""]
     return "\n".join(lines).rstrip() + "\n", pictures
+
+
+def _one_line(words: str) -> str:
+    """Put an instruction's steps on one line (the TUI shows one step a line)."""
+    return words.replace("\n", " ")
 
 
 def _plan_summary(plan: Plan) -> list[str]:

@@ -6,6 +6,10 @@ the target's ``C(alpha, beta, psi) f_L``. The angle between the two vectors must
 the tolerance, so a tilt of the wrong sign (twice the tilt off) or the wrong size is refused.
 For display the measurement is turned back by the target's psi and read as (alpha, beta)
 with :func:`~canimucal.model.frames.gravity_direction_angles`.
+
+A target is worded in the unit's body axes (bench use) or, given a mounting map, as the
+vehicle's turn on the spot and front and side tilts read from the pose's rotation
+(:func:`~canimucal.model.mounting.vehicle_attitude`).
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.model.frames import ay, gravity_direction_angles, position_dcm, specific_force_level
+from canimucal.model.mounting import MountingMap, vehicle_attitude
 from canimucal.model.positions import Pose
 
 Array = NDArray[np.float64]
@@ -80,8 +85,53 @@ def check_pose(pose: Pose, f_measured: Array, g: float, tolerance_deg: float) ->
     )
 
 
-def describe_pose(pose: Pose) -> str:
-    """Describe the pose in words, with DESIGN §2's directions (e.g. for ``(45°, 5°, 90°)``)."""
+def describe_pose(pose: Pose, mounting: MountingMap | None = None) -> str:
+    """Describe the pose in words: for the vehicle given a ``mounting`` map, else in body axes."""
+    if mounting is not None:
+        return describe_vehicle_pose(pose, mounting)
+    return describe_body_pose(pose)
+
+
+_WORDING_STEP_DEG = 0.1
+"""Vehicle angles are worded to 0.1° (a ladder tilt is set to a few tenths at best)."""
+
+
+def describe_vehicle_pose(pose: Pose, mounting: MountingMap) -> str:
+    """Word ``pose`` as the vehicle's turn on the spot, then its front and side tilt.
+
+    The turn is relative to the vehicle's heading at the plan's reference pose (the start
+    heading); "raise the front wheels" then "raise the left side" are the pitch and roll of
+    :func:`~canimucal.model.mounting.vehicle_attitude`, in that order. One step a line.
+    """
+    attitude = vehicle_attitude(pose, mounting)
+    turn, front, left = (
+        round(a / _WORDING_STEP_DEG) * _WORDING_STEP_DEG + 0.0
+        for a in (attitude.turn_left_deg, attitude.front_up_deg, attitude.left_up_deg)
+    )
+    tilts = []
+    if front != 0.0:
+        tilts.append(f"raise the {'front' if front > 0 else 'rear'} wheels {abs(front):g}°")
+    if left != 0.0:
+        tilts.append(f"raise the {'left' if left > 0 else 'right'} side {abs(left):g}°")
+    if turn == 0.0:
+        if not tilts:
+            return "park the vehicle level at the start heading"
+        steps = ["keep the vehicle at the start heading"]
+    elif abs(turn) == 180.0:
+        steps = ["turn the vehicle round on the spot (180° from the start heading)"]
+    else:
+        side = "left" if turn > 0 else "right"
+        steps = [f"turn the vehicle on the spot to {abs(turn):g}° {side} of the start heading"]
+    return _steps(steps + (tilts or ["park it level"]))
+
+
+def _steps(steps: list[str]) -> str:
+    """Join instruction steps one a line (each fits the TUI's 78 columns)."""
+    return ",\nthen ".join(steps)
+
+
+def describe_body_pose(pose: Pose) -> str:
+    """Describe the pose in the unit's body axes, with DESIGN §2's directions (bench use)."""
     alpha, beta, psi = (float(np.rad2deg(x)) for x in pose.angles)
     parts = []
     if abs(alpha) > 1e-9:
@@ -95,4 +145,4 @@ def describe_pose(pose: Pose) -> str:
     turn = psi % 360.0
     if turn > 1e-9:
         parts.append(f"turn the unit {turn:g}° on its face (+z toward +x, clockwise from above)")
-    return ", then ".join(parts)
+    return _steps(parts)

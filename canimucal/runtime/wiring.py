@@ -30,7 +30,9 @@ from canimucal.device.bus import BusSettings, describe, open_bus
 from canimucal.device.client import NOTIFIER_CYCLE_S, Identity, ImuClient
 from canimucal.errors import NoDeviceError
 from canimucal.io.atomic import per_node_path
+from canimucal.io.mounting import choose_mounting
 from canimucal.model.layout import GyroSpec, JointSpec
+from canimucal.model.mounting import MountingMap
 from canimucal.model.positions import Plan
 from canimucal.procedure.machine import Procedure, ProcedureConfig
 from canimucal.runtime.resume import load_resume_state
@@ -102,6 +104,22 @@ def spec_for_plan(plan_name: str, gyro: str = "mems") -> JointSpec:
     if plan_name == "five":
         return JointSpec(accel_k="diag", tilt="rigid", gyro=grade)
     return JointSpec(accel_k="full", tilt="rigid", gyro=grade)
+
+
+def instruction_mounting(
+    plan_name: str, serial: int, mount: MountingMap | str | None, replace_mount: bool
+) -> tuple[MountingMap | None, str]:
+    """Return the map that words the instructions (None: body axes) and a note saying why.
+
+    The vehicle plan, or any plan with ``mount`` given, is worded for the vehicle through
+    :func:`~canimucal.io.mounting.choose_mounting` (the map asked for, else the one saved for
+    the first node's ``serial``, else the default); other plans in the unit's axes (a bench).
+    """
+    if mount is None and plan_name != "vehicle":
+        return None, ""
+    choice = choose_mounting(serial, mount, replace=replace_mount)
+    log.info("%s", choice.note)
+    return choice.mounting, choice.note
 
 
 class Devices:
@@ -227,6 +245,8 @@ class Devices:
         identities: dict[int, Identity] | None = None,
         operator: str | None = None,
         site_name: str | None = None,
+        mount: MountingMap | str | None = None,
+        replace_mount: bool = False,
         **config: Any,
     ) -> Session:
         """Build the guided session of ``plan`` over every node.
@@ -234,7 +254,9 @@ class Devices:
         ``site`` None: the simulated truth's site. The LSBs and the data rate come from the
         first node. Simulated nodes keep their backups in ``out_dir/backups`` by default.
         ``resume``: go on with the interrupted session in ``out_dir``, if its recordings came
-        from these very units. ``config`` goes to :class:`ProcedureConfig`.
+        from these very units. ``mount`` (a map, ``"body"`` or None) and ``replace_mount``
+        choose how instructions are worded (:func:`instruction_mounting`). ``config`` goes to
+        :class:`ProcedureConfig`.
         """
         identities = identities or self.identities()
         if backup_dir is None and self.sim_nodes:
@@ -247,6 +269,10 @@ class Devices:
         if resume:
             serials = {n: i.serial for n, i in identities.items()}
             config["resume_from"] = load_resume_state(out_dir, plan, tuple(self.clients), serials)
+        first_serial = identities[next(iter(self.clients))].serial
+        config["mounting"], config["mounting_note"] = instruction_mounting(
+            plan_name, first_serial, mount, replace_mount
+        )
         cfg = ProcedureConfig(
             plan=plan,
             node_ids=tuple(self.clients),

@@ -84,13 +84,19 @@ class CalibrationApp(App[int]):
     def on_plan_wanted(self, message: PlanWanted) -> None:
         """Show the plan screen once the connection screen is done."""
         plan_screen = PlanScreen(
-            message.statuses, self.plans, plan_name=self.plan_name, gyro=self.gyro
+            message.statuses,
+            self.plans,
+            plan_name=self.plan_name,
+            gyro=self.gyro,
+            mount=self.source.mount,
         )
         self.push_screen(plan_screen)
 
     def on_start_wanted(self, message: StartWanted) -> None:
         """Open the session of the chosen plan on the position screen's worker."""
         self.plan_name, self.gyro = message.plan_name, message.gyro
+        if message.mount_chosen:  # chosen on the plan screen: saved for the unit
+            self.source.mount, self.source.replace_mount = message.mount, True
         plan = self.plans[message.plan_name]
 
         def open_runner() -> SessionRunner:  # on the worker thread: opening blocks

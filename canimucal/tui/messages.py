@@ -11,6 +11,7 @@ from collections.abc import Callable
 
 from textual.message import Message
 
+from canimucal.model.mounting import MountingMap
 from canimucal.procedure import events as ev
 from canimucal.tui.runner import Command
 from canimucal.tui.source import NodeStatus
@@ -50,13 +51,26 @@ class PlanWanted(Message):
 
 
 class StartWanted(Message):
-    """The plan screen is done: start the procedure with this plan and gyro grade."""
+    """The plan screen is done: start the procedure with this plan, gyro grade and mount.
 
-    def __init__(self, plan_name: str, gyro: str, statuses: list[NodeStatus]) -> None:
+    ``mount_chosen``: the operator chose ``mount`` on the plan screen (it is saved for the
+    unit's serial, replacing a saved map).
+    """
+
+    def __init__(
+        self,
+        plan_name: str,
+        gyro: str,
+        statuses: list[NodeStatus],
+        mount: MountingMap | str | None = None,
+        mount_chosen: bool = False,
+    ) -> None:
         super().__init__()
         self.plan_name = plan_name
         self.gyro = gyro
         self.statuses = statuses
+        self.mount = mount
+        self.mount_chosen = mount_chosen
 
 
 class ResultsReady(Message):

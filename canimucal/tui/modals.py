@@ -1,4 +1,4 @@
-"""Modal screens: the yes/no confirmations (write, quit, skip) and the error modal."""
+"""Modal screens: the yes/no confirmations (write, quit, skip), the error modal and the mount."""
 
 from __future__ import annotations
 
@@ -6,7 +6,11 @@ from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
 from textual.screen import ModalScreen
-from textual.widgets import Button, Static
+from textual.widgets import Button, Input, Static
+
+from canimucal.errors import InputError
+from canimucal.io.mounting import BODY
+from canimucal.model.mounting import MountingMap
 
 
 class Confirm(ModalScreen[bool]):
@@ -101,4 +105,48 @@ class ErrorModal(ModalScreen[None]):
 
     def action_close(self) -> None:
         """Close."""
+        self.dismiss(None)
+
+
+class MountModal(ModalScreen[MountingMap | str | None]):
+    """Ask how the unit sits in the vehicle: a map, ``body``, or None (escape: unchanged).
+
+    The map is checked as it is entered (a mirror image or a word used twice is refused
+    here, with the reason); the caller saves it for the unit's serial.
+    """
+
+    BINDINGS = [Binding("escape", "cancel", "Cancel")]
+
+    def __init__(self, current: str, serial: int | None) -> None:
+        super().__init__()
+        self.current = current
+        self.serial = serial
+
+    def compose(self) -> ComposeResult:
+        """Question, explanation, the map as text and the reason it is refused."""
+        unit = f"serial {self.serial}" if self.serial is not None else "this unit"
+        with Vertical(id="dialog"):
+            yield Static("How is the unit mounted?", classes="dialog-title")
+            yield Static(
+                "The vehicle direction of each unit axis (forward, back, left, right, up, "
+                f"down), e.g. x=forward,y=down,z=left; saved for {unit}. 'body' words the "
+                "instructions in the unit's own axes. Enter to use, escape to keep.",
+                markup=False,
+            )
+            yield Input(self.current, id="mount-input")
+            yield Static("", id="mount-error", markup=False)
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        """Use the map entered, or say why it cannot be used."""
+        text = event.value.strip()
+        if text.lower() == BODY:
+            self.dismiss(BODY)
+            return
+        try:
+            self.dismiss(MountingMap.parse(text))
+        except InputError as exc:
+            self.query_one("#mount-error", Static).update(str(exc))
+
+    def action_cancel(self) -> None:
+        """Keep the map as it was."""
         self.dismiss(None)

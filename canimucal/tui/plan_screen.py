@@ -1,4 +1,9 @@
-"""The plan screen: choose the plan and gyro grade; the Cramér–Rao table shows what it can do."""
+"""The plan screen: plan, gyro grade and mount; the Cramér–Rao table shows what a plan can do.
+
+The summary says how the instructions will be worded: for the vehicle (the vehicle plan, or
+any plan once a mount is chosen) through the map chosen here or with ``--mount``, else the
+map saved for the first node's serial, else the default; otherwise in the unit's own axes.
+"""
 
 from __future__ import annotations
 
@@ -12,10 +17,14 @@ from textual.reactive import reactive
 from textual.screen import Screen
 from textual.widgets import DataTable, Footer, Static
 
+from canimucal.errors import InputError
+from canimucal.io.mounting import BODY, load_mounting
+from canimucal.model.mounting import DEFAULT_MOUNTING, MountingMap
 from canimucal.model.plan import BoundTable, cramer_rao
 from canimucal.model.positions import Plan
 from canimucal.runtime.wiring import spec_for_plan
 from canimucal.tui.messages import StartWanted
+from canimucal.tui.modals import MountModal
 from canimucal.tui.source import NodeStatus
 from canimucal.tui.text import bound_rows, findings_text
 from canimucal.tui.widgets import passive_table
@@ -30,9 +39,10 @@ def bound_table(plan_name: str, plan: Plan, accel_lsb: float) -> BoundTable:
 
 
 class PlanScreen(Screen[None]):
-    """Plan choice (2, 5, r, v, u), gyro grade (g), start (enter).
+    """Plan choice (2, 5, r, v, u), gyro grade (g), mount (m), start (enter).
 
-    ``plans`` are the plans on offer by name; ``plan_name`` and ``gyro`` the first choice.
+    ``plans`` are the plans on offer by name; ``plan_name``, ``gyro`` and ``mount`` (from
+    ``--mount``) the first choice.
     """
 
     BINDINGS = [
@@ -43,6 +53,7 @@ class PlanScreen(Screen[None]):
         Binding("v", "plan('vehicle')", "Vehicle"),
         Binding("u", "plan('custom')", "Custom"),
         Binding("g", "gyro", "Gyro grade"),
+        Binding("m", "mount", "Mount", show=False),  # the summary names it: the footer is full
         Binding("escape", "back", "Back"),
     ]
     plan_name = reactive("recommended", bindings=True)
@@ -55,11 +66,14 @@ class PlanScreen(Screen[None]):
         *,
         plan_name: str = "recommended",
         gyro: str = "mems",
+        mount: MountingMap | str | None = None,
     ) -> None:
         super().__init__()
         self.statuses = statuses
         self.plans = dict(plans)
         self.first_choice = (plan_name if plan_name in self.plans else "recommended", gyro)
+        self.mount_map = mount
+        self.mount_chosen = False
 
     def compose(self) -> ComposeResult:
         """Title, plan summary, bound table, findings."""
@@ -106,6 +120,7 @@ class PlanScreen(Screen[None]):
         self.summary.update(
             f"plan {self.plan_name}: {len(plan.positions)} positions, "
             f"{plan.total_seconds:g} s of averaging · gyro {grade} · nodes {nodes}\n"
+            f"{self.instructions_line()}\n"
             "Cramér–Rao σ at K = I/LSB, 1 count/√Hz white noise, zero tilt:"
         )
         self.table.clear()
@@ -113,9 +128,47 @@ class PlanScreen(Screen[None]):
             self.table.add_row(*row)
         self.findings.update(findings_text(table))
 
+    @property
+    def serial(self) -> int | None:
+        """The first node's serial (the unit the mounting map is saved for)."""
+        return self.statuses[0].identity.serial if self.statuses else None
+
+    def instructions_line(self) -> str:
+        """Say how the instructions will be worded (module doc), in one line at 80 columns."""
+        if self.mount_map == BODY or (self.mount_map is None and self.plan_name != "vehicle"):
+            return "instructions in the unit's own axes · m words them for a vehicle"
+        if isinstance(self.mount_map, MountingMap):
+            return f"vehicle wording: mount {self.mount_map.text()} · m changes it"
+        try:
+            saved = None if self.serial is None else load_mounting(self.serial)
+        except InputError as exc:
+            return f"mounting: {exc}"
+        if saved is not None:
+            return f"vehicle wording: mount {saved.text()}, as saved · m changes it"
+        return f"vehicle wording: mount {DEFAULT_MOUNTING.text()}, the default · m changes it"
+
+    def action_mount(self) -> None:
+        """Ask how the unit is mounted; the answer words the instructions and is saved."""
+
+        def answered(mount: MountingMap | str | None) -> None:
+            if mount is not None:
+                self.mount_map, self.mount_chosen = mount, True
+                self.show_plan()
+
+        current = self.mount_map.text() if isinstance(self.mount_map, MountingMap) else ""
+        if self.mount_map is None and self.serial is not None:
+            try:
+                saved = load_mounting(self.serial)
+            except InputError:
+                saved = None
+            current = (saved or DEFAULT_MOUNTING).text()
+        self.app.push_screen(MountModal(current or DEFAULT_MOUNTING.text(), self.serial), answered)
+
     def action_start(self) -> None:
         """Ask the app to start the procedure with this plan."""
-        self.post_message(StartWanted(self.plan_name, self.gyro, self.statuses))
+        self.post_message(
+            StartWanted(self.plan_name, self.gyro, self.statuses, self.mount_map, self.mount_chosen)
+        )
 
     def action_back(self) -> None:
         """Back to the connection screen."""

@@ -149,6 +149,9 @@ class PositionScreen(Screen[None]):
         except CanimucalError as exc:
             self.post_message(EventsArrived([ev.ProcedureFailed(str(exc), exc.title)]))
             return
+        note = self.runner.session.procedure.config.mounting_note  # how the words are framed
+        if note:
+            self.app.call_from_thread(self.notice.update, note)
         self.runner.run(self._deliver)
 
     def _deliver(self, batch: list[ev.Event]) -> None:

@@ -18,6 +18,7 @@ from typing import Protocol
 from canimucal.analysis.calibrate import SiteConditions
 from canimucal.device.busload import BusLoad
 from canimucal.device.client import CalibrationReadout, Identity, ImuClient
+from canimucal.model.mounting import MountingMap
 from canimucal.model.positions import Plan
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.runtime.session import Session
@@ -63,6 +64,10 @@ class SessionSource(Protocol):
 
     description: str
     out_dir: Path
+    mount: MountingMap | str | None
+    """How the unit sits in the vehicle (a map, ``"body"``, None: saved or default)."""
+    replace_mount: bool
+    """Save ``mount`` for the unit's serial even when another map is saved."""
 
     def connect(self) -> list[NodeStatus]:
         """Find every node and read identity and calibration (blocking)."""
@@ -117,6 +122,10 @@ class DeviceSource:
     site_name: str | None = None
     resume: bool = False
     """Go on with the interrupted session in ``out_dir`` (:mod:`canimucal.runtime.resume`)."""
+    mount: MountingMap | str | None = None
+    """How the unit sits in the vehicle (``"body"``: body-axis wording; None: saved/default)."""
+    replace_mount: bool = False
+    """Replace the map saved for the unit's serial with ``mount``."""
     devices: Devices | None = field(default=None, init=False)
     statuses: dict[int, NodeStatus] = field(default_factory=dict, init=False)
 
@@ -155,6 +164,8 @@ class DeviceSource:
             site_name=self.site_name,
             warmup=self.warmup,
             verify_seconds=self.verify_seconds,
+            mount=self.mount,
+            replace_mount=self.replace_mount,
         )
 
     def close(self) -> None:

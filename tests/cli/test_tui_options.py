@@ -12,6 +12,7 @@ from canimucal.cli.main import build_parser
 from canimucal.cli.tui_cmd import device_source, plan_choice
 from canimucal.errors import InputError
 from canimucal.io.plans import plan_to_dict
+from canimucal.model.mounting import MountingMap
 from canimucal.model.plan import builtin_plan
 
 
@@ -44,3 +45,14 @@ def test_operator_site_and_seconds_go_to_the_source(tmp_path: Path) -> None:
 def test_seconds_must_be_positive(seconds: str) -> None:
     with pytest.raises(InputError, match="--seconds must be positive"):
         device_source(parse("--sim", "--g", "9.81", "--seconds", seconds))
+
+
+def test_mount_goes_to_the_source_and_a_bad_map_is_refused_before_the_tui() -> None:
+    source = device_source(parse("--sim", "--g", "9.81", "--mount", "x=left,y=down,z=back"))
+    assert source.mount == MountingMap("left", "down", "back") and not source.replace_mount
+    assert device_source(parse("--sim", "--g", "9.81", "--mount", "body")).mount == "body"
+    assert device_source(parse("--sim", "--g", "9.81")).mount is None
+    with pytest.raises(InputError, match="mirror image"):
+        device_source(parse("--sim", "--g", "9.81", "--mount", "x=forward,y=left,z=down"))
+    with pytest.raises(InputError, match="--replace-mount needs --mount"):
+        device_source(parse("--sim", "--g", "9.81", "--replace-mount"))

@@ -15,6 +15,7 @@ from canimucal.analysis.calibrate import SiteConditions, solve_positions
 from canimucal.device.client import CalibrationReadout, Identity
 from canimucal.device.od import factory_block
 from canimucal.errors import InputError, NoDeviceError
+from canimucal.model.mounting import MountingMap
 from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
@@ -46,6 +47,8 @@ class FakeSource:
     fail: bool = False
     description: str = "test bus (no CAN)"
     closed: int = 0
+    mount: MountingMap | str | None = None
+    replace_mount: bool = False
 
     def connect(self) -> list[NodeStatus]:
         if self.fail:

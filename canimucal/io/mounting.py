@@ -1,0 +1,135 @@
+"""Mounting maps saved per unit: ``$XDG_CONFIG_HOME/canimucal/mounting/<serial>.toml``.
+
+The file holds the vehicle direction of each unit axis (DESIGN §9)::
+
+    x = "forward"
+    y = "down"
+    z = "left"
+
+``~/.config`` stands in for an unset or empty ``XDG_CONFIG_HOME``. Files are written
+atomically and never replaced unless asked. :func:`choose_mounting` decides which map words a
+session's instructions: the one asked for, else the one saved for the unit's serial, else
+:data:`~canimucal.model.mounting.DEFAULT_MOUNTING`, and says which in one line.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from canimucal.errors import InputError
+from canimucal.io.atomic import write_text_atomic
+from canimucal.model.mounting import DEFAULT_MOUNTING, MountingMap
+
+log = logging.getLogger(__name__)
+
+BODY = "body"
+"""``--mount body``: instructions in the unit's own axes (bench use), nothing saved."""
+
+
+def mounting_dir(environ: Mapping[str, str] | None = None) -> Path:
+    """``$XDG_CONFIG_HOME/canimucal/mounting`` (``~/.config`` when unset or empty)."""
+    env = os.environ if environ is None else environ
+    base = env.get("XDG_CONFIG_HOME") or str(Path(env.get("HOME", "~")).expanduser() / ".config")
+    return Path(base) / "canimucal" / "mounting"
+
+
+def mounting_path(serial: int, environ: Mapping[str, str] | None = None) -> Path:
+    """Return the file of the unit with ``serial``."""
+    return mounting_dir(environ) / f"{int(serial)}.toml"
+
+
+def read_mounting(path: Path) -> MountingMap:
+    """Read a saved map (:class:`InputError` naming the file when it is not one)."""
+    try:
+        document = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise InputError(f"{path}: cannot read the mounting map ({exc})") from None
+    unknown = sorted(set(document) - {"x", "y", "z"})
+    if unknown:
+        raise InputError(f"{path}: unknown key {unknown[0]!r} (only x, y, z)")
+    words = [document.get(axis) for axis in "xyz"]
+    if not all(isinstance(w, str) for w in words):
+        raise InputError(f"{path}: x, y and z must each name a vehicle direction")
+    try:
+        return MountingMap(*(str(w) for w in words))
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None
+
+
+def load_mounting(serial: int, environ: Mapping[str, str] | None = None) -> MountingMap | None:
+    """Return the map saved for ``serial``, None when there is none."""
+    path = mounting_path(serial, environ)
+    return read_mounting(path) if path.is_file() else None
+
+
+def save_mounting(
+    serial: int,
+    mounting: MountingMap,
+    *,
+    overwrite: bool = False,
+    environ: Mapping[str, str] | None = None,
+) -> Path:
+    """Save ``mounting`` for ``serial`` atomically; an existing file only with ``overwrite``."""
+    path = mounting_path(serial, environ)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create {path.parent}: {exc.strerror or exc}") from None
+    text = (
+        f"# canimucal: how unit serial {int(serial)} is mounted in the vehicle\n"
+        "# (the vehicle direction of each unit axis: forward, back, left, right, up, down)\n"
+        f'x = "{mounting.x}"\ny = "{mounting.y}"\nz = "{mounting.z}"\n'
+    )
+    return write_text_atomic(path, text, overwrite=overwrite)
+
+
+@dataclass(frozen=True)
+class MountingChoice:
+    """The map that words the instructions (None: body axes) and one line saying why."""
+
+    mounting: MountingMap | None
+    note: str
+
+
+def choose_mounting(
+    serial: int,
+    requested: MountingMap | str | None = None,
+    *,
+    replace: bool = False,
+    environ: Mapping[str, str] | None = None,
+) -> MountingChoice:
+    """Decide the map of the unit with ``serial`` (module doc).
+
+    ``requested``: a map (used; saved when the serial has none, or with ``replace``), the
+    string ``"body"`` (body-axis wording), or None (the saved map, else the default).
+    """
+    if requested == BODY:
+        return MountingChoice(None, "instructions in the unit's own axes (--mount body)")
+    if isinstance(requested, str):
+        requested = MountingMap.parse(requested)
+    saved = load_mounting(serial, environ)
+    path = mounting_path(serial, environ)
+    if requested is None:
+        if saved is not None:
+            return MountingChoice(saved, f"mounting {saved.text()} of serial {serial} ({path})")
+        return MountingChoice(
+            DEFAULT_MOUNTING,
+            f"no mounting map saved for serial {serial}: assuming {DEFAULT_MOUNTING.text()} "
+            "(unit flat, +x to the front); set it with --mount",
+        )
+    if saved == requested:
+        return MountingChoice(requested, f"mounting {requested.text()} of serial {serial}")
+    if saved is None or replace:
+        save_mounting(serial, requested, overwrite=replace, environ=environ)
+        log.info("saved mounting %s for serial %d in %s", requested.text(), serial, path)
+        return MountingChoice(requested, f"mounting {requested.text()} saved for serial {serial}")
+    return MountingChoice(
+        requested,
+        f"mounting {requested.text()} for this session; serial {serial} keeps {saved.text()} "
+        "(--replace-mount saves the new one)",
+    )
