@@ -101,6 +101,7 @@ class SimulatedImuNode:
             cal_active=self._access.calibration_active,
             on_time=lambda t_s: self._fault_actions.on_sim_time(t_s),
             backlog=VirtualBusBacklog(self._network.bus),
+            timer_skew_ppm=self.truth.timer_skew_ppm,
         )
         self._fault_actions = FaultActions(
             self.node_id,

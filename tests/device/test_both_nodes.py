@@ -272,7 +272,7 @@ def test_read_params_leaves_an_operational_node_operational(
 def test_timer_skew_is_reported_and_repeats_are_not_losses(
     make_device: MakeDevice, client: ImuClient, skew_ppm: float
 ) -> None:
-    # the event timer 0.5 % off the sensor clock (independent node only): slow skips a
+    # the event timer 0.5 % off the sensor clock (both nodes): slow skips a
     # counter every 200 frames, fast re-sends one; 3 s at 200 Hz is ~600 frames
     make_device(timer_skew_ppm=skew_ppm, nmt_start="operational")
     client.start_streaming()

@@ -26,7 +26,13 @@ from tests.support.canbus import NODE_ID
 from tests.support.independent_node import Behaviour, IndependentImuNode
 
 NODE_KINDS = ("simulated", "independent")
-SIM_TRUTH_KEYS = ("nmt_start", "heartbeat_ms", "store_delay_s", "storage_subs")
+SIM_TRUTH_KEYS = (
+    "nmt_start",
+    "heartbeat_ms",
+    "store_delay_s",
+    "storage_subs",
+    "timer_skew_ppm",
+)
 """Behaviours the simulated node takes from its truth JSON."""
 
 
