@@ -22,6 +22,7 @@ from canimucal.cli.main import main
 from canimucal.device import od
 from canimucal.device.client import ImuClient
 from canimucal.errors import DeviceError
+from canimucal.simnode.node import SimulatedImuNode
 from tests.support.canbus import NODE_ID
 from tests.support.independent_node import IndependentImuNode
 from tests.support.nodes import DeviceUnderTest
@@ -141,8 +142,8 @@ def test_serial_refusal_and_backup_restore(
 def test_slow_store_dropping_frames_ends_exit_0_stored_once(
     make_device: MakeDevice, capsys: pytest.CaptureFixture[str], bus_channel: str, cal_file: Path
 ) -> None:
-    # CANopenNode erases flash inside the SDO handler; the independent node drops its TPDOs
-    # and heartbeat meanwhile (as CANopenLinux does); the simulated node keeps sending
+    # CANopenNode erases flash inside the SDO handler; both nodes drop their TPDOs meanwhile
+    # (store_pdo_mode "drop", the default; the independent node its heartbeat too)
     device = make_device(store_delay_s=2.5, nmt_start="operational")  # TPDOs flowing
     started = time.monotonic()
     code, out, err = write_params(capsys, bus_channel, cal_file)
@@ -150,20 +151,22 @@ def test_slow_store_dropping_frames_ends_exit_0_stored_once(
     assert time.monotonic() - started >= 2.5
     assert "stored (0x1010:04)" in out and "restored" not in out + err
     assert device.store_log == [od.STORE_CALIBRATION_SUB]  # once: never retried
-    if isinstance(device.node, IndependentImuNode):
-        assert device.node.stats["dropped"] > 100  # 2.5 s of samples and TPDOs lost
+    assert device.dropped_in_store > 100  # 2.5 s of TPDOs lost
     assert device.nmt_state == "OPERATIONAL"  # write-params sends no NMT
 
 
 def test_slow_store_queueing_frames_ends_exit_0_stored_once(
     make_device: MakeDevice, capsys: pytest.CaptureFixture[str], bus_channel: str, cal_file: Path
 ) -> None:
-    # frames held back during the store and sent as a burst after it (independent node only)
+    # frames held back during the store and sent as a burst after it
     device = make_device(store_delay_s=1.0, store_pdo_mode="queue", nmt_start="operational")
     code, out, err = write_params(capsys, bus_channel, cal_file)
     assert code == 0, err
     assert "stored (0x1010:04)" in out and "restored" not in out + err
     assert device.store_log == [od.STORE_CALIBRATION_SUB]
+    assert device.dropped_in_store == 0
+    if isinstance(device.node, SimulatedImuNode):
+        assert device.node.frames_queued_in_store > 200  # 1 s of TPDO1/2 at 200 Hz, late
 
 
 def test_node_without_sub_4_is_stored_through_sub_1(

@@ -31,6 +31,7 @@ SIM_TRUTH_KEYS = (
     "heartbeat_ms",
     "store_delay_s",
     "storage_subs",
+    "store_pdo_mode",
     "timer_skew_ppm",
 )
 """Behaviours the simulated node takes from its truth JSON."""
@@ -58,6 +59,14 @@ class DeviceUnderTest:
     def store_log(self) -> list[int]:
         """0x1010 sub-index of every completed store."""
         return list(self.node.store_log)
+
+    @property
+    def dropped_in_store(self) -> int:
+        """What a slow store made the node lose: TPDO frames (simulated), or samples and
+        TPDO events (independent)."""
+        if isinstance(self.node, SimulatedImuNode):
+            return self.node.frames_dropped_in_store
+        return int(self.node.stats["dropped"])
 
     def calibration_valid(self) -> bool:
         return int(self.value(od.CAL_INFO, od.CAL_VALID_SUB)) == 1
