@@ -258,6 +258,21 @@ def test_sync_only_node_without_heartbeat_gets_no_nmt(
     assert device.nmt_state == "PRE-OPERATIONAL"  # never started: no NMT was sent at all
 
 
+def test_sync_pdos_stream_paired_samples_on_the_clients_sync(
+    make_device: MakeDevice, client_network: canopen.Network
+) -> None:
+    make_device(sync_pdos=True, nmt_start="operational")  # transmission type 1: every SYNC
+    client = ImuClient(client_network, NODE_ID, sdo_timeout_s=1.0, sync_producer=True)
+    assert [client.read_value(0x1800 + i, 2, "u8") for i in range(3)] == [1, 1, 1]
+    client.start_streaming()
+    try:
+        block = client.read_samples(100, timeout_s=5.0)
+    finally:
+        client.close()
+    assert block.n >= 100 and block.lost_accel == block.lost_gyro == 0
+    assert float(np.linalg.norm(np.nanmean(block.accel, axis=0))) == pytest.approx(2048, rel=0.05)
+
+
 def test_read_params_leaves_an_operational_node_operational(
     make_device: MakeDevice, capsys: pytest.CaptureFixture[str], bus_channel: str, tmp_path: Path
 ) -> None:

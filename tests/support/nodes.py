@@ -32,6 +32,7 @@ SIM_TRUTH_KEYS = (
     "store_delay_s",
     "storage_subs",
     "store_pdo_mode",
+    "sync_pdos",
     "timer_skew_ppm",
 )
 """Behaviours the simulated node takes from its truth JSON."""
