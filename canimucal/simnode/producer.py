@@ -158,9 +158,10 @@ class SampleProducer:
                 if frames and self._operational():
                     for cob_id, data in frames:
                         self._send(cob_id, data)
-                next_timed = self._send_timed()
-                if next_timed is not None:
-                    wait_s = min(wait_s, next_timed)
+                if self.timer_skew_ppm:
+                    next_tick = self._send_timed()
+                    if next_tick is not None:
+                        wait_s = min(wait_s, next_tick)
                 if self._on_time is not None and self.last_block is not None:
                     self._on_time(float(self.last_block.t_s[-1]))
                 if wait_s > 0.0:
@@ -192,7 +193,8 @@ class SampleProducer:
             first_due_wall = self._anchor_wall + (self._anchor_count + 1) / rate
             self._anchor_count += n
             frames, ticks = self._consume(block)
-            self._schedule(ticks, first_due_wall, rate)
+            if ticks:
+                self._schedule(ticks, first_due_wall, rate)
         return frames, (MIN_SLEEP_S if due <= MAX_BATCH else 0.0)
 
     def _schedule(self, ticks: list[TimedFrame], first_due_wall: float, rate: float) -> None:
