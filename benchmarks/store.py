@@ -1,7 +1,10 @@
-"""Store benchmark against the independent (durand) IMU node: slow stores and timer skew.
+"""Store benchmark against an IMU node: slow stores and timer skew.
 
 Run: ``PYTHONPATH=. .venv/bin/python benchmarks/store.py [--delays 0,0.5,1,2.5,5]
-[--skews -10000,-5000,-1000,0,1000,5000,10000] [--seconds 5]``.
+[--skews -10000,-5000,-1000,0,1000,5000,10000] [--seconds 5] [--node simulated]``.
+``--node`` picks the independent (durand) node, the default, or the simulated one; both take
+the same behaviours (truth JSON keys, DESIGN §9). "dropped" counts what each drops during a
+store: samples and TPDO events (independent), TPDO frames (simulated).
 
 1. Write + store time against the store's duration. The node blocks the SDO answer of
    0x1010 for the delay (CANopenNode erases flash inside the SDO handler) and drops its
@@ -33,9 +36,12 @@ from canimucal.device.client import ImuClient
 from canimucal.device.transaction import StoreNotConfirmedError, write_calibration_transaction
 from canimucal.errors import DeviceError
 from canimucal.io.calibration import Calibration
+from canimucal.sim.truth import Truth
+from canimucal.simnode.node import SimulatedImuNode
 from tests.support.independent_node import Behaviour, IndependentImuNode
 
 NODE = 0x10
+Node = IndependentImuNode | SimulatedImuNode
 
 
 def _calibration(scale: float) -> Calibration:
@@ -51,25 +57,37 @@ def _calibration(scale: float) -> Calibration:
     )
 
 
-def _pair(**behaviour: object) -> tuple[IndependentImuNode, ImuClient, list[can.BusABC]]:
+def _pair(kind: str, **behaviour: object) -> tuple[Node, ImuClient, list[can.BusABC]]:
     channel = f"bench-store-{uuid.uuid4().hex[:8]}"
     buses = [can.Bus(interface="virtual", channel=channel) for _ in range(2)]
-    node = IndependentImuNode(buses[0], NODE, Behaviour(**behaviour)).start()  # type: ignore[arg-type]
+    node: Node
+    if kind == "simulated":
+        node = SimulatedImuNode(buses[0], NODE, Truth.from_dict(behaviour), seed=1).start()
+    else:
+        node = IndependentImuNode(buses[0], NODE, Behaviour(**behaviour)).start()  # type: ignore[arg-type]
     return node, ImuClient(buses[1], NODE, sdo_timeout_s=1.0), buses
 
 
-def _close(node: IndependentImuNode, client: ImuClient, buses: list[can.BusABC]) -> None:
+def _dropped(node: Node) -> int:
+    if isinstance(node, SimulatedImuNode):
+        return node.frames_dropped_in_store
+    return int(node.stats["dropped"])
+
+
+def _close(node: Node, client: ImuClient, buses: list[can.BusABC]) -> None:
     client.close()
     node.stop()
     for bus in buses:
         bus.shutdown()
 
 
-def store_rows(delays: list[float], timeout_s: float) -> list[dict[str, object]]:
+def store_rows(
+    delays: list[float], timeout_s: float, kind: str = "independent"
+) -> list[dict[str, object]]:
     rows = []
     cases = [(d, timeout_s) for d in delays] + [(timeout_s + 1.0, timeout_s)]
     for k, (delay, timeout) in enumerate(cases):
-        node, client, buses = _pair(store_delay_s=delay, nmt_start="operational")
+        node, client, buses = _pair(kind, store_delay_s=delay, nmt_start="operational")
         with tempfile.TemporaryDirectory() as backups:
             t0 = time.monotonic()
             try:
@@ -89,7 +107,7 @@ def store_rows(delays: list[float], timeout_s: float) -> list[dict[str, object]]
                 "timeout_s": timeout,
                 "write_store_s": round(elapsed, 3),
                 "stores": len(node.store_log),
-                "dropped": node.stats["dropped"],
+                "dropped": _dropped(node),
                 "outcome": outcome,
             }
         )
@@ -97,10 +115,12 @@ def store_rows(delays: list[float], timeout_s: float) -> list[dict[str, object]]
     return rows
 
 
-def skew_rows(skews: list[float], seconds: float) -> list[dict[str, object]]:
+def skew_rows(
+    skews: list[float], seconds: float, kind: str = "independent"
+) -> list[dict[str, object]]:
     rows = []
     for skew in skews:
-        node, client, buses = _pair(timer_skew_ppm=skew, nmt_start="operational")
+        node, client, buses = _pair(kind, timer_skew_ppm=skew, nmt_start="operational")
         client.start_streaming()
         block = client.read_samples(10**9, timeout_s=seconds)
         estimate = client.skew_ppm
@@ -128,15 +148,17 @@ def main() -> None:
     parser.add_argument("--skews", default="-10000,-5000,-1000,0,1000,5000,10000")
     parser.add_argument("--seconds", type=float, default=5.0)
     parser.add_argument("--json", type=Path, help="also write the figures here")
+    parser.add_argument("--node", choices=("independent", "simulated"), default="independent")
     args = parser.parse_args()
-    stores = store_rows(_floats(args.delays), args.store_timeout_s)
+    print(f"node: {args.node}")
+    stores = store_rows(_floats(args.delays), args.store_timeout_s, args.node)
     print("store delay  timeout  write+store  stores  dropped  outcome")
     for r in stores:
         print(
             f"{r['store_s']:>9.1f} s {r['timeout_s']:>6.1f} s {r['write_store_s']:>10.2f} s "
             f"{r['stores']:>7} {r['dropped']:>8}  {r['outcome']}"
         )
-    skews = skew_rows(_floats(args.skews), args.seconds)
+    skews = skew_rows(_floats(args.skews), args.seconds, args.node)
     print(f"\ntimer skew (ppm)  samples  lost  duplicates  estimated (ppm) in {args.seconds:g} s")
     for r in skews:
         print(

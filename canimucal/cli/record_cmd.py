@@ -240,12 +240,14 @@ def _refused(index: int, why: str) -> None:
 
 
 def report(tallies: list[NodeTally], paths: list[Path]) -> str:
-    """Rows, labelled rows and losses per node."""
+    """Rows, labelled rows, losses and the TPDO timer skew per node."""
     lines = []
     for tally, path in zip(tallies, paths, strict=True):
+        skew = "not measured" if tally.skew_ppm is None else f"{tally.skew_ppm:+.0f} ppm"
         lines.append(
             f"node {tally.node_id}: wrote {tally.rows} rows to {path} ({tally.labelled} in "
             f"positions); lost {tally.lost_samples} samples, {tally.lost_accel} accel and "
-            f"{tally.lost_gyro} gyro halves; {tally.duplicates} duplicate, {tally.late} late"
+            f"{tally.lost_gyro} gyro halves; {tally.duplicates} duplicate, {tally.late} late; "
+            f"timer skew {skew}"
         )
     return "\n".join(lines) + "\n"

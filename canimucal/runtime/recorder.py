@@ -86,6 +86,9 @@ class NodeTally:
     duplicates: int = 0
     late: int = 0
     reboots: int = 0
+    skew_ppm: float | None = None
+    """The node's TPDO event timer against its sample clock, ppm (the client's latest
+    estimate, :attr:`~canimucal.device.client.ImuClient.skew_ppm`); None: not measured."""
 
     def add(self, block: SampleBlock) -> None:
         """Add a block's loss counts."""
@@ -213,6 +216,7 @@ class Recorder:
             return
         self._started = False
         for track in self._tracks:
+            _note_skew(track)  # the estimate ends with the stream
             track.client.stop_streaming(keep_operational=track.was_operational)
             self._drain(track, _unlabelled)
 
@@ -417,10 +421,18 @@ class Recorder:
         block = concat_blocks(track.pending)
         track.pending, track.pending_rows = [], 0
         track.tally.add(block)
+        _note_skew(track)
         if block.n:
             if track.check_rate:
                 _check_rate(track, block)
             track.write(block, *labeller(track, block))
+
+
+def _note_skew(track: _Track) -> None:
+    """Keep the client's latest skew estimate (a reboot restarts it: the last one stays)."""
+    skew = track.client.skew_ppm
+    if skew is not None:
+        track.tally.skew_ppm = skew
 
 
 def _check_rate(track: _Track, block: SampleBlock) -> None:

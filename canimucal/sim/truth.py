@@ -51,11 +51,15 @@ DEFAULT_HARDWARE_VERSION = "sim 1"
 DEFAULT_SOFTWARE_VERSION = "sim 1"
 _TOP_KEYS = tuple(
     "schema sample_rate_hz g latitude_deg height_m heading_deg serial tilt_model base_tilt_deg"
-    " accel gyro temperature faults nmt_start heartbeat_ms store_delay_s storage_subs"
+    " accel gyro temperature faults nmt_start heartbeat_ms store_delay_s store_pdo_mode"
+    " storage_subs sync_pdos timer_skew_ppm"
     " device_name hardware_version software_version".split()
 )
 NMT_STARTS = ("pre-operational", "operational")
 DEFAULT_STORAGE_SUBS = (1, 2, 3, 4)
+STORE_PDO_MODES = ("drop", "queue", "continue")
+MAX_TIMER_SKEW_PPM = 100_000.0
+"""±10 %: beyond that the event timer is not the sample clock's, it is a different rate."""
 
 
 @dataclass(frozen=True)
@@ -129,8 +133,16 @@ class Truth:
     """Producer heartbeat 0x1017 after boot (0: off); None keeps the EDS default."""
     store_delay_s: float = 0.0
     """A 0x1010 store blocks the SDO answer this long (flash erased in the SDO handler)."""
+    store_pdo_mode: str = "drop"
+    """TPDO frames while the store blocks: ``drop``ped, ``queue``d (a burst after it) or
+    ``continue`` (sent on time)."""
     storage_subs: tuple[int, ...] = DEFAULT_STORAGE_SUBS
     """0x1010/0x1011 sub-indices the node has (stock CANopenNode: no 4)."""
+    sync_pdos: bool = False
+    """TPDO1–3 on every SYNC (transmission type 1) instead of their event timers (254)."""
+    timer_skew_ppm: float = 0.0
+    """TPDO event timers run this far off the sample clock (+: slow, counters skipped;
+    −: fast, counters sent twice), as on an MCU whose timer and sensor have two clocks."""
     device_name: str = DEFAULT_DEVICE_NAME
     """0x1008, any text (tests present hostile names); 0x1009/0x100A likewise."""
     hardware_version: str = DEFAULT_HARDWARE_VERSION
@@ -241,8 +253,14 @@ class Truth:
             out["heartbeat_ms"] = self.heartbeat_ms
         if self.store_delay_s:
             out["store_delay_s"] = self.store_delay_s
+        if self.store_pdo_mode != "drop":
+            out["store_pdo_mode"] = self.store_pdo_mode
         if self.storage_subs != DEFAULT_STORAGE_SUBS:
             out["storage_subs"] = list(self.storage_subs)
+        if self.sync_pdos:
+            out["sync_pdos"] = True
+        if self.timer_skew_ppm:
+            out["timer_skew_ppm"] = self.timer_skew_ppm
         return out
 
     @classmethod
@@ -289,7 +307,7 @@ class Truth:
 
 
 def _device_behaviour(d: Mapping[str, Any]) -> dict[str, Any]:
-    """Read the node-behaviour keys (DESIGN §9): NMT start-up, heartbeat, store."""
+    """Read the node-behaviour keys (DESIGN §9): NMT start-up, heartbeat, store, TPDO timing."""
     nmt_start = d.get("nmt_start", "pre-operational")
     if nmt_start not in NMT_STARTS:
         fail("nmt_start", f"must be one of {', '.join(NMT_STARTS)}")
@@ -303,6 +321,18 @@ def _device_behaviour(d: Mapping[str, Any]) -> dict[str, Any]:
     if not 0.0 <= delay <= 60.0:
         fail("store_delay_s", "must be within [0, 60] s")
     out["store_delay_s"] = delay
+    mode = d.get("store_pdo_mode", "drop")
+    if not isinstance(mode, str) or mode not in STORE_PDO_MODES:
+        fail("store_pdo_mode", f"must be one of {', '.join(STORE_PDO_MODES)}")
+    out["store_pdo_mode"] = mode
+    sync_pdos = d.get("sync_pdos", False)
+    if not isinstance(sync_pdos, bool):
+        fail("sync_pdos", "must be true or false")
+    out["sync_pdos"] = sync_pdos
+    skew = read_number(d.get("timer_skew_ppm", 0.0), "timer_skew_ppm")
+    if abs(skew) > MAX_TIMER_SKEW_PPM:
+        fail("timer_skew_ppm", f"must be within ±{MAX_TIMER_SKEW_PPM:.0f} ppm")
+    out["timer_skew_ppm"] = skew
     subs = d.get("storage_subs", list(DEFAULT_STORAGE_SUBS))
     ok = isinstance(subs, list | tuple) and all(
         isinstance(x, int) and not isinstance(x, bool) and 1 <= x <= 127 for x in subs

@@ -34,6 +34,7 @@ from canimucal.simnode.faults import FaultInjector
 from canimucal.simnode.od_access import ImuLocalNode, ObjectAccess
 from canimucal.simnode.producer import SampleProducer
 from canimucal.simnode.store import COMM_PARAMETERS, NonVolatileStore, factory_values
+from canimucal.simnode.tpdo_gate import TpdoGate
 
 log = logging.getLogger(__name__)
 
@@ -83,6 +84,7 @@ class SimulatedImuNode:
         self._node = ImuLocalNode(self.node_id, canopen.import_od(str(eds), self.node_id))
         self._store = NonVolatileStore(state_file)
         self._simulator = ImuSimulator(self.truth, seed=seed)
+        self._gate = TpdoGate(self.truth.store_pdo_mode, self._send_now)
         self._access = ObjectAccess(
             self._node,
             self.truth,
@@ -90,6 +92,7 @@ class SimulatedImuNode:
             self._store,
             live=lambda: self._producer.live,
             set_rate=lambda hz: self._producer.set_rate(hz),
+            store_blocking=self._gate.blocking,
         )
         self._producer = SampleProducer(
             self._simulator,
@@ -101,6 +104,7 @@ class SimulatedImuNode:
             cal_active=self._access.calibration_active,
             on_time=lambda t_s: self._fault_actions.on_sim_time(t_s),
             backlog=VirtualBusBacklog(self._network.bus),
+            timer_skew_ppm=self.truth.timer_skew_ppm,
         )
         self._fault_actions = FaultActions(
             self.node_id,
@@ -142,6 +146,16 @@ class SimulatedImuNode:
     def samples_produced(self) -> int:
         """Samples produced since start (OPERATIONAL or not)."""
         return self._producer.samples_produced
+
+    @property
+    def frames_dropped_in_store(self) -> int:
+        """TPDO frames lost while a slow store blocked the node (truth ``store_pdo_mode``)."""
+        return self._gate.dropped
+
+    @property
+    def frames_queued_in_store(self) -> int:
+        """TPDO frames held during slow stores and sent late in a burst (``queue``)."""
+        return self._gate.queued
 
     @property
     def clock_slip_s(self) -> float:
@@ -339,6 +353,9 @@ class SimulatedImuNode:
         return not self._booting and self._node.nmt.state == "OPERATIONAL"
 
     def _send(self, cob_id: int, data: bytes) -> None:
+        self._gate.send(cob_id, data)
+
+    def _send_now(self, cob_id: int, data: bytes) -> None:
         if not self._started:
             return
         for frame_id, frame in self.faults.filter_tpdo(cob_id, data):

@@ -13,6 +13,7 @@ import struct
 import threading
 import time
 from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from typing import Any
 
 import canopen
@@ -38,7 +39,8 @@ class ObjectAccess:
 
     Owns the cached TPDO layouts and the cached "calibration active" state and drops them
     when a write touches what they are built from. ``live()`` returns the producer's live
-    values; ``set_rate(hz)`` tells the producer a new output data rate.
+    values; ``set_rate(hz)`` tells the producer a new output data rate; a slow store runs
+    inside ``store_blocking()`` (what the TPDOs do meanwhile).
     """
 
     def __init__(
@@ -50,6 +52,7 @@ class ObjectAccess:
         *,
         live: Callable[[], dict[Key, int]],
         set_rate: Callable[[int], None],
+        store_blocking: Callable[[], AbstractContextManager[None]] = nullcontext,
     ) -> None:
         self._node = local_node
         self._truth = truth
@@ -57,6 +60,7 @@ class ObjectAccess:
         self._store = store
         self._live = live
         self._set_rate = set_rate
+        self._store_blocking = store_blocking
         self._layout_cache: tuple[TpdoLayout, ...] | None = None
         self._cal_cache: bool | None = None
 
@@ -128,9 +132,13 @@ class ObjectAccess:
         elif index == od.STORE:
             if self._truth.store_delay_s > 0.0:
                 # as CANopenNode: flash is erased inside the SDO handler, the answer waits
-                # (this is the network's receive thread: SYNC and NMT wait too; TPDOs go on)
-                time.sleep(self._truth.store_delay_s)
-            self._store.store(self.current_raw(), subindex)
+                # (this is the network's receive thread: SYNC and NMT wait too; the TPDOs
+                # are dropped, queued or go on, as the truth's store_pdo_mode says)
+                with self._store_blocking():
+                    time.sleep(self._truth.store_delay_s)
+                    self._store.store(self.current_raw(), subindex)
+            else:
+                self._store.store(self.current_raw(), subindex)
         elif index == od.RESTORE:
             self._store.forget(subindex)
 

@@ -133,6 +133,31 @@ class EventTimer:
             return True
         return False
 
+    def ticks(self, t_s: float, period_s: float, sample_period_s: float) -> list[float]:
+        """Offsets after ``t_s`` of the ticks before the next sample, for a timer on its own clock.
+
+        A timer whose period is not the sample period (``timer_skew_ppm``) ticks on its own:
+        each tick in ``[t_s, t_s + sample_period_s)`` sends the sample of ``t_s`` (the newest
+        one then), so a slow timer has no tick for some samples (their counters are skipped)
+        and a fast one two ticks for some (the counter sent twice). Due times are
+        ``anchor + k·period`` as in :meth:`due`; a timer late by more than a period starts
+        again from ``t_s``.
+        """
+        if period_s <= 0.0:
+            return [0.0]
+        anchor = self.anchor_s
+        offsets: list[float] = []
+        late = anchor is not None and t_s - (anchor + self.count * period_s) > period_s
+        if anchor is None or period_s != self._period_s or late:
+            anchor = t_s
+            self._restart(t_s, period_s)
+            offsets.append(0.0)
+        end = t_s + sample_period_s - 1e-9  # a tick on the next sample is that sample's
+        while (due_s := anchor + self.count * period_s) < end:
+            offsets.append(max(0.0, due_s - t_s))
+            self.count += 1
+        return offsets
+
     def _restart(self, t_s: float, period_s: float) -> bool:
         self.anchor_s, self.count, self._period_s = t_s, 1, period_s
         return True

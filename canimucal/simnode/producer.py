@@ -13,10 +13,19 @@ are never skipped: the counter and the simulated time run on, only slower.
 Event-driven TPDOs (transmission type 254/255) follow their event timers in simulated time;
 SYNC-driven ones (1..240) are sent from :meth:`SampleProducer.on_sync`. Nothing is sent unless
 the node is OPERATIONAL.
+
+With ``timer_skew_ppm`` the event timers run on a clock of their own, that many ppm slow
+(+) or fast (−) against the sample clock, as on an MCU whose timer and sensor do not share an
+oscillator: each tick sends the newest sample at its own time, between samples, so a slow
+timer skips a counter every 10⁶/ppm ticks and a fast one sends a counter twice
+(:meth:`~canimucal.simnode.pdo.EventTimer.ticks`). Without skew the two are one clock and a
+TPDO goes out with the sample that makes it due.
 """
 
 from __future__ import annotations
 
+import heapq
+import itertools
 import logging
 import threading
 import time
@@ -34,6 +43,8 @@ log = logging.getLogger(__name__)
 
 Key = tuple[int, int]
 Frame = tuple[int, bytes]
+TimedFrame = tuple[int, float, int, bytes]
+"""(sample index in its block, simulated seconds after that sample, COB-ID, data)."""
 
 MAX_BATCH = 32
 """Most samples produced per wake-up (64 PDO frames at most), to pace a fast time scale."""
@@ -71,6 +82,7 @@ class SampleProducer:
         cal_active: Callable[[], bool],
         on_time: Callable[[float], None] | None = None,
         backlog: Callable[[], int] | None = None,
+        timer_skew_ppm: float = 0.0,
     ) -> None:
         self.simulator = simulator
         self.lock = lock
@@ -81,6 +93,9 @@ class SampleProducer:
         self._cal_active = cal_active
         self._on_time = on_time
         self._backlog = backlog
+        self.timer_skew_ppm = float(timer_skew_ppm)
+        self._timed: list[tuple[float, int, int, bytes]] = []  # (wall time, seq, COB-ID, data)
+        self._timed_seq = itertools.count()
         self.clock_slip_s = 0.0
         """Simulated seconds the clock fell behind ``time_scale`` × wall time (host too slow)."""
         self.error_register = 0
@@ -123,6 +138,7 @@ class SampleProducer:
             self._anchor_count = 0
             for timer in self._timers:
                 timer.reset()
+            self._timed.clear()
 
     def reset_counter(self) -> None:
         """Counter back to 0 and event timers restarted (NMT reset)."""
@@ -131,6 +147,7 @@ class SampleProducer:
             self._sync_counts = [0 for _ in od.TPDO_COMM]
             for timer in self._timers:
                 timer.reset()
+            self._timed.clear()  # ticks of the old schedule never go out after a reset
 
     # -- the loop --------------------------------------------------------------------------
 
@@ -141,6 +158,10 @@ class SampleProducer:
                 if frames and self._operational():
                     for cob_id, data in frames:
                         self._send(cob_id, data)
+                if self.timer_skew_ppm:
+                    next_tick = self._send_timed()
+                    if next_tick is not None:
+                        wait_s = min(wait_s, next_tick)
                 if self._on_time is not None and self.last_block is not None:
                     self._on_time(float(self.last_block.t_s[-1]))
                 if wait_s > 0.0:
@@ -169,12 +190,41 @@ class SampleProducer:
                 due -= slip
             n = min(due, MAX_BATCH)
             block = self.simulator.next_block(n)
+            first_due_wall = self._anchor_wall + (self._anchor_count + 1) / rate
             self._anchor_count += n
-            frames = self._consume(block)
+            frames, ticks = self._consume(block)
+            if ticks:
+                self._schedule(ticks, first_due_wall, rate)
         return frames, (MIN_SLEEP_S if due <= MAX_BATCH else 0.0)
 
-    def _consume(self, block: SimBlock) -> list[Frame]:
-        """Update live values sample by sample and collect the event-driven frames."""
+    def _schedule(self, ticks: list[TimedFrame], first_due_wall: float, rate: float) -> None:
+        """Queue skewed timer ticks at their wall times.
+
+        Sample j of a block was due ``j/rate`` wall seconds after its first; a tick's offset
+        is in simulated seconds.
+        """
+        for j, offset_s, cob_id, data in ticks:
+            wall = first_due_wall + j / rate + offset_s / self.time_scale
+            heapq.heappush(self._timed, (wall, next(self._timed_seq), cob_id, data))
+
+    def _send_timed(self) -> float | None:
+        """Send the ticks now due; return the wall seconds until the next one (None: none)."""
+        while True:
+            with self.lock:
+                if not self._timed:
+                    return None
+                wait = self._timed[0][0] - time.monotonic()
+                if wait > 0.0:
+                    return wait
+                _, _, cob_id, data = heapq.heappop(self._timed)
+            if self._operational():
+                self._send(cob_id, data)
+
+    def _consume(self, block: SimBlock) -> tuple[list[Frame], list[TimedFrame]]:
+        """Update live values sample by sample and collect the event-driven frames.
+
+        Returns the frames to send now and, with a skewed timer, the ticks to send later.
+        """
         self.last_block = block
         sending = self._operational()
         layouts = (
@@ -187,15 +237,25 @@ class SampleProducer:
         base_status = od.STATUS_CAL_ACTIVE if self._cal_active() else 0
         saturated = np.asarray(block.saturated, dtype=bool)
         moving = np.asarray(block.moving, dtype=bool)
+        skew = 1.0 + self.timer_skew_ppm * 1e-6
+        sample_period_s = 1.0 / self._rate_hz
+        ticks: list[TimedFrame] = []
         for i, t_s in enumerate(np.asarray(block.t_s, dtype=float).tolist()):
             status = base_status
             status |= od.STATUS_SATURATED if saturated[i] else 0
             status |= od.STATUS_MOVING if moving[i] else 0
             self._update_live(accel[i], gyro[i], temps[i], status)
             for layout in layouts:
-                if self._timers[layout.number - 1].due(t_s, layout.event_timer_ms / 1000.0):
+                timer = self._timers[layout.number - 1]
+                if self.timer_skew_ppm:
+                    period_s = layout.event_timer_ms / 1000.0 * skew
+                    offsets = timer.ticks(t_s, period_s, sample_period_s)
+                    if offsets:
+                        data = layout.pack(self.live)
+                        ticks.extend((i, offset, layout.cob_id, data) for offset in offsets)
+                elif timer.due(t_s, layout.event_timer_ms / 1000.0):
                     frames.append((layout.cob_id, layout.pack(self.live)))
-        return frames
+        return frames, ticks
 
     def _update_live(self, accel: list[int], gyro: list[int], temp: int, status: int) -> None:
         self.counter = (self.counter + 1) & 0xFFFF  # 0x2002:02 wraps at 65536

@@ -37,7 +37,8 @@ def factory_values(truth: Truth, comm_odr_hz: int | None = None) -> dict[Key, by
     """Raw values that differ from the EDS defaults for this unit (its truth).
 
     The nominal LSBs, output data rate, factory calibration (with its CRC, valid = 0),
-    serial number and TPDO1/2 event timers (1000/ODR ms). With ``comm_odr_hz`` only the
+    serial number, TPDO1/2 event timers (1000/ODR ms), the truth's heartbeat and, with
+    ``sync_pdos``, transmission type 1 for TPDO1–3. With ``comm_odr_hz`` only the
     communication objects, for that output data rate (NMT reset communication).
     """
     odr = int(truth.sample_rate_hz) if comm_odr_hz is None else int(comm_odr_hz)
@@ -51,6 +52,9 @@ def factory_values(truth: Truth, comm_odr_hz: int | None = None) -> dict[Key, by
     }
     if truth.heartbeat_ms is not None:
         values[(od.HEARTBEAT, 0)] = od.encode("u16", truth.heartbeat_ms)
+    if truth.sync_pdos:  # TPDO1–3 on every SYNC (transmission type 1), not their timers
+        for comm in od.TPDO_COMM:
+            values[(comm, 2)] = od.encode("u8", 1)
     if comm_odr_hz is not None:
         return values
     accel_lsb, gyro_lsb = truth.accel.nominal_lsb, truth.gyro.nominal_lsb

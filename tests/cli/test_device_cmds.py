@@ -22,11 +22,13 @@ import numpy as np
 import pytest
 
 from canimucal.cli.read_params_cmd import SCHEMA as READ_SCHEMA
+from canimucal.cli.record_cmd import report
 from canimucal.device import od
 from canimucal.device.calibration_map import block_from_record, readback_of
 from canimucal.io.calibration import read_calibration
 from canimucal.io.recording import read_recording
 from canimucal.io.truth import write_truth
+from canimucal.runtime.recorder import NodeTally
 from canimucal.schema import to_plain
 from canimucal.sim.truth import Truth
 from tests.support.moves import TURN_POSES_DEG
@@ -175,6 +177,31 @@ def test_record_single_position_and_append(cli: Cli, tmp_path: Path, truth_file:
     assert np.all(np.diff(rec.t) >= 0)
     # a position recorded again without --append or --overwrite: refused, exit 2
     assert cli(["record", out, "--position", "2", *pos, *flags]).code == 2
+
+
+@pytest.mark.parametrize("skew_ppm", [5000.0, -5000.0])
+def test_record_reports_the_timer_skew_per_node(cli: Cli, tmp_path: Path, skew_ppm: float) -> None:
+    # an event timer 0.5 % off the sample clock, in real time (a scaled clock has no skew to
+    # measure): slow skips counters (lost samples), fast re-sends them (duplicates)
+    truth = make_truth().to_dict() | {"timer_skew_ppm": skew_ppm}
+    path = write_truth(tmp_path / "skew.json", Truth.from_dict(truth), overwrite=False)
+    flags = sim_flags(path, tmp_path / "state.json", scale=1.0)
+    pose = ["--alpha-deg", "0", "--beta-deg", "0", "--seconds", "1.5", "--settle-s", "0.3"]
+    run = cli(["record", tmp_path / "r.csv", "--position", "0", *pose, *flags])
+    assert run.code == 0, run.err
+    found = re.search(r"node 16: wrote .*; (\d+) duplicate.*; timer skew ([+-]\d+) ppm$", run.out)
+    assert found is not None, run.out
+    duplicates, skew = int(found.group(1)), float(found.group(2))
+    assert abs(skew - skew_ppm) < 2500, run.out  # resolution: 10⁶ / ~400 intervals
+    lost = int(re.search(r"lost (\d+) samples", run.out).group(1))  # type: ignore[union-attr]
+    assert (lost > 0, duplicates > 0) == (skew_ppm > 0, skew_ppm < 0), run.out
+
+
+def test_record_summary_says_when_the_skew_was_not_measured(tmp_path: Path) -> None:
+    tallies = [NodeTally(16, rows=150), NodeTally(17, rows=900, skew_ppm=-12.4)]
+    lines = report(tallies, [tmp_path / "a.csv", tmp_path / "b.csv"]).splitlines()
+    assert lines[0].startswith("node 16: wrote 150 rows") and lines[0].endswith("not measured")
+    assert lines[1].startswith("node 17: wrote 900 rows") and lines[1].endswith("skew -12 ppm")
 
 
 def test_record_plan_then_solve(cli: Cli, tmp_path: Path, truth_file: Path) -> None:

@@ -22,6 +22,7 @@ from canimucal.cli.main import main
 from canimucal.device import od
 from canimucal.device.client import ImuClient
 from canimucal.errors import DeviceError
+from canimucal.simnode.node import SimulatedImuNode
 from tests.support.canbus import NODE_ID
 from tests.support.independent_node import IndependentImuNode
 from tests.support.nodes import DeviceUnderTest
@@ -141,8 +142,8 @@ def test_serial_refusal_and_backup_restore(
 def test_slow_store_dropping_frames_ends_exit_0_stored_once(
     make_device: MakeDevice, capsys: pytest.CaptureFixture[str], bus_channel: str, cal_file: Path
 ) -> None:
-    # CANopenNode erases flash inside the SDO handler; the independent node drops its TPDOs
-    # and heartbeat meanwhile (as CANopenLinux does); the simulated node keeps sending
+    # CANopenNode erases flash inside the SDO handler; both nodes drop their TPDOs meanwhile
+    # (store_pdo_mode "drop", the default; the independent node its heartbeat too)
     device = make_device(store_delay_s=2.5, nmt_start="operational")  # TPDOs flowing
     started = time.monotonic()
     code, out, err = write_params(capsys, bus_channel, cal_file)
@@ -150,20 +151,22 @@ def test_slow_store_dropping_frames_ends_exit_0_stored_once(
     assert time.monotonic() - started >= 2.5
     assert "stored (0x1010:04)" in out and "restored" not in out + err
     assert device.store_log == [od.STORE_CALIBRATION_SUB]  # once: never retried
-    if isinstance(device.node, IndependentImuNode):
-        assert device.node.stats["dropped"] > 100  # 2.5 s of samples and TPDOs lost
+    assert device.dropped_in_store > 100  # 2.5 s of TPDOs lost
     assert device.nmt_state == "OPERATIONAL"  # write-params sends no NMT
 
 
 def test_slow_store_queueing_frames_ends_exit_0_stored_once(
     make_device: MakeDevice, capsys: pytest.CaptureFixture[str], bus_channel: str, cal_file: Path
 ) -> None:
-    # frames held back during the store and sent as a burst after it (independent node only)
+    # frames held back during the store and sent as a burst after it
     device = make_device(store_delay_s=1.0, store_pdo_mode="queue", nmt_start="operational")
     code, out, err = write_params(capsys, bus_channel, cal_file)
     assert code == 0, err
     assert "stored (0x1010:04)" in out and "restored" not in out + err
     assert device.store_log == [od.STORE_CALIBRATION_SUB]
+    assert device.dropped_in_store == 0
+    if isinstance(device.node, SimulatedImuNode):
+        assert device.node.frames_queued_in_store > 200  # 1 s of TPDO1/2 at 200 Hz, late
 
 
 def test_node_without_sub_4_is_stored_through_sub_1(
@@ -255,6 +258,21 @@ def test_sync_only_node_without_heartbeat_gets_no_nmt(
     assert device.nmt_state == "PRE-OPERATIONAL"  # never started: no NMT was sent at all
 
 
+def test_sync_pdos_stream_paired_samples_on_the_clients_sync(
+    make_device: MakeDevice, client_network: canopen.Network
+) -> None:
+    make_device(sync_pdos=True, nmt_start="operational")  # transmission type 1: every SYNC
+    client = ImuClient(client_network, NODE_ID, sdo_timeout_s=1.0, sync_producer=True)
+    assert [client.read_value(0x1800 + i, 2, "u8") for i in range(3)] == [1, 1, 1]
+    client.start_streaming()
+    try:
+        block = client.read_samples(100, timeout_s=5.0)
+    finally:
+        client.close()
+    assert block.n >= 100 and block.lost_accel == block.lost_gyro == 0
+    assert float(np.linalg.norm(np.nanmean(block.accel, axis=0))) == pytest.approx(2048, rel=0.05)
+
+
 def test_read_params_leaves_an_operational_node_operational(
     make_device: MakeDevice, capsys: pytest.CaptureFixture[str], bus_channel: str, tmp_path: Path
 ) -> None:
@@ -272,7 +290,7 @@ def test_read_params_leaves_an_operational_node_operational(
 def test_timer_skew_is_reported_and_repeats_are_not_losses(
     make_device: MakeDevice, client: ImuClient, skew_ppm: float
 ) -> None:
-    # the event timer 0.5 % off the sensor clock (independent node only): slow skips a
+    # the event timer 0.5 % off the sensor clock (both nodes): slow skips a
     # counter every 200 frames, fast re-sends one; 3 s at 200 Hz is ~600 frames
     make_device(timer_skew_ppm=skew_ppm, nmt_start="operational")
     client.start_streaming()

@@ -72,6 +72,13 @@ def _full_dict() -> dict[str, Any]:
         },
         "temperature": {"start_c": 20.0, "rate_c_per_s": 0.01, "profile": [[0, 20], [60, 30.5]]},
         "faults": {"drop_tpdo2": {"every": 10}},
+        "nmt_start": "operational",
+        "heartbeat_ms": 0,
+        "store_delay_s": 2.5,
+        "store_pdo_mode": "queue",
+        "storage_subs": [1, 2, 3],
+        "sync_pdos": True,
+        "timer_skew_ppm": -5000.0,
     }
 
 
@@ -93,6 +100,7 @@ def test_defaults_follow_design() -> None:
     np.testing.assert_array_equal(t.gyro.noise_density, [DEFAULT_GYRO_NOISE_DENSITY] * 3)
     assert t.accel.quantization == 1.0 and t.gyro.quantization == 1.0
     assert t.temperature == TemperatureProfile(25.0, 0.0, None)
+    assert t.store_pdo_mode == "drop" and not t.sync_pdos and t.timer_skew_ppm == 0.0
 
 
 def test_dataclass_default_equals_parsed_default() -> None:
@@ -201,6 +209,13 @@ BAD_CASES: list[tuple[Any, str]] = [
     ({"temperature": {"rate_c_per_s": INF}}, "truth: temperature.rate_c_per_s: must be a finite"),
     ({"temperature": {"start": 25}}, "truth: temperature.start: unknown key"),
     ({"faults": []}, "truth: faults: must be a JSON object"),
+    ({"store_pdo_mode": "hold"}, "truth: store_pdo_mode: must be one of drop, queue, continue"),
+    ({"store_pdo_mode": 1}, "truth: store_pdo_mode: must be one of drop, queue, continue"),
+    ({"sync_pdos": 1}, "truth: sync_pdos: must be true or false"),
+    ({"sync_pdos": "yes"}, "truth: sync_pdos: must be true or false"),
+    ({"timer_skew_ppm": "5000"}, "truth: timer_skew_ppm: must be a finite number"),
+    ({"timer_skew_ppm": NAN}, "truth: timer_skew_ppm: must be a finite number"),
+    ({"timer_skew_ppm": 2e5}, "truth: timer_skew_ppm: must be within ±100000 ppm"),
 ]
 
 

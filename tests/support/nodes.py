@@ -5,9 +5,9 @@ a started node of that kind on its own bus of ``bus_channel`` and wraps it in a
 :class:`DeviceUnderTest`, so one test body runs against python-canopen's responder
 (:class:`~canimucal.simnode.node.SimulatedImuNode`) and durand's
 (:class:`~tests.support.independent_node.IndependentImuNode`). Behaviour keys are those of
-the truth JSON (DESIGN §9: ``nmt_start``, ``heartbeat_ms``, ``store_delay_s``,
-``storage_subs``) plus the independent node's extras (``store_pdo_mode``, ``sync_pdos``,
-``timer_skew_ppm``); a behaviour one node does not have skips the test for that node.
+the truth JSON (DESIGN §9, docs/hil.md: ``nmt_start``, ``heartbeat_ms``, ``store_delay_s``,
+``store_pdo_mode``, ``storage_subs``, ``sync_pdos``, ``timer_skew_ppm``), which both nodes
+take; a behaviour one node does not have (none today) skips the test for that node.
 """
 
 from __future__ import annotations
@@ -26,7 +26,15 @@ from tests.support.canbus import NODE_ID
 from tests.support.independent_node import Behaviour, IndependentImuNode
 
 NODE_KINDS = ("simulated", "independent")
-SIM_TRUTH_KEYS = ("nmt_start", "heartbeat_ms", "store_delay_s", "storage_subs")
+SIM_TRUTH_KEYS = (
+    "nmt_start",
+    "heartbeat_ms",
+    "store_delay_s",
+    "storage_subs",
+    "store_pdo_mode",
+    "sync_pdos",
+    "timer_skew_ppm",
+)
 """Behaviours the simulated node takes from its truth JSON."""
 
 
@@ -52,6 +60,14 @@ class DeviceUnderTest:
     def store_log(self) -> list[int]:
         """0x1010 sub-index of every completed store."""
         return list(self.node.store_log)
+
+    @property
+    def dropped_in_store(self) -> int:
+        """What a slow store made the node lose: TPDO frames (simulated), or samples and
+        TPDO events (independent)."""
+        if isinstance(self.node, SimulatedImuNode):
+            return self.node.frames_dropped_in_store
+        return int(self.node.stats["dropped"])
 
     def calibration_valid(self) -> bool:
         return int(self.value(od.CAL_INFO, od.CAL_VALID_SUB)) == 1
