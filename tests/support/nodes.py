@@ -8,6 +8,10 @@ a started node of that kind on its own bus of ``bus_channel`` and wraps it in a
 the truth JSON (DESIGN §9: ``nmt_start``, ``heartbeat_ms``, ``store_delay_s``,
 ``storage_subs``) plus the independent node's extras (``store_pdo_mode``, ``sync_pdos``,
 ``timer_skew_ppm``); a behaviour one node does not have skips the test for that node.
+``serial`` (:data:`IDENTITY_KEYS`) sets the identity of either node.
+
+Tests that build their own buses or networks use :func:`node_on` instead: the same two
+kinds on a given bus, started or not.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import can
+import canopen
 import pytest
 
 from canimucal.device import od
@@ -28,6 +33,8 @@ from tests.support.independent_node import Behaviour, IndependentImuNode
 NODE_KINDS = ("simulated", "independent")
 SIM_TRUTH_KEYS = ("nmt_start", "heartbeat_ms", "store_delay_s", "storage_subs")
 """Behaviours the simulated node takes from its truth JSON."""
+IDENTITY_KEYS = ("serial",)
+"""Keys both nodes take: the truth JSON's ``serial`` is the independent node's too."""
 
 
 @dataclass
@@ -68,6 +75,56 @@ class DeviceUnderTest:
         else:
             self.node.emcy(code)
 
+    def raw_objects(self) -> dict[tuple[int, int], bytes]:
+        """The calibration objects (0x2100–0x2121) as their SDO bytes (DESIGN §4 codes)."""
+        return {(i, s): od.encode(code, self.value(i, s)) for i, s, code in od.CALIBRATION_OBJECTS}
+
+    def calibration_active(self) -> bool:
+        """valid = 1 and the stored CRC-32 matches the block (the firmware applies it, §4)."""
+        raw = self.raw_objects()
+        values = {(i, s): od.decode(code, raw[(i, s)]) for i, s, code in od.CRC_ORDER}
+        crc = od.decode("u32", raw[(od.CAL_INFO, od.CAL_CRC_SUB)])
+        return self.calibration_valid() and crc == od.block_crc(values)
+
+    def start(self) -> DeviceUnderTest:
+        self.node.start()
+        return self
+
+    def stop(self) -> None:
+        self.node.stop()
+
+
+def node_on(
+    kind: str,
+    bus: can.BusABC | canopen.Network,
+    node_id: int = NODE_ID,
+    *,
+    start: bool = True,
+    sim_options: dict[str, Any] | None = None,
+    **behaviour: Any,
+) -> DeviceUnderTest:
+    """A node of ``kind`` on ``bus`` (the independent node needs a python-can bus).
+
+    ``behaviour`` takes :data:`IDENTITY_KEYS` and the behaviour keys (see the module
+    docstring); ``sim_options`` are the simulated node's own constructor options
+    (``state_file``, ``time_scale``, ``seed``), ignored by the independent node.
+    """
+    if kind == "independent":
+        if not isinstance(bus, can.BusABC):
+            raise TypeError("the independent node runs on a python-can bus")
+        behaviour.setdefault("seed", 1)
+        device = DeviceUnderTest(kind, IndependentImuNode(bus, node_id, Behaviour(**behaviour)))
+    else:
+        unknown = sorted(set(behaviour) - set(SIM_TRUTH_KEYS) - set(IDENTITY_KEYS))
+        if unknown:
+            pytest.skip(f"the simulated node has no {', '.join(unknown)}")
+        truth = Truth.from_dict(
+            {k: list(v) if isinstance(v, tuple) else v for k, v in behaviour.items()}
+        )
+        options = {"seed": 1, **(sim_options or {})}
+        device = DeviceUnderTest(kind, SimulatedImuNode(bus, node_id, truth, **options))
+    return device.start() if start else device
+
 
 @pytest.fixture(params=NODE_KINDS)
 def device_kind(request: pytest.FixtureRequest) -> str:
@@ -104,7 +161,7 @@ def make_device(
     def make(**behaviour: Any) -> DeviceUnderTest:
         if device_kind == "independent":
             return DeviceUnderTest(device_kind, make_independent_node(**behaviour))
-        unknown = sorted(set(behaviour) - set(SIM_TRUTH_KEYS))
+        unknown = sorted(set(behaviour) - set(SIM_TRUTH_KEYS) - set(IDENTITY_KEYS))
         if unknown:
             pytest.skip(f"the simulated node has no {', '.join(unknown)}")
         truth = {k: list(v) if isinstance(v, tuple) else v for k, v in behaviour.items()}
