@@ -23,6 +23,8 @@ from typing import Any
 import can
 import canopen
 import pytest
+from canopen.sdo.exceptions import SdoAbortedError
+from durand.services.sdo.server import SDODomainAbort
 
 from canimucal.device import od
 from canimucal.sim.truth import Truth
@@ -80,11 +82,34 @@ class DeviceUnderTest:
         return {(i, s): od.encode(code, self.value(i, s)) for i, s, code in od.CALIBRATION_OBJECTS}
 
     def calibration_active(self) -> bool:
-        """valid = 1 and the stored CRC-32 matches the block (the firmware applies it, §4)."""
-        raw = self.raw_objects()
-        values = {(i, s): od.decode(code, raw[(i, s)]) for i, s, code in od.CRC_ORDER}
-        crc = od.decode("u32", raw[(od.CAL_INFO, od.CAL_CRC_SUB)])
-        return self.calibration_valid() and crc == od.block_crc(values)
+        """The node's own verdict: valid = 1 and its stored CRC-32 matches (§4)."""
+        return self.node.calibration_active()
+
+    def intercept_write(
+        self, key: tuple[int, int], hook: Callable[[], int | None]
+    ) -> Callable[[], None]:
+        """Call ``hook()`` before each write of ``key``; an abort code it returns refuses it.
+
+        The write is refused with that SDO abort code before anything is stored (as a
+        firmware's range check does). Returns the function that removes the hook.
+        """
+        if isinstance(self.node, SimulatedImuNode):
+            local = self.node.local_node
+
+            def on_write(index: int, subindex: int, **_: Any) -> None:
+                if (index, subindex) == key and (code := hook()):
+                    raise SdoAbortedError(code)
+
+            local.add_write_callback(on_write)
+            return lambda: local._write_callbacks.remove(on_write)
+        handlers = self.node.node.object_dictionary.validate_callbacks[key]
+
+        def validate(_value: Any) -> None:
+            if code := hook():
+                raise SDODomainAbort(code, key)
+
+        handlers.add(validate)
+        return lambda: handlers.remove(validate)
 
     def start(self) -> DeviceUnderTest:
         self.node.start()
