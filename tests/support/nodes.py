@@ -111,6 +111,15 @@ class DeviceUnderTest:
         handlers.add(validate)
         return lambda: handlers.remove(validate)
 
+    def poke(self, index: int, sub: int, raw: bytes) -> None:
+        """Put ``raw`` (SDO bytes) into a calibration object past the node's own checks."""
+        if isinstance(self.node, SimulatedImuNode):
+            self.node.local_node.data_store.setdefault(index, {})[sub] = raw
+            return
+        value = od.decode(od.OBJECT_CODES[(index, sub)], raw)
+        with self.node.lock:
+            self.node.node.object_dictionary._data[(index, sub)] = value
+
     def start(self) -> DeviceUnderTest:
         self.node.start()
         return self
