@@ -71,11 +71,13 @@ class DeviceUnderTest:
         else:
             self.node.power_cycle()
 
-    def emcy(self, code: int) -> None:
+    def emcy(self, code: int, register: int | None = None) -> None:
+        """Send an EMCY (and set 0x1001); ``register`` defaults per node kind."""
         if isinstance(self.node, SimulatedImuNode):
-            self.node.send_emergency(code, 0 if code == 0 else 0x11)
+            default = 0 if code == 0 else 0x11
+            self.node.send_emergency(code, default if register is None else register)
         else:
-            self.node.emcy(code)
+            self.node.emcy(code, register)
 
     def raw_objects(self) -> dict[tuple[int, int], bytes]:
         """The calibration objects (0x2100–0x2121) as their SDO bytes (DESIGN §4 codes)."""
