@@ -10,6 +10,9 @@ interface cannot be opened;
   project, as inside the VM where the package is not installed); returns the completed run.
 - ``start_sim(*argv)``: ``python -m canimucal sim --channel vcan0 ARGV`` in the background,
   waits for its ``ready:`` line; stopped with SIGTERM at teardown.
+- ``start_node(node_id, serial)``: a node of kind ``device_kind`` (tests/support/nodes.py):
+  the simulated one as ``start_sim`` runs it, or the independent durand node in this process
+  on its own socketcan bus (:class:`InProcessNode`); both have ``wait_ready`` and ``stop``.
 
 Inside the VM (``IN_CAN_VM=1``) Python is about 12× slower: timeouts scale with ``SLOW``.
 """
@@ -24,8 +27,12 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
+
+from canimucal.io.truth import write_truth
+from canimucal.sim.truth import Truth
 
 PROJECT = Path(__file__).resolve().parents[2]
 IN_VM = os.environ.get("IN_CAN_VM", "").strip() == "1"
@@ -138,3 +145,63 @@ def start_sim(vcan_channel: str) -> Iterator[Callable[..., SimProcess]]:
     yield start
     for sim in started:
         sim.stop()
+
+
+class InProcessNode:
+    """The independent (durand) node in this process on its own socketcan bus.
+
+    Seen as a :class:`SimProcess` is: ``wait_ready()`` and ``stop()`` (exit status 0).
+    """
+
+    def __init__(self, channel: str, node_id: int, **behaviour: Any) -> None:
+        import can
+
+        from tests.support.independent_node import Behaviour, IndependentImuNode
+
+        self.bus = can.Bus(interface="socketcan", channel=channel)
+        self.node = IndependentImuNode(self.bus, node_id, Behaviour(**behaviour))
+        self._running = False
+
+    def start(self) -> InProcessNode:
+        """Send the boot-up and start sampling."""
+        self.node.start()
+        self._running = True
+        return self
+
+    def wait_ready(self, timeout_s: float = READY_TIMEOUT_S) -> None:
+        """Nothing to wait for: ``start()`` returned with the node up."""
+
+    def stop(self) -> int:
+        """Stop the node and close its bus (once); return 0 as a clean exit."""
+        if self._running:
+            self._running = False
+            self.node.stop()
+            self.bus.shutdown()
+        return 0
+
+
+@pytest.fixture
+def start_node(
+    device_kind: str,
+    vcan_channel: str,
+    start_sim: Callable[..., SimProcess],
+    tmp_path: Path,
+) -> Iterator[Callable[..., SimProcess | InProcessNode]]:
+    """Factory: ``start_node(node_id, serial, wait=True)``, a node of kind ``device_kind``."""
+    started: list[InProcessNode] = []
+
+    def start(node_id: int, serial: int, *, wait: bool = True) -> SimProcess | InProcessNode:
+        if device_kind == "simulated":
+            truth = write_truth(
+                tmp_path / f"truth-{node_id}.json",
+                Truth.from_dict({"serial": serial}),
+                overwrite=False,
+            )
+            return start_sim("--node-id", node_id, "--truth", truth, wait=wait)
+        node = InProcessNode(vcan_channel, node_id, serial=serial, seed=1)
+        started.append(node)
+        return node.start()
+
+    yield start
+    for node in started:
+        node.stop()
