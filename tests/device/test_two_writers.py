@@ -5,8 +5,8 @@ rolled back, exit 3, "another SDO client is using node N". Two writers whose tra
 overlap: at most one reports success and the device holds exactly its set, or the old set
 with both told. Back-to-back writes both succeed.
 
-The two-client tests run against both nodes (``device_kind``); the foreign request at
-random points uses the simulated node's synchronous loopback rig of test_write_faults.
+Every test runs against both nodes (``device_kind``); the foreign request at random points
+uses the synchronous loopback rig of test_write_faults (``either_loop_rig``).
 """
 
 from __future__ import annotations
@@ -35,19 +35,17 @@ from tests.device.test_write_faults import (
     LoopRig,
     _old_and_new,
     calibration,
-    loop_rig,  # noqa: F401  (a fixture)
+    either_loop_rig,  # noqa: F401  (a fixture)
 )
 from tests.support.nodes import DeviceUnderTest, node_on
 
 FOREIGN = can.Message(arbitration_id=0x600 + NODE_ID, data=bytes([0x40, 0x18, 0x10, 4, 0, 0, 0, 0]))
 
 
-def test_a_foreign_request_mid_write_rolls_back(loop_rig: LoopRig) -> None:  # noqa: F811
-    rig = loop_rig
+def test_a_foreign_request_mid_write_rolls_back(either_loop_rig: LoopRig) -> None:  # noqa: F811
+    rig = either_loop_rig
     old, _, n_requests = _old_and_new(rig)
-    node_end = (
-        rig.node.local_node.network.bus
-    )  # frames it sends reach the client, as another client's
+    node_end = rig.node_end  # frames it sends reach the client, as another client's
     rng = np.random.default_rng(13)
     outcomes = set()
     for k in rng.integers(1, n_requests - 1, 12):

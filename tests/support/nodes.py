@@ -81,6 +81,9 @@ class DeviceUnderTest:
 
     def raw_objects(self) -> dict[tuple[int, int], bytes]:
         """The calibration objects (0x2100–0x2121) as their SDO bytes (DESIGN §4 codes)."""
+        if isinstance(self.node, SimulatedImuNode):  # the bytes it holds, NaN payloads too
+            get = self.node.local_node.get_data
+            return {(i, s): bytes(get(i, s)) for i, s, _ in od.CALIBRATION_OBJECTS}
         return {(i, s): od.encode(code, self.value(i, s)) for i, s, code in od.CALIBRATION_OBJECTS}
 
     def calibration_active(self) -> bool:
