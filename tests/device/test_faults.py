@@ -5,10 +5,11 @@ so every loss the client reports must be one the node injected: the tests compar
 client's counts with the injector's, exactly. Counting identity for TPDO1/TPDO2 frames:
 ``lost_accel + lost_gyro + 2·lost_samples`` = frames that never arrived in time.
 
-The fault injector is the simulated node's: the fault modes stay on it. The node events a
-test can cause from outside (a power cycle mid-stream, an EMCY, a bus that raises on send)
-run against both nodes (``either_rig``, ``make_device``); the independent durand node
-streams in real time (200 Hz), the simulated one at ``TIME_SCALE``.
+The fault injector is the simulated node's: the fault modes stay on it (heartbeat loss,
+error frames, SDO and TPDO faults). The node events a test can cause from outside (a power
+cycle mid-stream, a reboot as another unit, an EMCY, a bus that raises on send) run against
+both nodes (``either_rig``, ``make_device``); the independent durand node streams in real
+time (200 Hz), the simulated one at ``TIME_SCALE``.
 """
 
 from __future__ import annotations
@@ -335,11 +336,12 @@ def test_heartbeat_loss_and_return_are_reported(rig: tuple[SimulatedImuNode, Imu
     assert not client.heartbeat.lost
 
 
-def test_serial_change_after_reboot_is_reported(rig: tuple[SimulatedImuNode, ImuClient]) -> None:
-    node, client = rig
+def test_serial_change_after_reboot_is_reported(
+    either_rig: tuple[DeviceUnderTest, ImuClient, float],
+) -> None:
+    node, client, _ = either_rig
     assert client.identity().serial == SERIAL
-    node.faults.set(serial_after_reboot=SERIAL + 1)
-    node.reboot()
+    node.reboot_as(SERIAL + 1)
     _events(client, NodeRebooted)
     assert client.identity().serial == SERIAL + 1
     changed = _events(client, SerialChanged)[-1]

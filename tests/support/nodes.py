@@ -71,6 +71,17 @@ class DeviceUnderTest:
         else:
             self.node.power_cycle()
 
+    def reboot_as(self, serial: int) -> None:
+        """Power-cycle as another unit: 0x1018:04 reads ``serial`` from the boot-up on."""
+        if isinstance(self.node, SimulatedImuNode):
+            self.node.faults.set(serial_after_reboot=serial)
+            self.node.reboot()
+            return
+        with self.node.lock:
+            self.node.behaviour.serial = serial
+            self.node.node.object_dictionary.write(0x1018, 4, serial)
+            self.node.power_cycle()
+
     def emcy(self, code: int, register: int | None = None) -> None:
         """Send an EMCY (and set 0x1001); ``register`` defaults per node kind."""
         if isinstance(self.node, SimulatedImuNode):
