@@ -8,10 +8,6 @@ a started node of that kind on its own bus of ``bus_channel`` and wraps it in a
 the truth JSON (DESIGN §9: ``nmt_start``, ``heartbeat_ms``, ``store_delay_s``,
 ``storage_subs``) plus the independent node's extras (``store_pdo_mode``, ``sync_pdos``,
 ``timer_skew_ppm``); a behaviour one node does not have skips the test for that node.
-``serial`` (:data:`IDENTITY_KEYS`) sets the identity of either node.
-
-Tests that build their own buses or networks use :func:`node_on` instead: the same two
-kinds on a given bus, started or not.
 """
 
 from __future__ import annotations
@@ -35,8 +31,6 @@ from tests.support.independent_node import Behaviour, IndependentImuNode
 NODE_KINDS = ("simulated", "independent")
 SIM_TRUTH_KEYS = ("nmt_start", "heartbeat_ms", "store_delay_s", "storage_subs")
 """Behaviours the simulated node takes from its truth JSON."""
-IDENTITY_KEYS = ("serial",)
-"""Keys both nodes take: the truth JSON's ``serial`` is the independent node's too."""
 
 
 @dataclass
@@ -144,6 +138,11 @@ class DeviceUnderTest:
         self.node.stop()
 
 
+IDENTITY_KEYS = ("serial",)
+"""Keys both nodes take besides their behaviours: the truth JSON's ``serial`` is the
+independent node's too (``make_device(serial=...)``, ``node_on(..., serial=...)``)."""
+
+
 def node_on(
     kind: str,
     bus: can.BusABC | canopen.Network,
@@ -154,6 +153,8 @@ def node_on(
     **behaviour: Any,
 ) -> DeviceUnderTest:
     """A node of ``kind`` on ``bus`` (the independent node needs a python-can bus).
+
+    For tests that build their own buses or networks; ``make_device`` otherwise.
 
     ``behaviour`` takes :data:`IDENTITY_KEYS` and the behaviour keys (see the module
     docstring); ``sim_options`` are the simulated node's own constructor options
