@@ -90,6 +90,8 @@ def run_cli() -> Callable[..., subprocess.CompletedProcess[str]]:
 class SimProcess:
     """A background ``canimucal sim``: its process and the output it printed."""
 
+    kind = "simulated"
+
     def __init__(self, argv: list[str]) -> None:
         self.argv = argv
         self.proc = subprocess.Popen(
@@ -165,6 +167,8 @@ class InProcessNode:
 
     Seen as a :class:`SimProcess` is: ``wait_ready()`` and ``stop()`` (exit status 0).
     """
+
+    kind = "independent"
 
     def __init__(self, channel: str, node_id: int, **behaviour: Any) -> None:
         import can
