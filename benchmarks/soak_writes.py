@@ -43,6 +43,7 @@ from tests.device.test_write_faults import (
     calibration,
 )
 from tests.support.buses import FaultyBus, loopback_pair
+from tests.support.nodes import DeviceUnderTest
 
 
 def _loop_rig(backups: Path) -> tuple[LoopRig, list[canopen.Network], list[can.BusABC]]:
@@ -52,7 +53,8 @@ def _loop_rig(backups: Path) -> tuple[LoopRig, list[canopen.Network], list[can.B
     node = SimulatedImuNode(node_net, NODE_ID, Truth.from_dict({"serial": SERIAL}), seed=3)
     client = ImuClient(client_net, NODE_ID, sdo_timeout_s=0.003, sdo_retries=1, sdo_backoff_s=0.001)
     node.start()
-    return LoopRig(node, client, faulty, backups), [client_net, node_net], [faulty, node_end]
+    rig = LoopRig(DeviceUnderTest("simulated", node), client, faulty, node_end, backups)
+    return rig, [client_net, node_net], [faulty, node_end]
 
 
 def signal_storm(runs: int, seed: int, backups: Path) -> bool:

@@ -1,4 +1,4 @@
-"""Bus load meter: the bit count of known frames, the window, and a live simulated node."""
+"""Bus load meter: the bit count of known frames, the window, and a live node of either kind."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from canimucal.device.busload import (
     frame_bits,
 )
 from canimucal.device.client import ImuClient
-from canimucal.simnode.node import SimulatedImuNode
+from tests.support.nodes import DeviceUnderTest
 
 NODE_ID = 0x10
 
@@ -106,8 +106,11 @@ def test_counts_every_identifier(open_bus: Callable[[], can.BusABC]) -> None:
 
 
 def test_live_node_streaming_at_200_hz(
-    client_network: canopen.Network, sim_node: SimulatedImuNode, bus_frames: Any
+    client_network: canopen.Network,
+    make_device: Callable[..., DeviceUnderTest],
+    bus_frames: Any,
 ) -> None:
+    make_device()  # either node: TPDO1/2 on 5 ms event timers, TPDO3 on 100 ms
     client = ImuClient(client_network, NODE_ID, sdo_timeout_s=0.5, bitrate_bps=500_000)
     try:
         assert client.output_data_rate() == 200

@@ -1,4 +1,8 @@
-"""ImuClient against the simulated node on python-can's virtual bus; bus settings."""
+"""ImuClient against both IMU nodes on python-can's virtual bus; bus settings.
+
+Every test with a node runs against the simulated and the independent (durand) node
+(``device_kind``); the tests without a node (no device, bus settings) run once.
+"""
 
 from __future__ import annotations
 
@@ -23,8 +27,8 @@ from canimucal.device.bus import (
 )
 from canimucal.device.client import ImuClient
 from canimucal.errors import DeviceSilentError, InputError, NoDeviceError, SdoAbort
-from canimucal.sim.truth import Truth
-from canimucal.simnode.node import SimulatedImuNode
+from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
+from tests.support.nodes import DeviceUnderTest, node_on
 
 NODE_ID = 0x10
 SERIAL = 4242
@@ -48,7 +52,7 @@ class Rig:
     buses: list[can.BusABC]
     networks: list[canopen.Network]
     network: FilteringNetwork
-    node: SimulatedImuNode
+    node: DeviceUnderTest
     client: ImuClient
 
     def bus(self) -> can.BusABC:
@@ -57,23 +61,23 @@ class Rig:
         return bus
 
 
-def make_rig(tmp_path: Path, *, start_node: bool = True, time_scale: float = 1.0) -> Rig:
+def make_rig(tmp_path: Path, kind: str = "simulated", *, start_node: bool = True) -> Rig:
     channel = f"h6b-client-{uuid.uuid4().hex}"
     node_bus = can.Bus(interface="virtual", channel=channel)
     client_bus = can.Bus(interface="virtual", channel=channel)
-    node_network = canopen.Network(node_bus)
     network = FilteringNetwork(client_bus)
-    for net in (node_network, network):
-        net.NOTIFIER_CYCLE = 0.05  # quick teardown
-        net.connect()
+    network.NOTIFIER_CYCLE = 0.05  # quick teardown
+    network.connect()
     client = ImuClient(network, NODE_ID, sdo_timeout_s=0.3, sdo_retries=1)
-    truth = Truth.from_dict({"serial": SERIAL})
-    node = SimulatedImuNode(
-        node_network, NODE_ID, truth, state_file=tmp_path / "nv.json", time_scale=time_scale, seed=3
+    node = node_on(
+        kind,
+        node_bus,
+        NODE_ID,
+        start=start_node,
+        sim_options={"state_file": tmp_path / "nv.json", "seed": 3},
+        serial=SERIAL,
     )
-    if start_node:
-        node.start()
-    return Rig(channel, [node_bus, client_bus], [node_network, network], network, node, client)
+    return Rig(channel, [node_bus, client_bus], [network], network, node, client)
 
 
 def close_rig(rig: Rig) -> None:
@@ -87,8 +91,8 @@ def close_rig(rig: Rig) -> None:
 
 
 @pytest.fixture
-def rig(tmp_path: Path) -> Iterator[Rig]:
-    rig = make_rig(tmp_path)
+def rig(tmp_path: Path, device_kind: str) -> Iterator[Rig]:
+    rig = make_rig(tmp_path, device_kind)
     yield rig
     close_rig(rig)
 
@@ -96,8 +100,8 @@ def rig(tmp_path: Path) -> Iterator[Rig]:
 # ----------------------------------------------------------------------- discovery
 
 
-def test_find_node_sees_boot_up(tmp_path: Path) -> None:
-    rig = make_rig(tmp_path, start_node=False)
+def test_find_node_sees_boot_up(tmp_path: Path, device_kind: str) -> None:
+    rig = make_rig(tmp_path, device_kind, start_node=False)
     try:
         rig.node.start()  # boot-up 0x710 [00] after the client listens
         assert rig.client.find_node(1.0) == "boot-up"
@@ -106,8 +110,8 @@ def test_find_node_sees_boot_up(tmp_path: Path) -> None:
         close_rig(rig)
 
 
-def test_find_node_falls_back_to_sdo_probe(tmp_path: Path) -> None:
-    rig = make_rig(tmp_path, start_node=False)
+def test_find_node_falls_back_to_sdo_probe(tmp_path: Path, device_kind: str) -> None:
+    rig = make_rig(tmp_path, device_kind, start_node=False)
     rig.network.drop = lambda can_id, data: can_id == 0x700 + NODE_ID  # no boot-up/heartbeat
     try:
         rig.node.start()
@@ -137,9 +141,8 @@ def test_identity_nominal_lsb_and_rate(rig: Rig) -> None:
     assert identity.serial == SERIAL
     assert identity.device_name  # 0x1008 is a non-empty VSTRING
     accel_lsb, gyro_lsb = rig.client.nominal_lsb()
-    truth = rig.node.truth
-    assert accel_lsb == pytest.approx(truth.accel.nominal_lsb, rel=1e-7)  # REAL32 rounding
-    assert gyro_lsb == pytest.approx(truth.gyro.nominal_lsb, rel=1e-7)
+    assert accel_lsb == pytest.approx(DEFAULT_ACCEL_LSB, rel=1e-7)  # REAL32 rounding
+    assert gyro_lsb == pytest.approx(DEFAULT_GYRO_LSB, rel=1e-7)
     assert rig.client.output_data_rate() == 200
 
 
@@ -298,8 +301,8 @@ def test_sdo_timeout_defaults() -> None:
     assert default_sdo_timeout_s({"IN_CAN_VM": "1"}) == VM_SDO_TIMEOUT_S >= 2.0
 
 
-def test_sync_only_when_asked(tmp_path: Path) -> None:
-    rig = make_rig(tmp_path)
+def test_sync_only_when_asked(tmp_path: Path, device_kind: str) -> None:
+    rig = make_rig(tmp_path, device_kind)
     client = ImuClient(rig.bus(), NODE_ID, sync_producer=True, sync_period_s=0.01)
     spy = rig.bus()
     try:

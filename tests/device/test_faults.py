@@ -4,6 +4,12 @@ Streaming runs on python-can's virtual bus (which never drops a frame itself, DE
 so every loss the client reports must be one the node injected: the tests compare the
 client's counts with the injector's, exactly. Counting identity for TPDO1/TPDO2 frames:
 ``lost_accel + lost_gyro + 2·lost_samples`` = frames that never arrived in time.
+
+The fault injector is the simulated node's: the fault modes stay on it (heartbeat loss,
+error frames, SDO and TPDO faults). The node events a test can cause from outside (a power
+cycle mid-stream, a reboot as another unit, an EMCY, a bus that raises on send) run against
+both nodes (``either_rig``, ``make_device``); the independent durand node streams in real
+time (200 Hz), the simulated one at ``TIME_SCALE``.
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ from canimucal.sim.truth import Truth
 from canimucal.simnode.faults import FaultInjector, parse_faults
 from canimucal.simnode.node import SimulatedImuNode
 from tests.support.buses import FaultyBus
+from tests.support.nodes import DeviceUnderTest
 
 NODE_ID = 0x10
 T1, T2, T3 = 0x180 + NODE_ID, 0x280 + NODE_ID, 0x380 + NODE_ID
@@ -42,12 +49,7 @@ SERIAL = 5150
 TIME_SCALE = 4.0  # 200 Hz simulated → 800 samples per wall second
 
 
-@pytest.fixture
-def rig(
-    client_network: canopen.Network, make_sim_node: Callable[..., SimulatedImuNode]
-) -> Iterator[tuple[SimulatedImuNode, ImuClient]]:
-    truth = Truth.from_dict({"serial": SERIAL, "sample_rate_hz": 200})
-    node = make_sim_node(truth=truth, time_scale=TIME_SCALE, seed=7)
+def _client(client_network: canopen.Network) -> ImuClient:
     client = ImuClient(client_network, NODE_ID, sdo_timeout_s=0.3, sdo_backoff_s=0.01)
     assert client.find_node(2.0) in ("boot-up", "heartbeat")
     # The node's own first boot-up frame may still have been queued on the virtual bus when
@@ -57,7 +59,36 @@ def rig(
             client.events.get_nowait()
         except queue.Empty:
             break
+    return client
+
+
+@pytest.fixture
+def rig(
+    client_network: canopen.Network, make_sim_node: Callable[..., SimulatedImuNode]
+) -> Iterator[tuple[SimulatedImuNode, ImuClient]]:
+    truth = Truth.from_dict({"serial": SERIAL, "sample_rate_hz": 200})
+    node = make_sim_node(truth=truth, time_scale=TIME_SCALE, seed=7)
+    client = _client(client_network)
     yield node, client
+    client.close()
+
+
+@pytest.fixture
+def either_rig(
+    client_network: canopen.Network,
+    make_device: Callable[..., DeviceUnderTest],
+    make_sim_node: Callable[..., SimulatedImuNode],
+    device_kind: str,
+) -> Iterator[tuple[DeviceUnderTest, ImuClient, float]]:
+    """Either node (serial ``SERIAL``), a client, and the node's samples per wall second."""
+    if device_kind == "simulated":
+        truth = Truth.from_dict({"serial": SERIAL, "sample_rate_hz": 200})
+        node = make_sim_node(truth=truth, time_scale=TIME_SCALE, seed=7)
+        device = DeviceUnderTest(device_kind, node)
+    else:
+        device = make_device(serial=SERIAL)
+    client = _client(client_network)
+    yield device, client, 200.0 * (TIME_SCALE if device_kind == "simulated" else 1.0)
     client.close()
 
 
@@ -246,14 +277,14 @@ def test_silent_server_retried_with_backoff_then_reported(
 
 
 def test_reboot_mid_stream_is_reported_and_streaming_resumes(
-    rig: tuple[SimulatedImuNode, ImuClient],
+    either_rig: tuple[DeviceUnderTest, ImuClient, float],
 ) -> None:
-    node, client = rig
+    node, client, rate_hz = either_rig
     client.write_value(od.HEARTBEAT, 0, "u16", 250)  # not stored: gone after the reboot
     client.start_streaming()
-    before = _collect(client, 1200)  # past counter 1000
+    before = _collect(client, int(1.5 * rate_hz))  # the simulated node: past counter 1000
     boots = client.boots  # 1 when the client saw the first boot-up frame, else 0
-    node.faults.set(reboot_at_s=node.simulator.time_s + 0.5)
+    node.power_cycle()
     events = _events(client, NodeRebooted)
     # the boot-up frame goes out in INITIALISING; PRE-OPERATIONAL follows it on the node
     deadline = time.monotonic() + 2.0
@@ -265,28 +296,30 @@ def test_reboot_mid_stream_is_reported_and_streaming_resumes(
         before.append(block)
     last_before = int(concat_blocks(before).counter[-1])
     client.resume_streaming()
-    after = concat_blocks(_collect(client, 400))
+    after = concat_blocks(_collect(client, int(0.5 * rate_hz)))
     client.stop_streaming()
     # counters restarted below the last one seen; the pairer followed instead of calling
     # every new sample late
     assert after.counter[0] < last_before
     assert after.late == after.duplicates == 0 and _missing_halves(after) == 0
     assert client.read_value(od.HEARTBEAT, 0, "u16") == 1000  # unsaved value gone
-    assert node.faults.stats.reboots == 1 and client.boots == boots + 1
+    assert client.boots == boots + 1
 
 
-def test_emergency_is_reported_with_its_register(rig: tuple[SimulatedImuNode, ImuClient]) -> None:
-    node, client = rig
+def test_emergency_is_reported_with_its_register(
+    either_rig: tuple[DeviceUnderTest, ImuClient, float],
+) -> None:
+    node, client, rate_hz = either_rig
     client.start_streaming()
-    _collect(client, 100)
-    at_s = node.simulator.time_s + 0.2
-    node.faults.set(emergency=[{"at_s": at_s, "code": 0x5000, "register": 0x05}])
+    _collect(client, int(rate_hz / 4))
+    node.emcy(0x5000, 0x05)
     event = _events(client, EmergencyReceived)[-1]
     assert isinstance(event, EmergencyReceived)
     assert (event.code, event.register) == (0x5000, 0x05)
     assert event.text == "0x5000 device hardware (error register 0x05)"
     assert client.read_value(od.ERROR_REGISTER, 0, "u8") == 0x05
-    assert sum(b.n for b in _collect(client, 200)) >= 200  # streaming carries on
+    n = int(rate_hz / 2)
+    assert sum(b.n for b in _collect(client, n)) >= n  # streaming carries on
     client.stop_streaming()
 
 
@@ -303,11 +336,12 @@ def test_heartbeat_loss_and_return_are_reported(rig: tuple[SimulatedImuNode, Imu
     assert not client.heartbeat.lost
 
 
-def test_serial_change_after_reboot_is_reported(rig: tuple[SimulatedImuNode, ImuClient]) -> None:
-    node, client = rig
+def test_serial_change_after_reboot_is_reported(
+    either_rig: tuple[DeviceUnderTest, ImuClient, float],
+) -> None:
+    node, client, _ = either_rig
     assert client.identity().serial == SERIAL
-    node.faults.set(serial_after_reboot=SERIAL + 1)
-    node.reboot()
+    node.reboot_as(SERIAL + 1)
     _events(client, NodeRebooted)
     assert client.identity().serial == SERIAL + 1
     changed = _events(client, SerialChanged)[-1]
@@ -330,9 +364,9 @@ def test_error_frames_are_reported_and_streaming_survives(
 
 
 def test_bus_that_raises_on_send(
-    bus_channel: str, make_sim_node: Callable[..., SimulatedImuNode]
+    bus_channel: str, make_device: Callable[..., DeviceUnderTest]
 ) -> None:
-    make_sim_node(truth=Truth.from_dict({"serial": SERIAL}))
+    make_device(serial=SERIAL)
     faulty = FaultyBus(can.Bus(interface="virtual", channel=bus_channel))
     client = ImuClient(faulty, NODE_ID, sdo_timeout_s=0.2, sdo_retries=2, sdo_backoff_s=0.01)
     try:

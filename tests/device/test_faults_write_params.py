@@ -3,25 +3,23 @@
 Validation order: schema, keys and finite numbers are checked before any bus is opened
 (the session class is replaced by a tripwire); the device's ranges, which need its nominal
 LSBs, after connecting but before the first SDO download (every download is recorded, and
-the simulated node's calibration objects are captured when it stops). Both exit 2.
+the node's calibration objects compared before and after). Both exit 2. The range checks run
+against both nodes (``make_device``) on a virtual bus.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
 from canimucal.cli.main import COMMANDS, main
-from canimucal.device import od
 from canimucal.device.bus import SdoChannel
 from canimucal.runtime.wiring import Devices
-from canimucal.sim.truth import Truth
-from canimucal.simnode.node import SimulatedImuNode
-from canimucal.simnode.store import factory_values
+from tests.support.nodes import DeviceUnderTest
 
 pytestmark = pytest.mark.skipif(
     "write-params" not in COMMANDS, reason="the write-params verb is not registered yet"
@@ -80,22 +78,16 @@ def test_bad_file_refused_before_connecting(
 
 
 @pytest.fixture
-def spy(monkeypatch: pytest.MonkeyPatch) -> Iterator[dict[str, list[Any]]]:
-    """Record every SDO download and the node's calibration objects when it stops."""
-    seen: dict[str, list[Any]] = {"downloads": [], "objects": []}
-    download, stop = SdoChannel.download, SimulatedImuNode.stop
+def downloads(monkeypatch: pytest.MonkeyPatch) -> Iterator[list[tuple[int, int]]]:
+    """Record every SDO download the client makes."""
+    seen: list[tuple[int, int]] = []
+    download = SdoChannel.download
 
     def recording_download(self: SdoChannel, index: int, sub: int, data: bytes) -> None:
-        seen["downloads"].append((index, sub))
+        seen.append((index, sub))
         download(self, index, sub, data)
 
-    def capturing_stop(self: SimulatedImuNode) -> None:
-        get = self.local_node.get_data
-        seen["objects"].append({(i, s): bytes(get(i, s)) for i, s, _ in od.CALIBRATION_OBJECTS})
-        stop(self)
-
     monkeypatch.setattr(SdoChannel, "download", recording_download)
-    monkeypatch.setattr(SimulatedImuNode, "stop", capturing_stop)
     yield seen
 
 
@@ -110,20 +102,24 @@ def spy(monkeypatch: pytest.MonkeyPatch) -> Iterator[dict[str, list[Any]]]:
     ],
 )
 def test_out_of_range_refused_before_writing_anything(
-    spy: dict[str, list[Any]],
+    downloads: list[tuple[int, int]],
+    make_device: Callable[..., DeviceUnderTest],
+    bus_channel: str,
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
     path: tuple[str, ...],
     value: Any,
 ) -> None:
+    device = make_device()
+    factory = device.raw_objects()
     cal = tmp_path / "cal.json"
     cal.write_text(json.dumps(_with(path, value)))
-    argv = ["write-params", str(cal), "--sim", "--force", "--backup-dir", str(tmp_path / "b")]
+    bus = ["--interface", "virtual", "--channel", bus_channel]
+    argv = ["write-params", str(cal), *bus, "--force", "--backup-dir", str(tmp_path / "b")]
     code = main(argv)
     err = capsys.readouterr().err
     assert code == 2, err
     assert err.startswith("error: ") and len(err.strip().splitlines()) == 1, err
-    assert spy["downloads"] == []  # nothing written, not even valid = 0
-    factory = factory_values(Truth.from_dict({}))
-    expected = {key: factory[key] for key in spy["objects"][0]}
-    assert spy["objects"] == [expected]  # the node still holds its factory set
+    assert downloads == []  # nothing written, not even valid = 0
+    assert device.raw_objects() == factory  # the node still holds its factory set
+    assert not device.calibration_valid() and not (tmp_path / "b").exists()

@@ -1,11 +1,12 @@
 """Byte script of a transactional write: the client's SDO requests, frame by frame.
 
-A spy bus on the same virtual channel records every frame the client sends to the
-simulated node (COB-ID 0x600 + node) and every answer (0x580 + node). The script expected
-here is written from CiA 301 and DESIGN §4 alone: expedited uploads ``40 ii ii ss``,
-expedited downloads ``23``/``2B``/``2F`` (4/2/1 bytes) with index and value little-endian;
-valid cleared first, the block in CRC order, every value read back, the CRC, valid set
-last, read back, then the store signature 'save' to 0x1010:04.
+A spy bus on the same virtual channel records every frame the client sends to the node
+(COB-ID 0x600 + node) and every answer (0x580 + node), for the simulated and the independent
+durand node alike (``device_kind``). The script expected here is written from CiA 301 and
+DESIGN §4 alone: expedited uploads ``40 ii ii ss``, expedited downloads ``23``/``2B``/``2F``
+(4/2/1 bytes) with index and value little-endian; valid cleared first, the block in CRC
+order, every value read back, the CRC, valid set last, read back, then the store signature
+'save' to 0x1010:04.
 """
 
 from __future__ import annotations
@@ -23,8 +24,7 @@ from canimucal.device import od
 from canimucal.device.client import ImuClient
 from canimucal.device.transaction import write_calibration_transaction
 from canimucal.io.calibration import Calibration
-from canimucal.sim.truth import Truth
-from canimucal.simnode.node import SimulatedImuNode
+from tests.support.nodes import node_on
 
 NODE_ID = 0x10
 SERIAL = 31337
@@ -42,15 +42,23 @@ def download(index: int, sub: int, data: bytes) -> bytes:
 
 
 @pytest.fixture
-def wired(bus_channel: str, tmp_path: Path) -> Iterator[tuple[ImuClient, can.BusABC]]:
+def wired(
+    bus_channel: str, tmp_path: Path, device_kind: str
+) -> Iterator[tuple[ImuClient, can.BusABC]]:
     buses = [can.Bus(interface="virtual", channel=bus_channel) for _ in range(3)]
-    nets = [canopen.Network(buses[0]), canopen.Network(buses[1])]
+    nets = [canopen.Network(buses[1])]
     for net in nets:
         net.NOTIFIER_CYCLE = 0.05
         net.connect()
-    truth = Truth.from_dict({"serial": SERIAL})
-    node = SimulatedImuNode(nets[0], NODE_ID, truth, state_file=tmp_path / "nv.json")
-    client = ImuClient(nets[1], NODE_ID, sdo_timeout_s=0.5)
+    node = node_on(
+        device_kind,
+        buses[0],
+        NODE_ID,
+        start=False,
+        sim_options={"state_file": tmp_path / "nv.json", "seed": None},
+        serial=SERIAL,
+    )
+    client = ImuClient(nets[0], NODE_ID, sdo_timeout_s=0.5)
     node.start()
     assert client.find_node(1.0) == "boot-up"
     while buses[2].recv(0.02) is not None:  # boot-up and heartbeats so far

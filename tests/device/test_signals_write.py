@@ -5,7 +5,8 @@ the k-th SDO request goes out, so it lands wherever the transaction is (backup, 
 verification, rollback). Checks: never valid = 1 over a mixed set; an interrupt after the
 backup always rolls back to the old set (a second interrupt is held back until the
 rollback is done) and names the backup; SIGTERM surfaces as ``Terminated``.
-A larger sample (≥ 200 runs) is in ``benchmarks/soak.py --signals``.
+A larger sample (≥ 200 runs) is in ``benchmarks/soak.py --signals``. Both nodes
+(``either_loop_rig``): the simulated one and the independent durand one.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from tests.device.test_write_faults import (
     Raw,
     _old_and_new,
     calibration,
-    loop_rig,  # noqa: F401  (a fixture)
+    either_loop_rig,  # noqa: F401  (a fixture)
 )
 
 SEED = 20261124
@@ -89,8 +90,10 @@ def check_outcome(rig: LoopRig, old: Raw, new: Raw, plan: dict[int, int], raised
     return "before backup"
 
 
-def test_interrupts_at_random_write_steps_always_roll_back(loop_rig: LoopRig) -> None:  # noqa: F811
-    rig = loop_rig
+def test_interrupts_at_random_write_steps_always_roll_back(
+    either_loop_rig: LoopRig,  # noqa: F811
+) -> None:
+    rig = either_loop_rig
     old, new, n_requests = _old_and_new(rig)
     rng = np.random.default_rng(SEED)
     tally: Counter[str] = Counter()
@@ -108,8 +111,10 @@ def test_interrupts_at_random_write_steps_always_roll_back(loop_rig: LoopRig) ->
     assert sum(v for k, v in tally.items() if k.endswith("rolled back")) >= RUNS // 2
 
 
-def test_second_interrupt_during_the_rollback_is_held_back(loop_rig: LoopRig) -> None:  # noqa: F811
-    rig = loop_rig
+def test_second_interrupt_during_the_rollback_is_held_back(
+    either_loop_rig: LoopRig,  # noqa: F811
+) -> None:
+    rig = either_loop_rig
     old, _, _ = _old_and_new(rig)
     rig.load(old)
     # request 60 is inside "write block"; 62 is the rollback's first few downloads

@@ -1,4 +1,8 @@
-"""TPDO decoding and pairing: synthetic frames (exact) and the simulated node (live)."""
+"""TPDO decoding and pairing: synthetic frames (exact) and both IMU nodes (live).
+
+The live tests run against the simulated node (sped up by its ``time_scale``) and the
+independent durand node (real time, so it streams for longer to see as many samples).
+"""
 
 from __future__ import annotations
 
@@ -6,7 +10,7 @@ import struct
 import time
 import uuid
 from collections.abc import Callable, Iterator
-from pathlib import Path
+from dataclasses import dataclass
 
 import can
 import canopen
@@ -20,7 +24,7 @@ from canimucal.device.stream import (
     layout_from_mapping,
 )
 from canimucal.model.samples import SampleBlock, concat_blocks
-from canimucal.simnode.node import SimulatedImuNode
+from tests.support.nodes import DeviceUnderTest, node_on
 from tests.support.pdo import design_layout
 
 NODE = 0x10
@@ -208,7 +212,7 @@ def test_concat_blocks_sums_counts() -> None:
     assert isinstance(concat_blocks([]), SampleBlock)
 
 
-# --------------------------------------------------------- live, against the simulated node
+# --------------------------------------------------------------- live, against either node
 
 
 class DroppingNetwork(canopen.Network):
@@ -226,25 +230,36 @@ class DroppingNetwork(canopen.Network):
         super().notify(can_id, data, timestamp)
 
 
-TIME_SCALE = 5.0  # 200 Hz device data delivered at 1 kHz wall
+TIME_SCALE = {"simulated": 5.0, "independent": 1.0}
+"""Device seconds per wall second: the simulated node's 200 Hz data at 1 kHz wall."""
+WALL_S = {"simulated": 1.5, "independent": 3.0}
+"""Streaming time of a live test: ≥ 500 samples from either node."""
+
+
+@dataclass
+class Live:
+    client: ImuClient
+    network: DroppingNetwork
+    node: DeviceUnderTest
+    time_scale: float
+    wall_s: float
 
 
 @pytest.fixture
-def live(tmp_path: Path) -> Iterator[tuple[ImuClient, DroppingNetwork, SimulatedImuNode]]:
+def live(device_kind: str) -> Iterator[Live]:
     channel = f"h6b-stream-{uuid.uuid4().hex}"
     buses = [can.Bus(interface="virtual", channel=channel) for _ in range(2)]
-    node_net, client_net = canopen.Network(buses[0]), DroppingNetwork(buses[1])
-    for net in (node_net, client_net):
-        net.NOTIFIER_CYCLE = 0.05
-        net.connect()
-    node = SimulatedImuNode(node_net, NODE, time_scale=TIME_SCALE, seed=11).start()
+    client_net = DroppingNetwork(buses[1])
+    client_net.NOTIFIER_CYCLE = 0.05
+    client_net.connect()
+    scale = TIME_SCALE[device_kind]
+    node = node_on(device_kind, buses[0], NODE, sim_options={"time_scale": scale, "seed": 11})
     client = ImuClient(client_net, NODE, sdo_timeout_s=0.5)
-    yield client, client_net, node
+    yield Live(client, client_net, node, scale, WALL_S[device_kind])
     client.close()
     node.stop()
-    for net in (node_net, client_net):
-        assert net.notifier is not None
-        net.notifier.stop()
+    assert client_net.notifier is not None
+    client_net.notifier.stop()
     for bus in buses:
         bus.shutdown()
 
@@ -263,15 +278,14 @@ def stream_for(client: ImuClient, wall_s: float) -> SampleBlock:
     return concat_blocks(blocks)
 
 
-def test_live_stream_rate_and_continuous_counters(live: tuple) -> None:
-    client, _, _ = live
-    block = stream_for(client, 1.5)
-    expected_hz = 200.0 * TIME_SCALE
+def test_live_stream_rate_and_continuous_counters(live: Live) -> None:
+    block = stream_for(live.client, live.wall_s)
+    expected_hz = 200.0 * live.time_scale
     span_s = block.t[-1] - block.t[0]
     rate_hz = (block.n - 1) / span_s
     # the node paces its sends at the scaled rate; 25 % leaves room for a loaded machine
     assert 0.75 * expected_hz < rate_hz < 1.25 * expected_hz
-    assert block.n > 0.5 * 1.5 * expected_hz
+    assert block.n > 0.5 * live.wall_s * expected_hz
     steps = np.diff(block.counter) % 65536
     assert np.all(steps == 1)  # the virtual bus never drops a frame
     assert (block.lost_accel, block.lost_gyro, block.lost_samples) == (0, 0, 0)
@@ -283,8 +297,8 @@ def test_live_stream_rate_and_continuous_counters(live: tuple) -> None:
     assert block.temp_c == pytest.approx(25.0, abs=1.0)
 
 
-def test_live_lost_halves_and_gaps_counted_exactly(live: tuple) -> None:
-    client, net, _ = live
+def test_live_lost_halves_and_gaps_counted_exactly(live: Live) -> None:
+    net = live.network
     layout_ids = (0x180 + NODE, 0x280 + NODE)
 
     def drop(can_id: int, data: bytes) -> bool:
@@ -296,7 +310,7 @@ def test_live_lost_halves_and_gaps_counted_exactly(live: tuple) -> None:
         return can_id == layout_ids[1] and counter % 50 == 7  # a lost TPDO2 half
 
     net.drop = drop
-    block = stream_for(client, 1.5)
+    block = stream_for(live.client, live.wall_s)
     seq = block.counter[0] + np.concatenate([[0], np.cumsum(np.diff(block.counter) % 65536)])
     inside = np.arange(seq[0], seq[-1] + 1) % 65536
     gaps = inside % 97 == 3
@@ -310,11 +324,11 @@ def test_live_lost_halves_and_gaps_counted_exactly(live: tuple) -> None:
     assert (block.duplicates, block.late) == (0, 0)
 
 
-def test_design_layout_is_the_mapping_of_design_and_of_the_simulated_node(
-    make_sim_node: Callable[..., SimulatedImuNode], client_network: canopen.Network
+def test_design_layout_is_the_mapping_of_design_and_of_both_nodes(
+    client_network: canopen.Network, make_device: Callable[..., DeviceUnderTest]
 ) -> None:
     assert design_layout(NODE) == layout_from_mapping(COB_IDS, INT16_MAPPING)
-    make_sim_node()
+    make_device()
     client = ImuClient(client_network, NODE)
     client.find_node(2.0)
     assert client.pdo_mapping() == design_layout(NODE)

@@ -1,9 +1,9 @@
-"""The transactional calibration write (DESIGN §4) against the simulated node.
+"""The transactional calibration write (DESIGN §4) against both IMU nodes.
 
-Failures are injected: at the node, an extra write callback on the canopen ``LocalNode``
-(``add_write_callback``; LocalNode runs callbacks before storing, so raising
-``SdoAbortedError`` refuses the write) and a node network that goes mute (drops everything
-it would send) mid-write; at the client, one read-back with a flipped bit.
+Every test with a node runs against the simulated and the independent durand node
+(``device_kind``). Failures are injected: at the node, a hook before the write of one object
+(:meth:`DeviceUnderTest.intercept_write`) that refuses it with an SDO abort, or mutes the
+node's bus (it sends nothing more) mid-write; at the client, one read-back with a flipped bit.
 """
 
 from __future__ import annotations
@@ -20,7 +20,6 @@ import can
 import canopen
 import numpy as np
 import pytest
-from canopen.sdo.exceptions import SdoAbortedError
 
 from canimucal.device import od, transaction
 from canimucal.device.calibration_map import (
@@ -37,8 +36,7 @@ from canimucal.device.transaction import (
 from canimucal.errors import DeviceError, InputError, RollbackIncompleteError
 from canimucal.io.calibration import Calibration, calibration_to_dict, read_calibration
 from canimucal.schema import to_plain
-from canimucal.sim.truth import Truth
-from canimucal.simnode.node import SimulatedImuNode
+from tests.support.nodes import DeviceUnderTest, node_on
 
 NODE_ID = 0x10
 SERIAL = 777
@@ -47,27 +45,37 @@ GYRO_LSB = float(np.pi / (180.0 * 16.4))
 BACKUP_NAME = re.compile(r"^777-\d{8}T\d{6}\.\d{3}Z(-\d+)?\.json$")
 
 
-class MuteableNetwork(canopen.Network):
-    """The node's network; once ``muted`` it sends nothing (the node goes silent)."""
+class MuteableBus(can.BusABC):
+    """The node's end of the bus; once ``muted`` it sends nothing (the node goes silent)."""
 
-    muted = False
+    def __init__(self, inner: can.BusABC) -> None:
+        self._inner = inner
+        self.muted = False
+        self.channel_info = f"muteable({inner.channel_info})"
+        super().__init__(channel="muteable")
 
-    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
         if not self.muted:
-            super().send_message(can_id, data, remote)
+            self._inner.send(msg, timeout)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        return self._inner.recv(timeout), False
+
+    def shutdown(self) -> None:
+        super().shutdown()
+        self._inner.shutdown()
 
 
 @dataclass
 class Rig:
-    node: SimulatedImuNode
-    node_network: MuteableNetwork
+    node: DeviceUnderTest
+    node_bus: MuteableBus
     client: ImuClient
     spy: can.BusABC
     backups: Path
 
     def raw_objects(self) -> dict[tuple[int, int], bytes]:
-        get = self.node.local_node.get_data
-        return {(i, s): bytes(get(i, s)) for i, s, _ in od.CALIBRATION_OBJECTS}
+        return self.node.raw_objects()
 
     def sdo_requests(self) -> list[bytes]:
         frames = []
@@ -78,24 +86,29 @@ class Rig:
 
 
 @pytest.fixture
-def rig(bus_channel: str, tmp_path: Path) -> Iterator[Rig]:
+def rig(bus_channel: str, tmp_path: Path, device_kind: str) -> Iterator[Rig]:
     buses = [can.Bus(interface="virtual", channel=bus_channel) for _ in range(3)]
-    node_net, client_net = MuteableNetwork(buses[0]), canopen.Network(buses[1])
-    for net in (node_net, client_net):
-        net.NOTIFIER_CYCLE = 0.05
-        net.connect()
-    truth = Truth.from_dict({"serial": SERIAL})
-    node = SimulatedImuNode(node_net, NODE_ID, truth, state_file=tmp_path / "nv.json", seed=2)
+    node_bus, client_net = MuteableBus(buses[0]), canopen.Network(buses[1])
+    client_net.NOTIFIER_CYCLE = 0.05
+    client_net.connect()
+    node = node_on(
+        device_kind,
+        node_bus,
+        NODE_ID,
+        start=False,
+        sim_options={"state_file": tmp_path / "nv.json", "seed": 2},
+        serial=SERIAL,
+    )
     client = ImuClient(client_net, NODE_ID, sdo_timeout_s=0.1, sdo_retries=1)
     node.start()
     assert client.find_node(1.0) == "boot-up"
-    yield Rig(node, node_net, client, buses[2], tmp_path / "backups")
+    yield Rig(node, node_bus, client, buses[2], tmp_path / "backups")
     client.close()
     node.stop()
-    for net in (node_net, client_net):
-        assert net.notifier is not None
-        net.notifier.stop()
-    for bus in buses:
+    assert client_net.notifier is not None
+    client_net.notifier.stop()
+    node_bus.shutdown()
+    for bus in buses[1:]:
         bus.shutdown()
 
 
@@ -163,7 +176,7 @@ def test_full_write_readback_bit_exact_valid_crc_stored(rig: Rig) -> None:
         assert od.encode(code, backup["objects"][od.format_key(index, sub)]) == raw
     # stored: survives a power cycle
     written = rig.raw_objects()
-    rig.node.reboot()
+    rig.node.power_cycle()
     time.sleep(0.05)
     assert rig.raw_objects() == written
     rb = to_plain(readback_of(readout.block, readout.valid, readout.crc_ok))
@@ -177,7 +190,7 @@ def test_no_store_is_lost_on_reboot(rig: Rig) -> None:
     )
     assert not report.stored
     assert not any(w.index == od.STORE for w in report.writes)
-    rig.node.reboot()
+    rig.node.power_cycle()
     time.sleep(0.05)
     assert rig.raw_objects() == before
 
@@ -234,16 +247,17 @@ def test_dry_run_plans_and_writes_nothing(rig: Rig) -> None:
     assert report.writes[-2].value == 1
 
 
-def install_abort(node: SimulatedImuNode, key: tuple[int, int], code: int) -> list[int]:
+def install_abort(node: DeviceUnderTest, key: tuple[int, int], code: int) -> list[int]:
     """Make the node refuse the next write of ``key`` (once: the rollback may write it)."""
     armed = [1]
 
-    def refuse(index: int, subindex: int, **_: Any) -> None:
-        if armed and (index, subindex) == key:
+    def refuse() -> int | None:
+        if armed:
             armed.pop()
-            raise SdoAbortedError(code)
+            return code
+        return None
 
-    node.local_node.add_write_callback(refuse)
+    node.intercept_write(key, refuse)
     return armed
 
 
@@ -301,11 +315,10 @@ def test_rollback_after_readback_mismatch(rig: Rig, monkeypatch: pytest.MonkeyPa
 def test_rollback_impossible_when_node_goes_silent(rig: Rig) -> None:
     original = rig.raw_objects()
 
-    def go_silent(index: int, subindex: int, **_: Any) -> None:
-        if (index, subindex) == (od.ACCEL_CORRECTION, 5):
-            rig.node_network.muted = True
+    def go_silent() -> None:
+        rig.node_bus.muted = True
 
-    rig.node.local_node.add_write_callback(go_silent)
+    remove_hook = rig.node.intercept_write((od.ACCEL_CORRECTION, 5), go_silent)
     with pytest.raises(RollbackIncompleteError) as info:
         write_calibration_transaction(
             rig.client, Calibration.from_dict(calibration()), backup_dir=rig.backups
@@ -315,10 +328,10 @@ def test_rollback_impossible_when_node_goes_silent(rig: Rig) -> None:
         f"rollback incomplete; device invalidated; restore with canimucal write-params {backup}"
     )
     assert info.value.exit_code == 3
-    assert rig.node.od_value(od.CAL_INFO, od.CAL_VALID_SUB) == 0  # never valid over a mix
+    assert rig.node.value(od.CAL_INFO, od.CAL_VALID_SUB) == 0  # never valid over a mix
     # the device answers again: the backup, given as the record, restores bit-exactly
-    rig.node_network.muted = False
-    rig.node.local_node._write_callbacks.remove(go_silent)
+    rig.node_bus.muted = False
+    remove_hook()
     report = write_calibration_transaction(
         rig.client, read_calibration(backup), backup_dir=rig.backups
     )

@@ -4,6 +4,9 @@ During a write transaction any request on 0x600+id that this client did not send
 rolled back, exit 3, "another SDO client is using node N". Two writers whose transactions
 overlap: at most one reports success and the device holds exactly its set, or the old set
 with both told. Back-to-back writes both succeed.
+
+Every test runs against both nodes (``device_kind``); the foreign request at random points
+uses the synchronous loopback rig of test_write_faults (``either_loop_rig``).
 """
 
 from __future__ import annotations
@@ -26,26 +29,23 @@ from canimucal.device.client import ImuClient
 from canimucal.device.transaction import WriteReport, write_calibration_transaction
 from canimucal.errors import DeviceError, RollbackIncompleteError
 from canimucal.io.calibration import Calibration, calibration_to_dict, calibration_to_json
-from canimucal.sim.truth import Truth
-from canimucal.simnode.node import SimulatedImuNode
 from tests.device.test_write_faults import (
     NODE_ID,
     SERIAL,
     LoopRig,
     _old_and_new,
     calibration,
-    loop_rig,  # noqa: F401  (a fixture)
+    either_loop_rig,  # noqa: F401  (a fixture)
 )
+from tests.support.nodes import DeviceUnderTest, node_on
 
 FOREIGN = can.Message(arbitration_id=0x600 + NODE_ID, data=bytes([0x40, 0x18, 0x10, 4, 0, 0, 0, 0]))
 
 
-def test_a_foreign_request_mid_write_rolls_back(loop_rig: LoopRig) -> None:  # noqa: F811
-    rig = loop_rig
+def test_a_foreign_request_mid_write_rolls_back(either_loop_rig: LoopRig) -> None:  # noqa: F811
+    rig = either_loop_rig
     old, _, n_requests = _old_and_new(rig)
-    node_end = (
-        rig.node.local_node.network.bus
-    )  # frames it sends reach the client, as another client's
+    node_end = rig.node_end  # frames it sends reach the client, as another client's
     rng = np.random.default_rng(13)
     outcomes = set()
     for k in rng.integers(1, n_requests - 1, 12):
@@ -79,15 +79,17 @@ def test_a_foreign_request_mid_write_rolls_back(loop_rig: LoopRig) -> None:  # n
 
 @pytest.fixture
 def two_clients(
-    bus_channel: str, tmp_path: Path
-) -> Iterator[tuple[SimulatedImuNode, list[ImuClient]]]:
+    bus_channel: str, device_kind: str
+) -> Iterator[tuple[DeviceUnderTest, list[ImuClient]]]:
     buses = [can.Bus(interface="virtual", channel=bus_channel) for _ in range(3)]
-    networks = [canopen.Network(bus) for bus in buses]
+    networks = [canopen.Network(bus) for bus in buses[1:]]
     for net in networks:
         net.NOTIFIER_CYCLE = 0.05
         net.connect()
-    node = SimulatedImuNode(networks[0], NODE_ID, Truth.from_dict({"serial": SERIAL}), seed=2)
-    clients = [ImuClient(net, NODE_ID, sdo_timeout_s=0.2, sdo_retries=1) for net in networks[1:]]
+    node = node_on(
+        device_kind, buses[0], NODE_ID, start=False, sim_options={"seed": 2}, serial=SERIAL
+    )
+    clients = [ImuClient(net, NODE_ID, sdo_timeout_s=0.2, sdo_retries=1) for net in networks]
     node.start()
     yield node, clients
     for client in clients:
@@ -100,19 +102,18 @@ def two_clients(
         bus.shutdown()
 
 
-def _raw(node: SimulatedImuNode) -> dict[tuple[int, int], bytes]:
-    get = node.local_node.get_data
-    return {(i, s): bytes(get(i, s)) for i, s, _ in od.CALIBRATION_OBJECTS}
+def _raw(node: DeviceUnderTest) -> dict[tuple[int, int], bytes]:
+    return node.raw_objects()
 
 
-def _holds(node: SimulatedImuNode, report: WriteReport) -> bool:
+def _holds(node: DeviceUnderTest, report: WriteReport) -> bool:
     final = {(w.index, w.sub): w.data for w in report.writes if w.index != od.STORE}
     raw = _raw(node)
     return all(raw[key] == data for key, data in final.items())
 
 
 def test_overlapping_writers_never_both_succeed(
-    two_clients: tuple[SimulatedImuNode, list[ImuClient]], tmp_path: Path
+    two_clients: tuple[DeviceUnderTest, list[ImuClient]], tmp_path: Path
 ) -> None:
     node, clients = two_clients
     records = [Calibration.from_dict(calibration(s, b)) for s, b in ((1.03, 5.0), (0.98, -7.0))]
@@ -161,7 +162,7 @@ def test_overlapping_writers_never_both_succeed(
 
 
 def test_backup_with_mismatched_crc_is_restored_invalid(
-    two_clients: tuple[SimulatedImuNode, list[ImuClient]],
+    two_clients: tuple[DeviceUnderTest, list[ImuClient]],
     tmp_path: Path,
     caplog: pytest.LogCaptureFixture,
 ) -> None:
@@ -194,14 +195,14 @@ def test_backup_with_mismatched_crc_is_restored_invalid(
 
 
 def test_device_holding_nan_is_backed_up_raw_and_recalibrated(
-    two_clients: tuple[SimulatedImuNode, list[ImuClient]], tmp_path: Path
+    two_clients: tuple[DeviceUnderTest, list[ImuClient]], tmp_path: Path
 ) -> None:
     node, (client, _) = two_clients
     write_calibration_transaction(
         client, Calibration.from_dict(calibration(1.02, 3.0)), backup_dir=tmp_path, store=False
     )
     nan = bytes.fromhex("0100c0ff")  # a NaN with a payload and the sign bit
-    node.local_node.data_store.setdefault(0x2100, {})[1] = nan  # past the node's own checks
+    node.poke(0x2100, 1, nan)  # past the node's own checks
     readout = client.read_calibration_block()
     backup = record_from_readout(readout, client.identity(), NODE_ID)
     assert backup.objects_raw == {"0x2100:01": "0100c0ff"}
@@ -225,7 +226,7 @@ def test_device_holding_nan_is_backed_up_raw_and_recalibrated(
 
 
 def test_rollback_to_non_finite_values_ends_invalid(
-    two_clients: tuple[SimulatedImuNode, list[ImuClient]],
+    two_clients: tuple[DeviceUnderTest, list[ImuClient]],
     tmp_path: Path,
     caplog: pytest.LogCaptureFixture,
 ) -> None:
@@ -234,13 +235,15 @@ def test_rollback_to_non_finite_values_ends_invalid(
         client, Calibration.from_dict(calibration(1.02, 3.0)), backup_dir=tmp_path, store=False
     )
     nan = bytes.fromhex("0100c0ff")
-    node.local_node.data_store.setdefault(0x2100, {})[1] = nan
-    node.faults.set(abort_at_sdo_request=70)  # inside "write block", after the backup
+    node.poke(0x2100, 1, nan)
+    # refused once inside "write block", after the backup: the rollback follows
+    armed = [0x08000020]
+    node.intercept_write((od.GYRO_CORRECTION, 5), lambda: armed.pop() if armed else None)
     with caplog.at_level(logging.WARNING), pytest.raises(DeviceError) as raised:
         write_calibration_transaction(
             client, Calibration.from_dict(calibration(0.99, -2.0)), backup_dir=tmp_path, store=False
         )
-    node.faults.clear()
+    assert not armed  # the refusal fired
     after = client.read_calibration_block()
     assert after.valid == 0, raised.value
     assert "non-finite values in 0x2100:01: left valid = 0" in caplog.text

@@ -8,6 +8,10 @@ objects are read in process (the SDO server may be silent) and must be the compl
 set, the complete new set, or valid = 0 with the documented message and exit 3 — never
 valid = 1 over a mixed set; 0x1010:04 'save' is only ever sent after the last
 verification read of the valid flag and CRC, and the non-volatile memory holds old or new.
+
+The faults come from the simulated node's injector, so these tests run on it only
+(``loop_rig``); ``either_loop_rig`` gives the same link to either node for the tests of
+test_signals_write and test_two_writers whose node behaviour both nodes have.
 """
 
 from __future__ import annotations
@@ -32,6 +36,8 @@ from canimucal.sim.truth import Truth
 from canimucal.simnode.faults import FaultStats
 from canimucal.simnode.node import SimulatedImuNode
 from tests.support.buses import FaultyBus, LoopbackBus, loopback_pair
+from tests.support.independent_node import Behaviour, IndependentImuNode
+from tests.support.nodes import DeviceUnderTest
 
 NODE_ID = 0x10
 SERIAL = 4242
@@ -66,15 +72,22 @@ def calibration(scale: float, bias: float) -> dict[str, Any]:
 class LoopRig:
     """Node and client over a synchronous loopback link; SDO requests recorded in order."""
 
-    node: SimulatedImuNode
+    device: DeviceUnderTest
     client: ImuClient
     faulty: FaultyBus
+    node_end: LoopbackBus
+    """The node's end of the link: what it sends reaches the client."""
     backups: Path
     requests: list[bytes] = field(default_factory=list)
 
+    @property
+    def node(self) -> SimulatedImuNode:
+        """The simulated node: its fault injector drives the fault tests."""
+        assert isinstance(self.device.node, SimulatedImuNode), "a simulated-node-only test"
+        return self.device.node
+
     def raw(self) -> Raw:
-        get = self.node.local_node.get_data
-        return {(i, s): bytes(get(i, s)) for i, s, _ in od.CALIBRATION_OBJECTS}
+        return self.device.raw_objects()
 
     def stored(self) -> Raw:
         stored = self.node.stored_objects()
@@ -82,17 +95,26 @@ class LoopRig:
 
     def load(self, raw: Raw) -> None:
         """Put ``raw`` into the node and store it (in process, no SDO)."""
-        self.node.faults.clear()
-        self.node.faults.stats = FaultStats()  # per-case counts: did this case's fault fire?
         self.faulty.heal()
         self.faulty.failed_sends = 0
-        node = self.node.local_node
-        node.set_data(od.CAL_INFO, od.CAL_VALID_SUB, bytes([0]))
-        for (index, sub), data in raw.items():
-            if (index, sub) != (od.CAL_INFO, od.CAL_VALID_SUB):
-                node.set_data(index, sub, data)
-        node.set_data(od.CAL_INFO, od.CAL_VALID_SUB, raw[(od.CAL_INFO, od.CAL_VALID_SUB)])
-        node.set_data(od.STORE, od.STORE_CALIBRATION_SUB, od.encode("u32", od.SAVE_SIGNATURE))
+        if isinstance(self.device.node, IndependentImuNode):
+            independent = self.device.node
+            with independent.lock:
+                data = independent.node.object_dictionary._data
+                for (index, sub), value in raw.items():
+                    data[(index, sub)] = od.decode(od.OBJECT_CODES[(index, sub)], value)
+                independent._store(od.STORE_CALIBRATION_SUB)
+        else:
+            self.node.faults.clear()
+            self.node.faults.stats = FaultStats()  # per-case counts: did this case's fault fire?
+            node = self.node.local_node
+            node.set_data(od.CAL_INFO, od.CAL_VALID_SUB, bytes([0]))
+            for (index, sub), data in raw.items():
+                if (index, sub) != (od.CAL_INFO, od.CAL_VALID_SUB):
+                    node.set_data(index, sub, data)
+            node.set_data(od.CAL_INFO, od.CAL_VALID_SUB, raw[(od.CAL_INFO, od.CAL_VALID_SUB)])
+            save = od.encode("u32", od.SAVE_SIGNATURE)
+            node.set_data(od.STORE, od.STORE_CALIBRATION_SUB, save)
         while not self.client.events.empty():
             self.client.events.get_nowait()
         self.requests.clear()
@@ -107,46 +129,74 @@ def _connect(bus: can.BusABC, end: LoopbackBus) -> canopen.Network:
     return network
 
 
-@pytest.fixture(scope="module")
-def loop_rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LoopRig]:
+def _loop_rig(kind: str, backups: Path, sdo_timeout_s: float) -> Iterator[LoopRig]:
+    """Node ``kind`` (serial ``SERIAL``, 50 Hz) and a client over :func:`loopback_pair`."""
     client_end, node_end = loopback_pair()
     faulty = FaultyBus(client_end)
-    client_net, node_net = _connect(faulty, client_end), _connect(node_end, node_end)
-    truth = Truth.from_dict({"serial": SERIAL, "sample_rate_hz": 50})
-    node = SimulatedImuNode(node_net, NODE_ID, truth, seed=3)
-    client = ImuClient(client_net, NODE_ID, sdo_timeout_s=0.003, sdo_retries=1, sdo_backoff_s=0.001)
-    rig = LoopRig(node, client, faulty, tmp_path_factory.mktemp("backups"))
+    client_net = _connect(faulty, client_end)
+    if kind == "simulated":
+        node_net = _connect(node_end, node_end)
+        truth = Truth.from_dict({"serial": SERIAL, "sample_rate_hz": 50})
+        device = DeviceUnderTest(kind, SimulatedImuNode(node_net, NODE_ID, truth, seed=3))
+    else:
+        node_net = None
+        behaviour = Behaviour(serial=SERIAL, odr_hz=50, seed=3)
+        device = DeviceUnderTest(kind, IndependentImuNode(node_end, NODE_ID, behaviour))
+    client = ImuClient(
+        client_net, NODE_ID, sdo_timeout_s=sdo_timeout_s, sdo_retries=1, sdo_backoff_s=0.001
+    )
+    rig = LoopRig(device, client, faulty, node_end, backups)
     client_end.taps.append(
         lambda msg: (
             rig.requests.append(bytes(msg.data)) if msg.arbitration_id == 0x600 + NODE_ID else None
         )
     )
-    node.start()
+    device.start()
+    if isinstance(device.node, IndependentImuNode):  # durand's notifier listens to this end
+        assert device.node.network is not None
+        node_end.receivers = device.node.network._notifier.listeners
     yield rig
     client.close()
-    node.stop()
+    device.stop()
     for net in (client_net, node_net):
-        assert net.notifier is not None
-        net.notifier.stop()
+        if net is not None:
+            assert net.notifier is not None
+            net.notifier.stop()
     faulty.shutdown()
     node_end.shutdown()
 
 
+@pytest.fixture(scope="module")
+def loop_rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LoopRig]:
+    """The simulated node over the loopback link, 3 ms SDO timeout (the fault tests)."""
+    yield from _loop_rig("simulated", tmp_path_factory.mktemp("backups"), 0.003)
+
+
+@pytest.fixture
+def either_loop_rig(device_kind: str, tmp_path: Path) -> Iterator[LoopRig]:
+    """Either node over the loopback link (tests whose node behaviour both nodes have)."""
+    yield from _loop_rig(device_kind, tmp_path / "backups", 0.05)
+
+
 def _old_and_new(rig: LoopRig) -> tuple[Raw, Raw, int]:
     """Write the old (stored) and the new set once without faults; return both and N requests."""
-    rig.node.faults.clear()
+    simulated = rig.device.kind == "simulated"
+    if simulated:
+        rig.node.faults.clear()
     rig.faulty.heal()
     write_calibration_transaction(
         rig.client, Calibration.from_dict(calibration(1.05, 40.0)), backup_dir=rig.backups
     )
     old = rig.raw()
     rig.requests.clear()
-    rig.node.faults.set()  # restart the request count
+    if simulated:
+        rig.node.faults.set()  # restart the request count
     write_calibration_transaction(
         rig.client, Calibration.from_dict(calibration(0.97, -12.0)), backup_dir=rig.backups
     )
     new = rig.raw()
-    n_requests = rig.node.faults.stats.sdo_requests
+    # requests the node received (the injector's count), or the client sent (the tap's)
+    n_requests = rig.node.faults.stats.sdo_requests if simulated else len(rig.requests)
     assert old != new and old[(od.CAL_INFO, od.CAL_VALID_SUB)] == b"\x01"
     return old, new, n_requests
 

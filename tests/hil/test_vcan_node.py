@@ -1,7 +1,9 @@
-"""Smaller HIL checks over SocketCAN vcan with the simulated node in another process.
+"""Smaller HIL checks over SocketCAN vcan against both IMU nodes (``start_node``).
 
-Boot-up discovery, streaming at 200 Hz with the default socket receive buffer (no loss
-expected: 400 frames/s), and a write refused for another serial (exit 3, nothing written).
+The simulated node runs in another process, the independent durand node in this one on its
+own socket; the client and the CLI as on the operator's laptop. Boot-up discovery, streaming
+at 200 Hz with the default socket receive buffer (no loss expected: 400 frames/s), and a
+write refused for another serial (exit 3, nothing written).
 """
 
 from __future__ import annotations
@@ -15,8 +17,6 @@ import numpy as np
 import pytest
 
 from canimucal.device.client import ImuClient
-from canimucal.io.truth import write_truth
-from canimucal.sim.truth import Truth
 
 pytestmark = pytest.mark.vcan
 
@@ -26,17 +26,11 @@ READY_TIMEOUT_S = 30.0 * SLOW
 ACCEL_LSB = 9.80665 / 2048.0
 
 
-def _truth_file(tmp_path: Path, serial: int) -> Path:
-    return write_truth(
-        tmp_path / "truth.json", Truth.from_dict({"serial": serial}), overwrite=False
-    )
-
-
-def test_find_node_by_boot_up(tmp_path: Path, start_sim, vcan_channel: str) -> None:
+def test_find_node_by_boot_up(start_node, vcan_channel: str) -> None:
     bus = can.Bus(interface="socketcan", channel=vcan_channel)
     try:
         with ImuClient(bus, 0x22, sdo_timeout_s=2.0 * SLOW) as client:
-            sim = start_sim("--node-id", 0x22, "--truth", _truth_file(tmp_path, 77), wait=False)
+            sim = start_node(0x22, 77, wait=False)
             assert client.find_node(timeout_s=READY_TIMEOUT_S) == "boot-up"
             assert client.identity().serial == 77
             sim.wait_ready()
@@ -57,7 +51,7 @@ class _PdoCounter(can.Listener):
             self.counters[msg.arbitration_id].append(int.from_bytes(msg.data[6:8], "little"))
 
 
-def test_stream_200hz_no_loss(tmp_path: Path, start_sim, vcan_channel: str) -> None:
+def test_stream_200hz_no_loss(start_node, vcan_channel: str) -> None:
     """200 Hz through the default socket buffer: nothing lost, and losses counted exactly.
 
     The raw TPDO frames the socket delivered are recorded beside the client's pairing. The
@@ -66,7 +60,7 @@ def test_stream_200hz_no_loss(tmp_path: Path, start_sim, vcan_channel: str) -> N
     thread does overflow the default buffer now and then (see docs/hil.md), so there the
     counting is checked, and the loss printed, not required to be zero.
     """
-    start_sim("--node-id", 0x23, "--truth", _truth_file(tmp_path, 78))
+    start_node(0x23, 78)
     bus = can.Bus(interface="socketcan", channel=vcan_channel)
     frames = _PdoCounter(0x23)
     try:
@@ -102,9 +96,9 @@ def test_stream_200hz_no_loss(tmp_path: Path, start_sim, vcan_channel: str) -> N
 
 
 def test_write_refused_on_other_serial(
-    tmp_path: Path, start_sim, run_cli, vcan_channel: str
+    tmp_path: Path, start_node, run_cli, vcan_channel: str
 ) -> None:
-    start_sim("--node-id", 0x24, "--truth", _truth_file(tmp_path, 111))
+    start_node(0x24, 111)
     bus = ["--channel", vcan_channel, "--node-id", "0x24"]
     cal = tmp_path / "cal.json"
     cal.write_text(

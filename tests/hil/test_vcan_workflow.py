@@ -4,6 +4,7 @@
 laptop, runs ``record --plan P --follow-schedule``, ``solve``, ``write-params`` and
 ``read-params --json`` as separate ``python -m canimucal`` processes and checks that the
 device ends up holding exactly the solved calibration, and that it agrees with the truth.
+Simulated node only: the job needs its pose schedule and truth-driven sensor physics.
 """
 
 from __future__ import annotations

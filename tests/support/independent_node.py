@@ -305,6 +305,11 @@ class IndependentImuNode:
         with self.lock:
             return self.node.object_dictionary.read(index, sub)
 
+    def calibration_active(self) -> bool:
+        """valid = 1 and the stored CRC-32 matches the block: the firmware applies it (§4)."""
+        with self.lock:
+            return self._cal_active()
+
     def emcy(self, code: int, register: int | None = None) -> None:
         """Send an EMCY (0x80 + id); code 0x0000 is the error reset / CAN bus warning."""
         if register is None:

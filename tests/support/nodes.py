@@ -17,7 +17,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import can
+import canopen
 import pytest
+from canopen.sdo.exceptions import SdoAbortedError
+from durand.services.sdo.server import SDODomainAbort
 
 from canimucal.device import od
 from canimucal.sim.truth import Truth
@@ -78,11 +81,116 @@ class DeviceUnderTest:
         else:
             self.node.power_cycle()
 
-    def emcy(self, code: int) -> None:
+    def reboot_as(self, serial: int) -> None:
+        """Power-cycle as another unit: 0x1018:04 reads ``serial`` from the boot-up on."""
         if isinstance(self.node, SimulatedImuNode):
-            self.node.send_emergency(code, 0 if code == 0 else 0x11)
+            self.node.faults.set(serial_after_reboot=serial)
+            self.node.reboot()
+            return
+        with self.node.lock:
+            self.node.behaviour.serial = serial
+            self.node.node.object_dictionary.write(0x1018, 4, serial)
+            self.node.power_cycle()
+
+    def emcy(self, code: int, register: int | None = None) -> None:
+        """Send an EMCY (and set 0x1001); ``register`` defaults per node kind."""
+        if isinstance(self.node, SimulatedImuNode):
+            default = 0 if code == 0 else 0x11
+            self.node.send_emergency(code, default if register is None else register)
         else:
-            self.node.emcy(code)
+            self.node.emcy(code, register)
+
+    def raw_objects(self) -> dict[tuple[int, int], bytes]:
+        """The calibration objects (0x2100–0x2121) as their SDO bytes (DESIGN §4 codes)."""
+        if isinstance(self.node, SimulatedImuNode):  # the bytes it holds, NaN payloads too
+            get = self.node.local_node.get_data
+            return {(i, s): bytes(get(i, s)) for i, s, _ in od.CALIBRATION_OBJECTS}
+        return {(i, s): od.encode(code, self.value(i, s)) for i, s, code in od.CALIBRATION_OBJECTS}
+
+    def calibration_active(self) -> bool:
+        """The node's own verdict: valid = 1 and its stored CRC-32 matches (§4)."""
+        return self.node.calibration_active()
+
+    def intercept_write(
+        self, key: tuple[int, int], hook: Callable[[], int | None]
+    ) -> Callable[[], None]:
+        """Call ``hook()`` before each write of ``key``; an abort code it returns refuses it.
+
+        The write is refused with that SDO abort code before anything is stored (as a
+        firmware's range check does). Returns the function that removes the hook.
+        """
+        if isinstance(self.node, SimulatedImuNode):
+            local = self.node.local_node
+
+            def on_write(index: int, subindex: int, **_: Any) -> None:
+                if (index, subindex) == key and (code := hook()):
+                    raise SdoAbortedError(code)
+
+            local.add_write_callback(on_write)
+            return lambda: local._write_callbacks.remove(on_write)
+        handlers = self.node.node.object_dictionary.validate_callbacks[key]
+
+        def validate(_value: Any) -> None:
+            if code := hook():
+                raise SDODomainAbort(code, key)
+
+        handlers.add(validate)
+        return lambda: handlers.remove(validate)
+
+    def poke(self, index: int, sub: int, raw: bytes) -> None:
+        """Put ``raw`` (SDO bytes) into a calibration object past the node's own checks."""
+        if isinstance(self.node, SimulatedImuNode):
+            self.node.local_node.data_store.setdefault(index, {})[sub] = raw
+            return
+        value = od.decode(od.OBJECT_CODES[(index, sub)], raw)
+        with self.node.lock:
+            self.node.node.object_dictionary._data[(index, sub)] = value
+
+    def start(self) -> DeviceUnderTest:
+        self.node.start()
+        return self
+
+    def stop(self) -> None:
+        self.node.stop()
+
+
+IDENTITY_KEYS = ("serial",)
+"""Keys both nodes take besides their behaviours: the truth JSON's ``serial`` is the
+independent node's too (``make_device(serial=...)``, ``node_on(..., serial=...)``)."""
+
+
+def node_on(
+    kind: str,
+    bus: can.BusABC | canopen.Network,
+    node_id: int = NODE_ID,
+    *,
+    start: bool = True,
+    sim_options: dict[str, Any] | None = None,
+    **behaviour: Any,
+) -> DeviceUnderTest:
+    """A node of ``kind`` on ``bus`` (the independent node needs a python-can bus).
+
+    For tests that build their own buses or networks; ``make_device`` otherwise.
+
+    ``behaviour`` takes :data:`IDENTITY_KEYS` and the behaviour keys (see the module
+    docstring); ``sim_options`` are the simulated node's own constructor options
+    (``state_file``, ``time_scale``, ``seed``), ignored by the independent node.
+    """
+    if kind == "independent":
+        if not isinstance(bus, can.BusABC):
+            raise TypeError("the independent node runs on a python-can bus")
+        behaviour.setdefault("seed", 1)
+        device = DeviceUnderTest(kind, IndependentImuNode(bus, node_id, Behaviour(**behaviour)))
+    else:
+        unknown = sorted(set(behaviour) - set(SIM_TRUTH_KEYS) - set(IDENTITY_KEYS))
+        if unknown:
+            pytest.skip(f"the simulated node has no {', '.join(unknown)}")
+        truth = Truth.from_dict(
+            {k: list(v) if isinstance(v, tuple) else v for k, v in behaviour.items()}
+        )
+        options = {"seed": 1, **(sim_options or {})}
+        device = DeviceUnderTest(kind, SimulatedImuNode(bus, node_id, truth, **options))
+    return device.start() if start else device
 
 
 @pytest.fixture(params=NODE_KINDS)
@@ -120,7 +228,7 @@ def make_device(
     def make(**behaviour: Any) -> DeviceUnderTest:
         if device_kind == "independent":
             return DeviceUnderTest(device_kind, make_independent_node(**behaviour))
-        unknown = sorted(set(behaviour) - set(SIM_TRUTH_KEYS))
+        unknown = sorted(set(behaviour) - set(SIM_TRUTH_KEYS) - set(IDENTITY_KEYS))
         if unknown:
             pytest.skip(f"the simulated node has no {', '.join(unknown)}")
         truth = {k: list(v) if isinstance(v, tuple) else v for k, v in behaviour.items()}
