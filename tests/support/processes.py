@@ -63,6 +63,16 @@ class CliProcess:
         assert self.code is not None
         return self.code
 
+    def wait_ended(self, timeout_s: float = 30.0) -> None:
+        """Wait until the process has ended without reaping it (its pid stays ours to signal)."""
+        deadline = time.monotonic() + timeout_s
+        while self.code is None:
+            if os.waitid(os.P_PID, self.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is not None:
+                return
+            if time.monotonic() > deadline:
+                return  # wait() kills it and raises
+            time.sleep(0.002)
+
     def stop(self) -> int:
         """SIGTERM, then wait (SIGKILL after 10 s)."""
         if self.poll() is None:

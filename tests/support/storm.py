@@ -18,7 +18,6 @@ from __future__ import annotations
 import json
 import signal
 import threading
-import time
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -185,22 +184,34 @@ class ProcessRig:
     def interrupted_write(self, kind: str, step: int, gap_s: float) -> Outcome:
         """One write of the other set, signalled at its ``step``-th SDO request."""
         holder: list[CliProcess] = []
+        timers: list[threading.Timer] = []
         first = signal.SIGTERM if kind == "term" else signal.SIGINT
 
+        fired = threading.Event()
+
         def fire() -> None:
-            holder[0].signal(first)
-            if kind == "double":
-                threading.Timer(gap_s, holder[0].signal, (signal.SIGINT,)).start()
+            try:
+                holder[0].signal(first)
+                if kind == "double":
+                    timers.append(threading.Timer(gap_s, holder[0].signal, (signal.SIGINT,)))
+                    timers[0].start()
+            finally:
+                fired.set()
 
         self.counter.arm({step: fire})
         target = self.other
         before = set(self.backups.glob("*")) if self.backups.exists() else set()
         proc = self.writer(target, "storm")
         holder.append(proc)
-        code = proc.wait(60.0)
+        proc.wait_ended(60.0)  # not reaped yet: a second signal still due cannot hit another pid
+        with self.counter.lock:
+            reached = step not in self.counter.actions
+        if reached:
+            fired.wait(10.0)
         self.counter.arm({})
-        if kind == "double":
-            time.sleep(gap_s + 0.005)  # the timer's signal lands nowhere once the process is gone
+        for timer in timers:
+            timer.join()
+        code = proc.wait(60.0)
         state = self.state_of(self.raw())
         taken = sorted(set(self.backups.glob("*")) - before) if self.backups.exists() else []
         outcome = Outcome(kind, step, code, state, proc.stderr, taken)
