@@ -23,6 +23,8 @@ producer's thread (no virtual-bus queue): use it when the machine cannot keep up
 ``--signals N`` and ``--writers N`` run the write-transaction storms of
 :mod:`benchmarks.soak_writes` instead (SIGTERM/SIGINT/double interrupts at random write
 steps; two overlapping writers), print their counts and exit 0 when every run held.
+``--processes N`` runs N interrupted ``write-params`` processes against ``canimucal sim`` in
+another process on a cross-process bus (``tests/support/tcpbus.py``).
 """
 
 from __future__ import annotations
@@ -300,10 +302,13 @@ def main() -> int:
     parser.add_argument("--keep-csv", metavar="DIR", help="keep the recording in DIR")
     parser.add_argument("--signals", type=int, metavar="N", help="N interrupted writes instead")
     parser.add_argument("--writers", type=int, metavar="N", help="N two-writer rounds instead")
+    parser.add_argument(
+        "--processes", type=int, metavar="N", help="N interrupted write-params processes instead"
+    )
     parser.add_argument("--seed", type=int, default=SEED)
     args = parser.parse_args()
-    if args.signals or args.writers:
-        from benchmarks.soak_writes import signal_storm, two_writers
+    if args.signals or args.writers or args.processes:
+        from benchmarks.soak_writes import process_storm, signal_storm, two_writers
 
         with tempfile.TemporaryDirectory() as backups:
             ok = True
@@ -311,6 +316,8 @@ def main() -> int:
                 ok &= signal_storm(args.signals, args.seed, Path(backups))
             if args.writers:
                 ok &= two_writers(args.writers, Path(backups))
+            if args.processes:
+                ok &= process_storm(args.processes, args.seed, Path(backups))
         print("PASS" if ok else "FAIL")
         return 0 if ok else 1
     return run(args)

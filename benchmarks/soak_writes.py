@@ -176,3 +176,43 @@ def two_writers(rounds: int, backups: Path) -> bool:
     for failure in failures[:5]:
         print(f"  failure: {failure}")
     return not failures
+
+
+def process_storm(runs: int, seed: int, workdir: Path) -> bool:
+    """``runs`` interrupted ``write-params`` processes on a cross-process bus; print counts.
+
+    Each run forks ``canimucal write-params`` against ``canimucal sim`` in another process on
+    a :class:`~tests.support.tcpbus.TcpHub`, signals it at a seeded random SDO request
+    (SIGTERM, SIGINT, or SIGINT twice 5–20 ms apart) and reads the device back from this
+    process (checks: :func:`tests.support.storm.check_interrupted`).
+    """
+    from tests.support.storm import KINDS, ProcessRig, check_interrupted
+
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    rig = ProcessRig(workdir)
+    tally: Counter[str] = Counter()
+    failures: list[str] = []
+    started = time.monotonic()
+    try:
+        rng = np.random.default_rng(seed)
+        for _ in range(runs):
+            kind = str(rng.choice(KINDS))
+            step = int(rng.integers(1, rig.requests_per_write + 1))
+            outcome = rig.interrupted_write(kind, step, float(rng.uniform(0.005, 0.020)))
+            try:
+                check_interrupted(outcome, rig.backups)
+            except AssertionError as exc:
+                failures.append(str(exc))
+                tally[f"{kind}: FAILED"] += 1
+                continue
+            named = ", backup named" if "restored from" in outcome.stderr else ""
+            tally[f"{kind}: exit {outcome.code}, device {outcome.state}{named}"] += 1
+    finally:
+        rig.close()
+    took = time.monotonic() - started
+    print(f"process storm: {runs} write-params processes in {took:.1f} s")
+    for key, count in sorted(tally.items()):
+        print(f"  {key}: {count}")
+    for failure in failures[:5]:
+        print(f"  failure: {failure}")
+    return not failures

@@ -38,6 +38,7 @@ from canimucal.io.recording import (
     Recording,
     read_recording,
     recording_from_columns,
+    require_memory,
 )
 
 log = logging.getLogger(__name__)
@@ -103,9 +104,14 @@ def _is_number(text: str) -> bool:
 
 def _load_columns(path: _PathLike, columns: int) -> NDArray[np.float64]:
     try:
+        require_memory(str(path), os.stat(path).st_size)
         data = np.loadtxt(path, dtype=float, ndmin=2)
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: not a table of numbers ({exc})") from None
+    except MemoryError:
+        raise InputError(
+            f"{path}: not enough memory to read it; split the file or record shorter stretches"
+        ) from None
     if data.shape[1] != columns or data.shape[0] < 2:
         raise InputError(f"{path}: expected {columns} columns, got shape {data.shape}")
     if not np.all(np.isfinite(data)):
@@ -154,10 +160,15 @@ def read_imucal(
     names = tuple(c.strip() for c in first.split(","))
     if names != IMUCAL_COLUMNS:
         raise InputError(f"{csv_path}: expected columns {','.join(IMUCAL_COLUMNS)}")
+    require_memory(str(csv_path), os.stat(csv_path).st_size)
     try:
         data = np.loadtxt(csv_path, delimiter=",", skiprows=1, dtype=float, ndmin=2)
     except ValueError as exc:
         raise InputError(f"{csv_path}: not a table of numbers ({exc})") from None
+    except MemoryError:
+        raise InputError(
+            f"{csv_path}: not enough memory to read it; split the file or record shorter stretches"
+        ) from None
     n = data[:, 0].astype(np.int64)
     position = np.full(n.size, -1, dtype=np.int64)
     angles = np.full((n.size, 3), np.nan)

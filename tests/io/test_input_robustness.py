@@ -77,7 +77,7 @@ def test_duplicate_counters_and_rows_are_counted_and_reported(
     with caplog.at_level(logging.WARNING):
         rec = read_recording(path)
     assert (rec.duplicate_counters, rec.duplicate_rows) == (4, 3)
-    assert "4 rows repeat the previous row's counter, 3 rows are exact copies" in caplog.text
+    assert "4 rows repeat an earlier row's counter, 3 rows are exact copies" in caplog.text
 
 
 def test_clean_recording_reports_no_duplicates(tmp_path: Path) -> None:
@@ -98,3 +98,66 @@ def test_out_of_memory_while_parsing_is_a_clear_message(
         read_recording(path)
     assert main(["analyze", str(path)]) == 2
     assert "not enough memory" in capsys.readouterr().err
+
+
+def test_repeats_further_back_than_the_row_before_are_counted(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    path = _still(tmp_path / "r.csv", lambda n: np.arange(3 * n, dtype=float).reshape(n, 3), 1.0)
+    lines = path.read_text().splitlines(keepends=True)
+    head = sum(1 for line in lines if line.startswith("#")) + 1
+    rows = lines[head:]
+    pasted = rows[:60] + rows[40:50] + rows[60:]  # ten rows pasted again, ten rows later
+    counter_only = rows[100].split(",")
+    counter_only[6] = "7777"  # counter of row 100 again at row 150, other values
+    pasted.insert(160, ",".join(counter_only))
+    retimed = [f"{i / 200.0!r}," + row.split(",", 1)[1] for i, row in enumerate(pasted)]
+    path.write_text("".join(lines[:head] + retimed))  # times go on: the samples came again
+    with caplog.at_level(logging.WARNING):
+        rec = read_recording(path)
+    assert (rec.duplicate_counters, rec.duplicate_rows) == (11, 10)
+    assert "11 rows repeat an earlier row's counter, 10 rows are exact copies" in caplog.text
+
+
+def test_a_wrapped_counter_is_not_a_repeat(tmp_path: Path) -> None:
+    # 70,000 samples: the 16-bit counter wraps once, every value recurs 65,536 rows later
+    rec = read_recording(_still(tmp_path / "w.csv", lambda n: np.zeros((n, 3)), 350.0))
+    assert rec.n_rows == 70_000 and rec.counter[65_536] == rec.counter[0]
+    assert (rec.duplicate_counters, rec.duplicate_rows) == (0, 0)
+
+
+def test_a_file_too_large_for_the_memory_left_is_refused_before_reading(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = _still(tmp_path / "big.csv", lambda n: np.zeros((n, 3)), 1.0)
+    size = path.stat().st_size
+    monkeypatch.setattr(recording_module, "available_memory_bytes", lambda: size * 10)
+
+    def never(*args: object) -> None:
+        raise AssertionError("the file was parsed")
+
+    monkeypatch.setattr(recording_module, "parse_recording", never)
+    with pytest.raises(InputError, match=r"big.csv: not enough memory to read 0 MB \(needs"):
+        read_recording(path)
+    assert main(["analyze", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "available" in err
+
+
+def test_available_memory_sees_the_address_space_limit() -> None:
+    import resource
+
+    available = recording_module.available_memory_bytes()
+    assert available is not None and available > 0  # Linux: MemAvailable at least
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    status = Path("/proc/self/status").read_text()
+    vm_kib = int(
+        next(line for line in status.splitlines() if line.startswith("VmSize:")).split()[1]
+    )
+    limit = vm_kib * 1024 + 50 * 2**20  # 50 MiB of address space left
+    resource.setrlimit(resource.RLIMIT_AS, (limit, hard))
+    try:
+        left = recording_module.available_memory_bytes()
+    finally:
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+    assert left is not None and left <= 60 * 2**20

@@ -1,0 +1,158 @@
+"""Signals and two writers across processes (issue 13, items 1, 2, 3 and 10).
+
+Every command here is a separate process (forked, running ``canimucal.cli.main.main``) on
+one cross-process bus (:mod:`tests.support.tcpbus`); the simulated node is ``canimucal sim``
+in its own process; this process reads the device back through its own client on the bus,
+as an outside observer would. See :mod:`tests.support.storm` for the contract checked.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+
+from canimucal.device import od
+from canimucal.io.recording import read_recording
+from tests.support import tcpbus
+from tests.support.canbus import FrameRecorder
+from tests.support.processes import bus_flags, fork_cli
+from tests.support.storm import NODE_ID, ProcessRig, storm
+
+SEED = 20261124
+RUNS = 60  # 300 more: benchmarks/soak.py --processes 300
+TPDO1 = 0x180 + NODE_ID
+HEARTBEAT = 0x700 + NODE_ID
+PRE_OPERATIONAL, OPERATIONAL = 0x7F, 0x05
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ProcessRig]:
+    # the commands' modules are imported once here, so each forked command starts at once
+    import canimucal.cli.record_cmd  # noqa: F401
+    import canimucal.cli.sim_cmd  # noqa: F401
+    import canimucal.cli.write_params_cmd  # noqa: F401
+    import canimucal.runtime.wiring  # noqa: F401
+    import canimucal.simnode.node  # noqa: F401
+
+    rig = ProcessRig(tmp_path_factory.mktemp("processes"))
+    yield rig
+    rig.close()
+
+
+@pytest.fixture(autouse=True)
+def _default_handlers() -> None:
+    """Pytest may run with SIGINT ignored (a background job): give it Python's default."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def test_signal_storm_across_processes(rig: ProcessRig) -> None:
+    started = time.monotonic()
+    tally = storm(rig, RUNS, SEED)
+    took = time.monotonic() - started
+    print(f"\n{RUNS} interrupted write-params processes in {took:.1f} s: {sorted(tally.items())}")
+    kinds = {label.split(":")[0] for label in tally}
+    assert kinds == {"term", "int", "double"}
+    named = sum(n for label, n in tally.items() if label.endswith("backup named"))
+    assert named >= RUNS // 4  # a real share of the signals landed after the backup
+
+
+def overlapped(senders: list[int]) -> bool:
+    """Whether two clients' SDO requests interleaved on the bus (not one block, then the other)."""
+    changes = sum(a != b for a, b in zip(senders, senders[1:], strict=False))
+    return changes > 1
+
+
+def _overlapping(rig: ProcessRig, delay_s: float) -> tuple[str, int, int, str, str, str, bool]:
+    """Writer 1 (the other set), and writer 2 (set C) ``delay_s`` after writer 1's first request."""
+    first_name = rig.other
+    reached = threading.Event()
+    rig.counter.arm({1: reached.set})
+    one = rig.writer(first_name, "one")
+    reached.wait(30.0)
+    time.sleep(delay_s)
+    two = rig.writer("C", "two")
+    code_one, code_two = one.wait(60.0), two.wait(60.0)
+    both = overlapped(rig.counter.senders)
+    rig.counter.arm({})
+    raw = rig.raw()
+    held = next((name for name, s in rig.sets.items() if s == raw), "invalid")
+    if held == "invalid":
+        assert raw[(od.CAL_INFO, od.CAL_VALID_SUB)] == b"\x00", "valid = 1 over a mixed set"
+    return first_name, code_one, code_two, held, one.stderr, two.stderr, both
+
+
+def test_overlapping_writers_in_two_processes_never_both_succeed(rig: ProcessRig) -> None:
+    rig.add_set("C", 1.02, 7.0)
+    outcomes: list[tuple[float, bool, int, int, str]] = []
+    rng = np.random.default_rng(SEED)
+    while sum(o[1] for o in outcomes) < 4 and len(outcomes) < 30:  # until 4 really overlapped
+        delay_s = round(float(rng.uniform(0.0, 0.05)), 3)
+        old = rig.holds
+        first, code_one, code_two, held, err_one, err_two, both = _overlapping(rig, delay_s)
+        outcomes.append((delay_s, both, code_one, code_two, held))
+        for code, err in ((code_one, err_one), (code_two, err_two)):
+            assert code in (0, 3), (delay_s, code, err)
+            assert "Traceback" not in err and "internal error" not in err, err
+        if not both:  # one after the other on the bus: both succeed, the second set stays
+            assert (code_one, code_two, held) == (0, 0, "C"), outcomes
+        else:
+            assert not (code_one == 0 and code_two == 0), outcomes
+            if code_one == 0:
+                assert held == first, outcomes
+            if code_two == 0:
+                assert held == "C", outcomes
+            if code_one != 0 and code_two != 0:  # both told; old set kept or left invalid
+                assert held in (old, "invalid"), outcomes
+                assert "another SDO client is using node 16" in err_one + err_two
+        if held == "invalid":
+            rig.put(old)
+        else:
+            rig.holds = held
+    print(f"\noverlapping writers (delay s, overlapped, exit 1, exit 2, device): {outcomes}")
+    assert sum(o[1] for o in outcomes) >= 4, outcomes
+
+
+def test_back_to_back_writers_in_two_processes_both_succeed(rig: ProcessRig) -> None:
+    rig.add_set("C", 1.02, 7.0)
+    first = rig.other
+    assert rig.writer(first, "first").wait(60.0) == 0
+    second = rig.writer("C", "second")
+    assert second.wait(60.0) == 0, second.stderr
+    assert rig.raw() == rig.sets["C"]
+    rig.holds = "C"
+
+
+def test_sigterm_during_record_leaves_the_node_as_found(rig: ProcessRig, tmp_path: Path) -> None:
+    observer = tcpbus.TcpBus(rig.hub.channel)
+    frames = FrameRecorder()
+    notifier = can.Notifier(observer, [frames], timeout=0.05)
+    try:
+        out = tmp_path / "cut.csv"
+        argv = ["record", str(out), "--position", "0", "--alpha-deg", "0", "--beta-deg", "0"]
+        argv += ["--seconds", "60", "--no-pose-check", *bus_flags(rig.hub, NODE_ID)]
+        proc = fork_cli(argv, tmp_path, "record")
+        frames.wait_count(TPDO1, 20, timeout=20.0)  # streaming
+        beats = frames.frames(HEARTBEAT)
+        assert beats and beats[-1].data[0] == OPERATIONAL
+        proc.signal(signal.SIGTERM)
+        code = proc.wait(30.0)
+        stopped = time.time()
+        assert code == 143, proc.stderr
+        assert proc.stderr.strip().splitlines()[-1] == "terminated", proc.stderr
+        assert "Traceback" not in proc.stderr
+        assert read_recording(out).n_rows > 10
+        time.sleep(0.5)
+        late = [f for f in frames.frames(TPDO1) if f.timestamp > stopped + 0.05]
+        assert not late, f"{len(late)} TPDOs after the tool exited: node left streaming"
+        beats = [f for f in frames.frames(HEARTBEAT) if f.timestamp > stopped + 0.05]
+        assert beats and {f.data[0] for f in beats} == {PRE_OPERATIONAL}
+    finally:
+        notifier.stop()
+        observer.shutdown()
