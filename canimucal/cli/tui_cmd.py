@@ -54,6 +54,17 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("--site", help="where the calibration was done, for the certificate")
     p.add_argument("--no-warmup", action="store_true", help="do not wait for warm-up")
     p.add_argument(
+        "--prior-k",
+        metavar="FILE",
+        help="factory K for a plan that holds K at a prior (a calibration JSON or read-params "
+        "--json output); default: the K the node applies now, read from 0x2101 (or 0x2010:01)",
+    )
+    p.add_argument(
+        "--prior-k-sigma",
+        type=float,
+        help="relative 1σ of that K (default: the plan's, 0.01 for vehicle)",
+    )
+    p.add_argument(
         "--resume",
         metavar="DIR",
         help="go on with the interrupted session in DIR (same plan; its files go to DIR)",
@@ -101,6 +112,12 @@ def device_source(args: argparse.Namespace) -> DeviceSource:
 
     if args.seconds is not None and not args.seconds > 0:
         raise InputError(f"--seconds must be positive, got {args.seconds}")
+    if args.prior_k_sigma is not None and not args.prior_k_sigma > 0:
+        raise InputError(f"--prior-k-sigma must be > 0, got {args.prior_k_sigma:g}")
+    if args.prior_k is not None:
+        from canimucal.analysis.session_model import read_factory_k
+
+        read_factory_k(args.prior_k)  # a bad file: exit 2 before the TUI opens
     return DeviceSource(
         device_settings(args, find=False),
         Path(args.resume or args.out),
@@ -112,6 +129,8 @@ def device_source(args: argparse.Namespace) -> DeviceSource:
         operator=args.operator,
         site_name=args.site,
         resume=bool(args.resume),
+        prior_k=args.prior_k,
+        prior_k_sigma=args.prior_k_sigma,
     )
 
 

@@ -10,6 +10,7 @@ from canimucal.analysis.acceptance import AcceptanceLimits
 from canimucal.analysis.calibrate import SiteConditions
 from canimucal.io.calibration import Device
 from canimucal.model.layout import JointSpec
+from canimucal.model.plan import KPrior
 from canimucal.model.positions import Plan, PlannedPosition, PositionAverage
 from canimucal.procedure.averaging import AveragingPolicy
 
@@ -52,5 +53,8 @@ class ProcedureConfig:
     verify_seconds: float = 10.0
     live_period_s: float = 0.5
     progress_period_s: float = 0.25
+    k_priors: Mapping[int, KPrior] = field(default_factory=dict)
+    """Per node, the prior on K the plan holds (its mean read from the device or a file, its
+    σ); a node without one gets the nominal K at the plan's own σ."""
     resume_from: ResumeState | None = None
     """Positions an interrupted session accepted (:mod:`.resume`); the procedure goes on."""

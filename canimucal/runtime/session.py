@@ -48,7 +48,9 @@ from canimucal.io.calibration import (
     calibration_to_json,
     sha256_of,
 )
+from canimucal.io.recording import matrix_header
 from canimucal.io.recording_writer import RecordingWriter
+from canimucal.model.plan import KPrior
 from canimucal.model.positions import Pose
 from canimucal.procedure import events as ev
 from canimucal.procedure.config import ProcedureConfig
@@ -140,7 +142,11 @@ class Session:
         self.links: dict[int, NodeLink] = {}
         for node_id, client in clients.items():
             path = output_name(out_dir, "recording", node_id, several, ".csv")
-            head = {**(header or {}).get(node_id, {}), **model_header(procedure.config)}
+            head = {
+                **(header or {}).get(node_id, {}),
+                **model_header(procedure.config),
+                **prior_header(procedure.config, node_id),
+            }
             if procedure.config.resume_from is not None:
                 writer = open_resumed(path, head)
             else:
@@ -525,6 +531,21 @@ def model_header(cfg: ProcedureConfig) -> dict[str, Any]:
         "tilt": spec.tilt,
         "gyro": spec.gyro,
         "tolerance_deg": round(float(np.rad2deg(tolerance)), 10),
+    }
+
+
+def prior_header(cfg: ProcedureConfig, node_id: int) -> dict[str, Any]:
+    """Header keys of the prior on K the session holds for one node, for ``solve`` to reuse."""
+    held = cfg.k_priors.get(node_id, KPrior())
+    if not held.needed(cfg.plan):
+        return {}
+    full = held.resolved(cfg.plan, cfg.site.accel_lsb)
+    assert full.mean is not None and full.rel_sigma is not None
+    return {
+        "prior_k": matrix_header(full.mean),
+        "prior_k_sigma": full.rel_sigma,
+        "prior_k_source": full.mean_source,
+        "prior_k_sigma_source": full.sigma_source,
     }
 
 

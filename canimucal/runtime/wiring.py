@@ -26,11 +26,14 @@ import canopen
 import numpy as np
 
 from canimucal.analysis.calibrate import SiteConditions
+from canimucal.analysis.session_model import read_factory_k
 from canimucal.device.bus import BusSettings, describe, open_bus
 from canimucal.device.client import NOTIFIER_CYCLE_S, Identity, ImuClient
-from canimucal.errors import NoDeviceError
+from canimucal.device.factory_k import device_k
+from canimucal.errors import InputError, NoDeviceError
 from canimucal.io.atomic import per_node_path
 from canimucal.model.layout import GyroSpec, JointSpec
+from canimucal.model.plan import VEHICLE_PRIOR_K_SIGMA, KPrior
 from canimucal.model.positions import Plan
 from canimucal.procedure.machine import Procedure, ProcedureConfig
 from canimucal.runtime.resume import load_resume_state
@@ -227,6 +230,8 @@ class Devices:
         identities: dict[int, Identity] | None = None,
         operator: str | None = None,
         site_name: str | None = None,
+        prior_k: str | None = None,
+        prior_k_sigma: float | None = None,
         **config: Any,
     ) -> Session:
         """Build the guided session of ``plan`` over every node.
@@ -234,7 +239,8 @@ class Devices:
         ``site`` None: the simulated truth's site. The LSBs and the data rate come from the
         first node. Simulated nodes keep their backups in ``out_dir/backups`` by default.
         ``resume``: go on with the interrupted session in ``out_dir``, if its recordings came
-        from these very units. ``config`` goes to :class:`ProcedureConfig`.
+        from these very units. ``prior_k`` (a file) and ``prior_k_sigma`` set the prior on K
+        (:meth:`k_priors`). ``config`` goes to :class:`ProcedureConfig`.
         """
         identities = identities or self.identities()
         if backup_dir is None and self.sim_nodes:
@@ -247,6 +253,7 @@ class Devices:
         if resume:
             serials = {n: i.serial for n, i in identities.items()}
             config["resume_from"] = load_resume_state(out_dir, plan, tuple(self.clients), serials)
+        config.setdefault("k_priors", self.k_priors(plan, prior_k, prior_k_sigma))
         cfg = ProcedureConfig(
             plan=plan,
             node_ids=tuple(self.clients),
@@ -274,6 +281,35 @@ class Devices:
             operator=operator,
             site_name=site_name,
         )
+
+    def k_priors(
+        self, plan: Plan, prior_k: str | None = None, prior_k_sigma: float | None = None
+    ) -> dict[int, KPrior]:
+        """Return each node's prior on K when ``plan`` (or ``prior_k_sigma``) holds one.
+
+        The mean: the file ``prior_k`` (a calibration JSON or ``read-params --json``), else
+        the K each node applies now, read live (:func:`~canimucal.device.factory_k.device_k`).
+        The σ: ``prior_k_sigma``, else the plan's default; ``prior_k`` with a plan that holds
+        no prior takes the vehicle plan's 1 %, as ``solve --prior-k`` does. Empty (nothing
+        read) when no prior is held.
+        """
+        if prior_k_sigma is not None and not (np.isfinite(prior_k_sigma) and prior_k_sigma > 0):
+            raise InputError(f"--prior-k-sigma must be > 0, got {prior_k_sigma:g}")
+        sigma, whence = prior_k_sigma, "--prior-k-sigma" if prior_k_sigma is not None else None
+        if sigma is None and prior_k and plan.prior_k_sigma is None:
+            sigma, whence = VEHICLE_PRIOR_K_SIGMA, "the default of --prior-k (no σ given)"
+        if not KPrior(rel_sigma=sigma).needed(plan):
+            return {}
+        if prior_k:
+            k = read_factory_k(prior_k)
+            source = f"K from {Path(prior_k).name}"
+            return {n: KPrior(k, source, sigma, whence) for n in self.clients}
+        out = {}
+        for node_id, client in self.clients.items():
+            held = device_k(client.read_calibration_block(), client.nominal_lsb()[0], node_id)
+            log.info("node %d: prior on K: %s", node_id, held.source)
+            out[node_id] = KPrior(held.k, held.source, sigma, whence)
+        return out
 
     def close(self) -> None:
         """Close the clients, stop the simulated nodes and notifiers, shut the buses down."""

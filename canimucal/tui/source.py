@@ -117,6 +117,10 @@ class DeviceSource:
     site_name: str | None = None
     resume: bool = False
     """Go on with the interrupted session in ``out_dir`` (:mod:`canimucal.runtime.resume`)."""
+    prior_k: str | None = None
+    prior_k_sigma: float | None = None
+    """The prior on K of a plan that holds one: ``prior_k`` a file (else the K each node
+    applies, read live) and its relative σ (else the plan's default)."""
     devices: Devices | None = field(default=None, init=False)
     statuses: dict[int, NodeStatus] = field(default_factory=dict, init=False)
 
@@ -155,6 +159,8 @@ class DeviceSource:
             site_name=self.site_name,
             warmup=self.warmup,
             verify_seconds=self.verify_seconds,
+            prior_k=self.prior_k,
+            prior_k_sigma=self.prior_k_sigma,
         )
 
     def close(self) -> None:
