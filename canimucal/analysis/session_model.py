@@ -12,7 +12,7 @@ the one the session held (header ``prior_k``, ``prior_k_sigma`` and their source
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from canimucal.errors import InputError
 from canimucal.io.calibration import PLANS, Calibration
 from canimucal.io.plans import BUILTIN_PLANS, DEFAULT_TOLERANCE_DEG
-from canimucal.io.recording import Recording, header_matrix
+from canimucal.io.recording import HeaderValue, Recording, header_matrix
 from canimucal.model.layout import GyroSpec, JointSpec
 from canimucal.model.plan import VEHICLE_PRIOR_K_SIGMA, KPrior, builtin_plan, plan_prior
 from canimucal.model.positions import Plan, PositionAverage
@@ -149,13 +149,7 @@ def session_model(rec: Recording, choice: ModelChoice) -> tuple[ModelChoice, Ses
     factory_k, source, sigma = (None, "factory K", choice.prior_k_sigma)
     if choice.prior_k:
         factory_k, source = read_factory_k(choice.prior_k), f"K from {Path(choice.prior_k).name}"
-    elif "prior_k" in header:  # the prior the session held: its mean, σ and their sources
-        held = KPrior(
-            header_matrix(header["prior_k"]),
-            str(header.get("prior_k_source", "the recording's header")),
-            float(header.get("prior_k_sigma", VEHICLE_PRIOR_K_SIGMA)),
-            str(header.get("prior_k_sigma_source", "the recording's header")),
-        )
+    elif (held := header_prior(header)) is not None:  # the prior the session held
         if sigma is not None:
             held = replace(held, rel_sigma=sigma, sigma_source="--prior-k-sigma")
         factory_k, sigma = held.mean, held.rel_sigma
@@ -179,6 +173,18 @@ def session_model(rec: Recording, choice: ModelChoice) -> tuple[ModelChoice, Ses
         tolerance_source=tolerance_source,
     )
     return resolved, session
+
+
+def header_prior(header: Mapping[str, HeaderValue]) -> KPrior | None:
+    """Return the prior on K a session held (header ``prior_k`` and kin), None without one."""
+    if "prior_k" not in header:
+        return None
+    return KPrior(
+        header_matrix(header["prior_k"]),
+        str(header.get("prior_k_source", "the recording's header")),
+        float(header.get("prior_k_sigma", VEHICLE_PRIOR_K_SIGMA)),
+        str(header.get("prior_k_sigma_source", "the recording's header")),
+    )
 
 
 def read_factory_k(path: str) -> NDArray[np.float64]:

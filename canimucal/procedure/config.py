@@ -25,6 +25,8 @@ class ResumeState:
     next_index: int
     recordings: dict[int, Path] = field(default_factory=dict)
     """The file read per node (the ``.partial`` when one was left over)."""
+    k_priors: dict[int, KPrior] = field(default_factory=dict)
+    """The prior on K each node's recording says the session held (none: not recorded)."""
 
 
 @dataclass(frozen=True)

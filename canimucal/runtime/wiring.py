@@ -240,7 +240,8 @@ class Devices:
         first node. Simulated nodes keep their backups in ``out_dir/backups`` by default.
         ``resume``: go on with the interrupted session in ``out_dir``, if its recordings came
         from these very units. ``prior_k`` (a file) and ``prior_k_sigma`` set the prior on K
-        (:meth:`k_priors`). ``config`` goes to :class:`ProcedureConfig`.
+        (:meth:`k_priors`); a resumed session without them keeps the prior its recordings
+        say the first part held. ``config`` goes to :class:`ProcedureConfig`.
         """
         identities = identities or self.identities()
         if backup_dir is None and self.sim_nodes:
@@ -253,7 +254,14 @@ class Devices:
         if resume:
             serials = {n: i.serial for n, i in identities.items()}
             config["resume_from"] = load_resume_state(out_dir, plan, tuple(self.clients), serials)
-        config.setdefault("k_priors", self.k_priors(plan, prior_k, prior_k_sigma))
+        resumed = config.get("resume_from")
+        flags = prior_k is not None or prior_k_sigma is not None
+        if "k_priors" in config:
+            pass
+        elif resumed is not None and resumed.k_priors and not flags:
+            config["k_priors"] = resumed.k_priors  # the prior the first part held
+        else:
+            config["k_priors"] = self.k_priors(plan, prior_k, prior_k_sigma)
         cfg = ProcedureConfig(
             plan=plan,
             node_ids=tuple(self.clients),

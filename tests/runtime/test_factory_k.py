@@ -150,3 +150,41 @@ def test_a_session_refuses_a_device_whose_correction_is_singular(tmp_path: Path)
     with open_devices(settings) as rig, pytest.raises(DeviceError, match="singular"):
         rig.session(builtin_plan("vehicle"), tmp_path / "out", plan_name="vehicle")
     assert not (tmp_path / "out" / "calibration.json").exists()
+
+
+def test_a_resumed_session_keeps_the_prior_its_recording_holds(tmp_path: Path) -> None:
+    truth, out, plan = _truth(), tmp_path / "out", builtin_plan("vehicle")
+    factory = np.asarray(truth.accel.K) * 1.002
+    first_state = _state_file(tmp_path / "first.json", np.linalg.inv(factory))
+    with open_devices(
+        DeviceSettings(
+            node_ids=(NODE,), sim=SimSettings((truth,), state=first_state, time_scale=30.0, seed=5)
+        )
+    ) as rig:
+        held = np.linalg.inv(rig.clients[NODE].read_calibration_block().block.accel_correction)
+        session = rig.session(
+            plan, out, plan_name="vehicle", warmup=False, averaging=AveragingPolicy(fixed_s=1.0)
+        )
+        confirm, calls = session.confirm_pose, []
+
+        def confirm_then_quit() -> list[object]:
+            calls.append(1)
+            if len(calls) > 2:
+                raise KeyboardInterrupt  # the operator leaves after two positions
+            return confirm()  # type: ignore[return-value]
+
+        session.confirm_pose = confirm_then_quit  # type: ignore[method-assign,assignment]
+        with pytest.raises(KeyboardInterrupt):
+            run_automatic(session)
+    # the unit comes back with another calibration: the session goes on with the first prior
+    other = _state_file(tmp_path / "other.json", np.eye(3) * LSB * 1.01)
+    with open_devices(
+        DeviceSettings(
+            node_ids=(NODE,), sim=SimSettings((truth,), state=other, time_scale=30.0, seed=6)
+        )
+    ) as rig:
+        resumed = rig.session(plan, out, plan_name="vehicle", resume=True, warmup=False)
+        kept = resumed.procedure.config.k_priors[NODE]
+        resumed.finish()
+    assert kept.mean is not None and np.array_equal(kept.mean, held)
+    assert kept.mean_source.startswith("K = M⁻¹ read from node 16")
