@@ -10,12 +10,14 @@ import pytest
 
 from canimucal import calibrate
 from canimucal.analysis.calibrate import solve_positions
+from canimucal.analysis.session_model import ModelChoice
+from canimucal.analysis.solve import solve_recording
 from canimucal.device import od
 from canimucal.device.client import CalibrationReadout
 from canimucal.device.factory_k import device_k
-from canimucal.errors import DeviceError
+from canimucal.errors import DeviceError, InputError
 from canimucal.io.calibration import read_calibration
-from canimucal.io.recording import read_recording
+from canimucal.io.recording import normalise_header, read_recording
 from canimucal.model.plan import builtin_plan, plan_prior
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB
 from canimucal.procedure.averaging import AveragingPolicy
@@ -126,6 +128,11 @@ def test_a_vehicle_session_holds_k_at_the_value_the_device_holds(tmp_path: Path)
     assert "0x2101" in (tmp_path / "out" / "certificate.md").read_text()
     replayed = calibrate(read_recording(tmp_path / "out" / "recording.csv"))  # as solve
     assert replayed.priors == record.priors
+    recording = read_recording(tmp_path / "out" / "recording.csv")
+    wider = solve_recording(recording, ModelChoice(prior_k_sigma=0.02)).record.priors or ()
+    assert {p.mean for p in wider} == {p.mean for p in priors.values()}
+    assert all(p.sigma == pytest.approx(0.02 / LSB) for p in wider)
+    assert all("0x2101" in p.source and "--prior-k-sigma" in p.source for p in wider)
     k_est = np.array(record.accel.K, dtype=float)
     k_sigma = np.array(record.accel.K_sigma, dtype=float)
     assert np.all(np.abs(k_est - k_true) < 3 * k_sigma), (k_est - k_true) / k_sigma
@@ -188,3 +195,10 @@ def test_a_resumed_session_keeps_the_prior_its_recording_holds(tmp_path: Path) -
         resumed.finish()
     assert kept.mean is not None and np.array_equal(kept.mean, held)
     assert kept.mean_source.startswith("K = M⁻¹ read from node 16")
+
+
+def test_a_prior_k_header_needs_nine_finite_numbers() -> None:
+    assert normalise_header({"prior_k": "1 0 0 0 1 0 0 0 1"})["prior_k"] == "1 0 0 0 1 0 0 0 1"
+    for bad in ("1 0 0 0 1 0 0 0", "1 0 0 0 nan 0 0 0 1", "1 0 0 0 x 0 0 0 1"):
+        with pytest.raises(InputError, match="prior_k"):
+            normalise_header({"prior_k": bad})
