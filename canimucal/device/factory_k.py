@@ -54,7 +54,7 @@ def device_k(readout: CalibrationReadout, accel_lsb: float, node_id: int) -> Dev
                 "on K (give --prior-k FILE, or rewrite the unit's calibration)"
             )
         k = np.asarray(np.linalg.inv(m), dtype=float)
-        return DeviceK(k, f"K = M⁻¹ read from {where}, 0x2101 (active calibration, CRC ok)", True)
+        return DeviceK(k, f"K = M⁻¹ read from node {node_id}'s 0x2101, active, CRC ok", True)
     lsb = float(accel_lsb)
     if not (np.isfinite(lsb) and lsb != 0.0):
         raise DeviceError(
@@ -63,6 +63,6 @@ def device_k(readout: CalibrationReadout, accel_lsb: float, node_id: int) -> Dev
     state = "valid = 0" if readout.valid != 1 else "CRC mismatch"
     return DeviceK(
         np.eye(3) / lsb,
-        f"K = I/LSB read from {where}, 0x2010:01 (no active calibration: {state})",
+        f"K = I/LSB read from node {node_id}'s 0x2010:01, no active calibration: {state}",
         False,
     )

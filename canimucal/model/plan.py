@@ -310,14 +310,12 @@ class KPrior:
         """Return this prior with its defaults filled in: nominal mean, the plan's σ, why."""
         rel = self.rel_sigma if self.rel_sigma is not None else plan.prior_k_sigma
         whence = self.sigma_source
-        if whence is None and rel is not None:
+        if whence is None and rel is not None and self.rel_sigma is not None:
+            whence = "given"
+        elif whence is None and rel is not None:
             whence = (
-                "given"
-                if self.rel_sigma is not None
-                else (
-                    f"the {plan.name} plan's default (a datasheet's scale-factor tolerance; "
-                    "the device holds no σ)"
-                )
+                f"the {plan.name} plan's default, a datasheet's scale-factor tolerance "
+                "(the device holds no σ)"
             )
         mean = np.eye(3) / accel_lsb if self.mean is None else self.mean
         return KPrior(mean, self.mean_source, rel, whence)
@@ -327,7 +325,8 @@ class KPrior:
         full = self.resolved(plan, 1.0)
         if full.rel_sigma is None:
             return self.mean_source
-        return f"{self.mean_source}; σ {full.rel_sigma:.3g} × nominal scale, {full.sigma_source}"
+        rel = f"{100 * full.rel_sigma:.3g} %"
+        return f"{self.mean_source}; σ {rel} of the nominal scale: {full.sigma_source}"
 
 
 def builtin_plan(name: str) -> Plan:
