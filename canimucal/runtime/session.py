@@ -51,7 +51,7 @@ from canimucal.io.calibration import (
 from canimucal.io.recording import matrix_header
 from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.plan import KPrior
-from canimucal.model.positions import Pose
+from canimucal.model.positions import Plan, Pose
 from canimucal.procedure import events as ev
 from canimucal.procedure.config import ProcedureConfig
 from canimucal.procedure.machine import Phase, Procedure
@@ -536,10 +536,17 @@ def model_header(cfg: ProcedureConfig) -> dict[str, Any]:
 
 def prior_header(cfg: ProcedureConfig, node_id: int) -> dict[str, Any]:
     """Header keys of the prior on K the session holds for one node, for ``solve`` to reuse."""
-    held = cfg.k_priors.get(node_id, KPrior())
-    if not held.needed(cfg.plan):
+    return k_prior_header(cfg.k_priors.get(node_id, KPrior()), cfg.plan, cfg.site.accel_lsb)
+
+
+def k_prior_header(held: KPrior, plan: Plan, accel_lsb: float) -> dict[str, Any]:
+    """Header keys (``prior_k``, ``prior_k_sigma`` and their sources) of a prior on K.
+
+    Empty when ``plan`` holds no prior; defaults (the nominal mean, the plan's σ) filled in.
+    """
+    if not held.needed(plan):
         return {}
-    full = held.resolved(cfg.plan, cfg.site.accel_lsb)
+    full = held.resolved(plan, accel_lsb)
     assert full.mean is not None and full.rel_sigma is not None
     return {
         "prior_k": matrix_header(full.mean),

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -12,8 +11,6 @@ from canimucal import calibrate
 from canimucal.analysis.calibrate import solve_positions
 from canimucal.analysis.session_model import ModelChoice
 from canimucal.analysis.solve import solve_recording
-from canimucal.device import od
-from canimucal.device.client import CalibrationReadout
 from canimucal.device.factory_k import device_k
 from canimucal.errors import DeviceError, InputError
 from canimucal.io.calibration import read_calibration
@@ -24,47 +21,18 @@ from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.runtime.operator import run_automatic
 from canimucal.runtime.wiring import DeviceSettings, SimSettings, open_devices
 from canimucal.sim.truth import Truth
-from canimucal.simnode.store import STATE_SCHEMA
+from tests.support.device_state import readout, state_file
 
 LSB = DEFAULT_ACCEL_LSB
 NODE = 0x10
 
 
-def _block(m: np.ndarray) -> od.CalibrationBlock:
-    base = od.factory_block(LSB, 1e-3)
-    return od.CalibrationBlock(
-        accel_bias=base.accel_bias,
-        accel_correction=m,
-        gyro_bias=base.gyro_bias,
-        gyro_correction=base.gyro_correction,
-        gyro_g=base.gyro_g,
-        base_tilt_rad=base.base_tilt_rad,
-        plan_code=od.PLAN_CODES["recommended"],
-    )
-
-
-def _readout(m: np.ndarray, valid: int = 1) -> CalibrationReadout:
-    objects = _block(m).to_objects()
-    crc = od.block_crc(objects)
-    objects[(od.CAL_INFO, od.CAL_VALID_SUB)] = valid
-    objects[(od.CAL_INFO, od.CAL_CRC_SUB)] = crc
-    return CalibrationReadout(_block(m), valid, crc, True, objects)
-
-
-def _state_file(path: Path, m: np.ndarray) -> Path:
-    """A simulated node's non-volatile memory holding an active calibration with M."""
-    readout = _readout(m)
-    objects = {od.format_key(*key): raw.hex() for key, raw in readout.raw.items()}
-    path.write_text(json.dumps({"schema": STATE_SCHEMA, "objects": objects}))
-    return path
-
-
 def test_the_device_k_is_the_inverse_of_an_active_correction_else_the_nominal_lsb() -> None:
     k = np.diag([1.03, 0.96, 1.05]) / LSB + 0.2
-    held = device_k(_readout(np.linalg.inv(k)), LSB, NODE)
+    held = device_k(readout(np.linalg.inv(k)), LSB, NODE)
     np.testing.assert_allclose(held.k, k, rtol=1e-5)  # M as REAL32
     assert held.calibrated and "0x2101" in held.source and "node 16" in held.source
-    inactive = device_k(_readout(np.linalg.inv(k), valid=0), LSB, NODE)
+    inactive = device_k(readout(np.linalg.inv(k), valid=0), LSB, NODE)
     np.testing.assert_array_equal(inactive.k, np.eye(3) / LSB)
     assert not inactive.calibrated and "valid = 0" in inactive.source
     assert "0x2010:01" in inactive.source
@@ -79,7 +47,7 @@ def test_the_device_k_is_the_inverse_of_an_active_correction_else_the_nominal_ls
 )
 def test_a_non_finite_or_singular_device_correction_is_refused(m: np.ndarray, words: str) -> None:
     with pytest.raises(DeviceError, match=f"node 16 .*0x2101:01.*{words}") as info:
-        device_k(_readout(m), LSB, NODE)
+        device_k(readout(m), LSB, NODE)
     assert "\n" not in str(info.value) and "--prior-k" in str(info.value)
 
 
@@ -96,7 +64,7 @@ def test_a_vehicle_session_holds_k_at_the_value_the_device_holds(tmp_path: Path)
     truth = _truth()
     k_true = np.asarray(truth.accel.K)
     factory = k_true * (1 + np.random.default_rng(4).normal(0.0, 0.003, (3, 3)))
-    state = _state_file(tmp_path / "node.json", np.linalg.inv(factory))
+    state = state_file(tmp_path / "node.json", np.linalg.inv(factory))
     settings = DeviceSettings(
         node_ids=(NODE,), sim=SimSettings((truth,), state=state, time_scale=30.0, seed=5)
     )
@@ -152,7 +120,7 @@ def test_a_vehicle_session_holds_k_at_the_value_the_device_holds(tmp_path: Path)
 
 def test_a_session_refuses_a_device_whose_correction_is_singular(tmp_path: Path) -> None:
     m = np.array([[LSB, 0, 0], [LSB, 0, 0], [0, 0, LSB]])
-    state = _state_file(tmp_path / "node.json", m)
+    state = state_file(tmp_path / "node.json", m)
     settings = DeviceSettings(node_ids=(NODE,), sim=SimSettings((_truth(),), state=state))
     with open_devices(settings) as rig, pytest.raises(DeviceError, match="singular"):
         rig.session(builtin_plan("vehicle"), tmp_path / "out", plan_name="vehicle")
@@ -162,7 +130,7 @@ def test_a_session_refuses_a_device_whose_correction_is_singular(tmp_path: Path)
 def test_a_resumed_session_keeps_the_prior_its_recording_holds(tmp_path: Path) -> None:
     truth, out, plan = _truth(), tmp_path / "out", builtin_plan("vehicle")
     factory = np.asarray(truth.accel.K) * 1.002
-    first_state = _state_file(tmp_path / "first.json", np.linalg.inv(factory))
+    first_state = state_file(tmp_path / "first.json", np.linalg.inv(factory))
     with open_devices(
         DeviceSettings(
             node_ids=(NODE,), sim=SimSettings((truth,), state=first_state, time_scale=30.0, seed=5)
@@ -184,7 +152,7 @@ def test_a_resumed_session_keeps_the_prior_its_recording_holds(tmp_path: Path) -
         with pytest.raises(KeyboardInterrupt):
             run_automatic(session)
     # the unit comes back with another calibration: the session goes on with the first prior
-    other = _state_file(tmp_path / "other.json", np.eye(3) * LSB * 1.01)
+    other = state_file(tmp_path / "other.json", np.eye(3) * LSB * 1.01)
     with open_devices(
         DeviceSettings(
             node_ids=(NODE,), sim=SimSettings((truth,), state=other, time_scale=30.0, seed=6)
