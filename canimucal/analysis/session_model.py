@@ -5,12 +5,14 @@ recording. An option given (a flag, a keyword of ``cm.calibrate``) wins over the
 without either, the defaults are bias + diagonal K, no tilt, gyro ``mems`` when there are
 gyro data, 0.1°.
 When ``plan`` names a built-in plan whose poses the recording's positions match, each
-position takes that plan's own tolerances (a vehicle's turn: 5°) and the plan's prior on K.
+position takes that plan's own tolerances (a vehicle's turn: 5°) and the plan's prior on K:
+the one the session held (header ``prior_k``, ``prior_k_sigma`` and their sources) unless
+``--prior-k`` or ``--prior-k-sigma`` say otherwise.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
@@ -21,9 +23,9 @@ from numpy.typing import NDArray
 from canimucal.errors import InputError
 from canimucal.io.calibration import PLANS, Calibration
 from canimucal.io.plans import BUILTIN_PLANS, DEFAULT_TOLERANCE_DEG
-from canimucal.io.recording import Recording
+from canimucal.io.recording import HeaderValue, Recording, header_matrix
 from canimucal.model.layout import GyroSpec, JointSpec
-from canimucal.model.plan import VEHICLE_PRIOR_K_SIGMA, builtin_plan, plan_prior
+from canimucal.model.plan import VEHICLE_PRIOR_K_SIGMA, KPrior, builtin_plan, plan_prior
 from canimucal.model.positions import Plan, PositionAverage
 
 _MATCH_DEG = 0.05
@@ -144,9 +146,14 @@ def session_model(rec: Recording, choice: ModelChoice) -> tuple[ModelChoice, Ses
     name = header.get("plan")
     plan = builtin_plan(name) if isinstance(name, str) and name in BUILTIN_PLANS else None
     plan_name = name if isinstance(name, str) and name in PLANS else None
-    factory_k, source = (None, "factory K")
+    factory_k, source, sigma = (None, "factory K", choice.prior_k_sigma)
     if choice.prior_k:
         factory_k, source = read_factory_k(choice.prior_k), f"K from {Path(choice.prior_k).name}"
+    elif (held := header_prior(header)) is not None:  # the prior the session held
+        if sigma is not None:
+            held = replace(held, rel_sigma=sigma, sigma_source="--prior-k-sigma")
+        factory_k, sigma = held.mean, held.rel_sigma
+        source = held.describe(plan or Plan("custom", ()))
     resolved = replace(
         choice,
         model=model,  # type: ignore[arg-type]
@@ -159,13 +166,25 @@ def session_model(rec: Recording, choice: ModelChoice) -> tuple[ModelChoice, Ses
         plan_name,
         plan,
         tolerance,
-        choice.prior_k_sigma,
+        sigma,
         plan_tolerances=choice.tolerance_deg is None,
         factory_k=factory_k,
         prior_source=source,
         tolerance_source=tolerance_source,
     )
     return resolved, session
+
+
+def header_prior(header: Mapping[str, HeaderValue]) -> KPrior | None:
+    """Return the prior on K a session held (header ``prior_k`` and kin), None without one."""
+    if "prior_k" not in header:
+        return None
+    return KPrior(
+        header_matrix(header["prior_k"]),
+        str(header.get("prior_k_source", "the recording's header")),
+        float(header.get("prior_k_sigma", VEHICLE_PRIOR_K_SIGMA)),
+        str(header.get("prior_k_sigma_source", "the recording's header")),
+    )
 
 
 def read_factory_k(path: str) -> NDArray[np.float64]:

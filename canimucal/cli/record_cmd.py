@@ -5,6 +5,8 @@ One position: ``--position I --alpha-deg A --beta-deg B [--psi-deg P] --seconds 
 operator pose by pose on stdin, or, with ``--sim`` or ``--follow-schedule``, follows the
 pose schedule the unit runs by itself from the NMT start (``canimucal sim --poses P``).
 Ctrl-C keeps what was recorded (exit 130). Several ``--node-id``: ``OUT.node<ID>.csv``.
+A plan that holds K at a prior (``vehicle``) records the K each node applies now (read from
+the node, :func:`canimucal.device.factory_k.device_k`) in the header, for ``solve``.
 """
 
 from __future__ import annotations
@@ -162,17 +164,23 @@ def run(args: argparse.Namespace) -> int:
     """Record and report."""
     from canimucal.device.bus import default_sdo_timeout_s
     from canimucal.runtime.recorder import Recorder
+    from canimucal.runtime.session import k_prior_header
 
     plan = check_args(args)
     with open_from_args(args) as session, contextlib.ExitStack() as files:
         several = len(session.clients) > 1
         channels = []
+        # a plan that holds K at a prior: the K each node applies now, for solve (DESIGN §9)
+        priors = session.k_priors(plan) if args.position is None else {}
         for nid, client in session.clients.items():
             header = header_for(client, args, session.truths.get(nid))
             if args.position is None:  # a whole plan: name it and its tolerance (DESIGN §9)
                 header["plan"] = plan.name
                 tolerance = max(p.tolerance for p in plan.positions)
                 header["tolerance_deg"] = round(float(np.rad2deg(tolerance)), 10)
+                if nid in priors:
+                    lsb = float(header["accel_lsb"])
+                    header.update(k_prior_header(priors[nid], plan, lsb))
             path = per_node_path(args.output, nid, several)
             writer = RecordingWriter.open(
                 path, header, overwrite=args.overwrite, append=args.append

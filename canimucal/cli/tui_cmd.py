@@ -68,6 +68,17 @@ def add_subparser(subparsers: Any) -> None:
         help="replace the mounting map saved for the unit's serial with --mount's",
     )
     p.add_argument(
+        "--prior-k",
+        metavar="FILE",
+        help="factory K for a plan that holds K at a prior (a calibration JSON or read-params "
+        "--json output); default: the K the node applies now, read from 0x2101 (or 0x2010:01)",
+    )
+    p.add_argument(
+        "--prior-k-sigma",
+        type=float,
+        help="relative 1σ of that K (default: the plan's, 0.01 for vehicle)",
+    )
+    p.add_argument(
         "--resume",
         metavar="DIR",
         help="go on with the interrupted session in DIR (same plan; its files go to DIR)",
@@ -117,6 +128,12 @@ def device_source(args: argparse.Namespace) -> DeviceSource:
         raise InputError(f"--seconds must be positive, got {args.seconds}")
     if args.replace_mount and args.mount in (None, BODY):
         raise InputError("--replace-mount needs --mount MAP (the map to save)")
+    if args.prior_k_sigma is not None and not args.prior_k_sigma > 0:
+        raise InputError(f"--prior-k-sigma must be > 0, got {args.prior_k_sigma:g}")
+    if args.prior_k is not None:
+        from canimucal.analysis.session_model import read_factory_k
+
+        read_factory_k(args.prior_k)  # a bad file: exit 2 before the TUI opens
     return DeviceSource(
         device_settings(args, find=False),
         Path(args.resume or args.out),
@@ -130,6 +147,8 @@ def device_source(args: argparse.Namespace) -> DeviceSource:
         resume=bool(args.resume),
         mount=mount_choice(args.mount),
         replace_mount=args.replace_mount,
+        prior_k=args.prior_k,
+        prior_k_sigma=args.prior_k_sigma,
     )
 
 

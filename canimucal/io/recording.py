@@ -478,6 +478,26 @@ def _plan_name(raw: str) -> str:
     return raw
 
 
+def _matrix9(raw: str) -> str:
+    """Nine finite numbers separated by spaces (a 3×3 matrix, row-major), kept as text."""
+    parts = raw.split()
+    if len(parts) != 9:
+        raise ValueError("expected 9 numbers (a 3×3 matrix, row-major)")
+    for part in parts:
+        _finite(part)
+    return " ".join(parts)
+
+
+def header_matrix(value: HeaderValue) -> NDArray[np.float64]:
+    """Return the 3×3 matrix of a ``prior_k`` header value."""
+    return np.array([float(v) for v in str(value).split()], dtype=float).reshape(3, 3)
+
+
+def matrix_header(matrix: NDArray[np.float64]) -> str:
+    """Return the ``prior_k`` header value of a 3×3 matrix (exact: ``repr`` of each float)."""
+    return " ".join(repr(float(v)) for v in np.asarray(matrix, dtype=float).reshape(9))
+
+
 HEADER_PARSERS: Mapping[str, Callable[[str], HeaderValue]] = {
     "schema": _text,
     "sample_rate_hz": _positive,
@@ -497,11 +517,17 @@ HEADER_PARSERS: Mapping[str, Callable[[str], HeaderValue]] = {
     "tilt": _choice("rigid", "additive", "none"),
     "gyro": _choice("none", "mems", "moves", "nav"),
     "tolerance_deg": _non_negative,
+    "prior_k": _matrix9,
+    "prior_k_sigma": _positive,
+    "prior_k_source": _text,
+    "prior_k_sigma_source": _text,
 }
 """Every header key DESIGN §5 and §9 allow, with the parser of its value; any other is refused.
 
 ``plan``, ``model``, ``tilt``, ``gyro`` and ``tolerance_deg`` (the plan's angle-setting 1σ)
-are written by the tool's own sessions: the model the session solved, for ``solve``."""
+are written by the tool's own sessions: the model the session solved, for ``solve``. So are
+``prior_k`` (the mean of the prior on K the session held, counts per m/s², row-major),
+``prior_k_sigma`` (its relative 1σ) and where each came from."""
 
 
 def parse_header_line(line: str, where: str) -> tuple[str, HeaderValue]:

@@ -282,6 +282,53 @@ def plan_prior(
     return {f"accel.K[{i}][{j}]": (float(mean[i, j]), rel * k_nominal) for i, j in layout.k_entries}
 
 
+@dataclass(frozen=True)
+class KPrior:
+    """Where a plan's prior on K comes from: its mean and its relative σ, each with a source.
+
+    ``mean`` None is the nominal ``I/accel_lsb``; ``rel_sigma`` None is the plan's own
+    ``prior_k_sigma`` (its documented default). The sources are stated in the calibration's
+    ``priors`` and warnings, so the certificate says which prior was held and why.
+    """
+
+    mean: Array | None = None
+    mean_source: str = "nominal K = I/LSB"
+    rel_sigma: float | None = None
+    sigma_source: str | None = None
+
+    def needed(self, plan: Plan) -> bool:
+        """Tell whether ``plan`` (or the σ asked for) holds K at a prior at all."""
+        return self.rel_sigma is not None or plan.prior_k_sigma is not None
+
+    def prior(
+        self, plan: Plan, spec: JointSpec, accel_lsb: float
+    ) -> dict[str, tuple[float, float]]:
+        """Return :func:`plan_prior` of this mean and σ."""
+        return plan_prior(plan, spec, accel_lsb, factory_k=self.mean, k_sigma=self.rel_sigma)
+
+    def resolved(self, plan: Plan, accel_lsb: float) -> KPrior:
+        """Return this prior with its defaults filled in: nominal mean, the plan's σ, why."""
+        rel = self.rel_sigma if self.rel_sigma is not None else plan.prior_k_sigma
+        whence = self.sigma_source
+        if whence is None and rel is not None and self.rel_sigma is not None:
+            whence = "given"
+        elif whence is None and rel is not None:
+            whence = (
+                f"the {plan.name} plan's default, a datasheet's scale-factor tolerance "
+                "(the device holds no σ)"
+            )
+        mean = np.eye(3) / accel_lsb if self.mean is None else self.mean
+        return KPrior(mean, self.mean_source, rel, whence)
+
+    def describe(self, plan: Plan) -> str:
+        """One line: the mean's source and the σ's (relative to the nominal scale)."""
+        full = self.resolved(plan, 1.0)
+        if full.rel_sigma is None:
+            return self.mean_source
+        rel = f"{100 * full.rel_sigma:.3g} %"
+        return f"{self.mean_source}; σ {rel} of the nominal scale: {full.sigma_source}"
+
+
 def builtin_plan(name: str) -> Plan:
     """Return the built-in plan ``two``, ``five``, ``recommended`` or ``vehicle``."""
     try:

@@ -11,6 +11,7 @@ from canimucal.analysis.calibrate import SiteConditions
 from canimucal.io.calibration import Device
 from canimucal.model.layout import JointSpec
 from canimucal.model.mounting import MountingMap
+from canimucal.model.plan import KPrior
 from canimucal.model.positions import Plan, PlannedPosition, PositionAverage
 from canimucal.procedure.averaging import AveragingPolicy
 
@@ -25,6 +26,8 @@ class ResumeState:
     next_index: int
     recordings: dict[int, Path] = field(default_factory=dict)
     """The file read per node (the ``.partial`` when one was left over)."""
+    k_priors: dict[int, KPrior] = field(default_factory=dict)
+    """The prior on K each node's recording says the session held (none: not recorded)."""
 
 
 @dataclass(frozen=True)
@@ -53,6 +56,9 @@ class ProcedureConfig:
     verify_seconds: float = 10.0
     live_period_s: float = 0.5
     progress_period_s: float = 0.25
+    k_priors: Mapping[int, KPrior] = field(default_factory=dict)
+    """Per node, the prior on K the plan holds (its mean read from the device or a file, its
+    σ); a node without one gets the nominal K at the plan's own σ."""
     resume_from: ResumeState | None = None
     """Positions an interrupted session accepted (:mod:`.resume`); the procedure goes on."""
     mounting: MountingMap | None = None

@@ -21,7 +21,7 @@ import numpy as np
 from canimucal.analysis.acceptance import AcceptanceReport, check_acceptance
 from canimucal.analysis.calibrate import Solution, solve_positions
 from canimucal.io.calibration import Device
-from canimucal.model.plan import plan_prior
+from canimucal.model.plan import KPrior
 from canimucal.model.positions import PlannedPosition, Pose, PositionAverage, average_position
 from canimucal.model.samples import SampleBlock
 from canimucal.procedure import events as ev
@@ -499,9 +499,15 @@ def solve_nodes(
         averages = averages_of(node_id)
         temps = [a.temp_c for a in averages if a.temp_c is not None]
         site = replace(cfg.site, temp_c=float(np.mean(temps)) if temps else cfg.site.temp_c)
-        prior = plan_prior(cfg.plan, cfg.spec, site.accel_lsb)
+        k_prior = cfg.k_priors.get(node_id, KPrior())
         solution = solve_positions(
-            averages, cfg.spec, site, device, plan_name=cfg.plan_name, prior=prior
+            averages,
+            cfg.spec,
+            site,
+            device,
+            plan_name=cfg.plan_name,
+            prior=k_prior.prior(cfg.plan, cfg.spec, site.accel_lsb),
+            prior_source=k_prior.describe(cfg.plan),
         )
         solutions[node_id] = solution
         acceptance[node_id] = check_acceptance(solution, cfg.limits, cfg.site.accel_lsb, cfg.site.g)

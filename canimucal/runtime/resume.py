@@ -18,10 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
+from canimucal.analysis.session_model import header_prior
 from canimucal.errors import DeviceError, InputError
 from canimucal.io.atomic import read_bytes_nofollow
 from canimucal.io.grouping import position_averages
 from canimucal.io.recording import Recording, parse_recording
+from canimucal.model.plan import KPrior
 from canimucal.model.positions import Plan, PositionAverage
 from canimucal.procedure.config import ResumeState
 
@@ -61,6 +63,7 @@ def load_resume_state(
     several = len(ids) > 1
     averages: dict[int, dict[int, PositionAverage]] = {}
     files: dict[int, Path] = {}
+    priors: dict[int, KPrior] = {}
     for node_id in ids:
         path = recording_path(out, node_id, several)
         source = partial_path(path) if os.path.lexists(partial_path(path)) else path
@@ -71,6 +74,9 @@ def load_resume_state(
             _check_unit(recording, source, node_id, serials[node_id])
         averages[node_id] = _accepted(recording, source, plan)
         files[node_id] = source
+        held = header_prior(recording.header)
+        if held is not None:
+            priors[node_id] = held
     done = {frozenset(a) for a in averages.values()}
     if len(done) > 1:
         raise InputError(f"cannot resume: the recordings in {out} hold different positions")
@@ -79,7 +85,7 @@ def load_resume_state(
         raise InputError(f"cannot resume: positions {indices} are not the plan's first ones")
     if len(indices) >= len(plan.positions):
         raise InputError(f"cannot resume: every position of the plan is already in {out}")
-    return ResumeState(averages, len(indices), files)
+    return ResumeState(averages, len(indices), files, priors)
 
 
 def _found_nodes(out: Path) -> list[int]:

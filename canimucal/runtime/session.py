@@ -48,8 +48,10 @@ from canimucal.io.calibration import (
     calibration_to_json,
     sha256_of,
 )
+from canimucal.io.recording import matrix_header
 from canimucal.io.recording_writer import RecordingWriter
-from canimucal.model.positions import Pose
+from canimucal.model.plan import KPrior
+from canimucal.model.positions import Plan, Pose
 from canimucal.procedure import events as ev
 from canimucal.procedure.config import ProcedureConfig
 from canimucal.procedure.machine import Phase, Procedure
@@ -140,7 +142,11 @@ class Session:
         self.links: dict[int, NodeLink] = {}
         for node_id, client in clients.items():
             path = output_name(out_dir, "recording", node_id, several, ".csv")
-            head = {**(header or {}).get(node_id, {}), **model_header(procedure.config)}
+            head = {
+                **(header or {}).get(node_id, {}),
+                **model_header(procedure.config),
+                **prior_header(procedure.config, node_id),
+            }
             if procedure.config.resume_from is not None:
                 writer = open_resumed(path, head)
             else:
@@ -525,6 +531,28 @@ def model_header(cfg: ProcedureConfig) -> dict[str, Any]:
         "tilt": spec.tilt,
         "gyro": spec.gyro,
         "tolerance_deg": round(float(np.rad2deg(tolerance)), 10),
+    }
+
+
+def prior_header(cfg: ProcedureConfig, node_id: int) -> dict[str, Any]:
+    """Header keys of the prior on K the session holds for one node, for ``solve`` to reuse."""
+    return k_prior_header(cfg.k_priors.get(node_id, KPrior()), cfg.plan, cfg.site.accel_lsb)
+
+
+def k_prior_header(held: KPrior, plan: Plan, accel_lsb: float) -> dict[str, Any]:
+    """Header keys (``prior_k``, ``prior_k_sigma`` and their sources) of a prior on K.
+
+    Empty when ``plan`` holds no prior; defaults (the nominal mean, the plan's σ) filled in.
+    """
+    if not held.needed(plan):
+        return {}
+    full = held.resolved(plan, accel_lsb)
+    assert full.mean is not None and full.rel_sigma is not None
+    return {
+        "prior_k": matrix_header(full.mean),
+        "prior_k_sigma": full.rel_sigma,
+        "prior_k_source": full.mean_source,
+        "prior_k_sigma_source": full.sigma_source,
     }
 
 

@@ -26,13 +26,16 @@ import canopen
 import numpy as np
 
 from canimucal.analysis.calibrate import SiteConditions
+from canimucal.analysis.session_model import read_factory_k
 from canimucal.device.bus import BusSettings, describe, open_bus
 from canimucal.device.client import NOTIFIER_CYCLE_S, Identity, ImuClient
-from canimucal.errors import NoDeviceError
+from canimucal.device.factory_k import device_k
+from canimucal.errors import InputError, NoDeviceError
 from canimucal.io.atomic import per_node_path
 from canimucal.io.mounting import choose_mounting
 from canimucal.model.layout import GyroSpec, JointSpec
 from canimucal.model.mounting import MountingMap
+from canimucal.model.plan import VEHICLE_PRIOR_K_SIGMA, KPrior
 from canimucal.model.positions import Plan
 from canimucal.procedure.machine import Procedure, ProcedureConfig
 from canimucal.runtime.resume import load_resume_state
@@ -247,6 +250,8 @@ class Devices:
         site_name: str | None = None,
         mount: MountingMap | str | None = None,
         replace_mount: bool = False,
+        prior_k: str | None = None,
+        prior_k_sigma: float | None = None,
         **config: Any,
     ) -> Session:
         """Build the guided session of ``plan`` over every node.
@@ -255,8 +260,10 @@ class Devices:
         first node. Simulated nodes keep their backups in ``out_dir/backups`` by default.
         ``resume``: go on with the interrupted session in ``out_dir``, if its recordings came
         from these very units. ``mount`` (a map, ``"body"`` or None) and ``replace_mount``
-        choose how instructions are worded (:func:`instruction_mounting`). ``config`` goes to
-        :class:`ProcedureConfig`.
+        choose how instructions are worded (:func:`instruction_mounting`). ``prior_k`` (a file)
+        and ``prior_k_sigma`` set the prior on K
+        (:meth:`k_priors`); a resumed session without them keeps the prior its recordings
+        say the first part held. ``config`` goes to :class:`ProcedureConfig`.
         """
         identities = identities or self.identities()
         if backup_dir is None and self.sim_nodes:
@@ -273,6 +280,14 @@ class Devices:
         config["mounting"], config["mounting_note"] = instruction_mounting(
             plan_name, first_serial, mount, replace_mount
         )
+        resumed = config.get("resume_from")
+        flags = prior_k is not None or prior_k_sigma is not None
+        if "k_priors" in config:
+            pass
+        elif resumed is not None and resumed.k_priors and not flags:
+            config["k_priors"] = resumed.k_priors  # the prior the first part held
+        else:
+            config["k_priors"] = self.k_priors(plan, prior_k, prior_k_sigma)
         cfg = ProcedureConfig(
             plan=plan,
             node_ids=tuple(self.clients),
@@ -300,6 +315,35 @@ class Devices:
             operator=operator,
             site_name=site_name,
         )
+
+    def k_priors(
+        self, plan: Plan, prior_k: str | None = None, prior_k_sigma: float | None = None
+    ) -> dict[int, KPrior]:
+        """Return each node's prior on K when ``plan`` (or ``prior_k_sigma``) holds one.
+
+        The mean: the file ``prior_k`` (a calibration JSON or ``read-params --json``), else
+        the K each node applies now, read live (:func:`~canimucal.device.factory_k.device_k`).
+        The σ: ``prior_k_sigma``, else the plan's default; ``prior_k`` with a plan that holds
+        no prior takes the vehicle plan's 1 %, as ``solve --prior-k`` does. Empty (nothing
+        read) when no prior is held.
+        """
+        if prior_k_sigma is not None and not (np.isfinite(prior_k_sigma) and prior_k_sigma > 0):
+            raise InputError(f"--prior-k-sigma must be > 0, got {prior_k_sigma:g}")
+        sigma, whence = prior_k_sigma, "--prior-k-sigma" if prior_k_sigma is not None else None
+        if sigma is None and prior_k and plan.prior_k_sigma is None:
+            sigma, whence = VEHICLE_PRIOR_K_SIGMA, "the default of --prior-k (no σ given)"
+        if not KPrior(rel_sigma=sigma).needed(plan):
+            return {}
+        if prior_k:
+            k = read_factory_k(prior_k)
+            source = f"K from {Path(prior_k).name}"
+            return {n: KPrior(k, source, sigma, whence) for n in self.clients}
+        out = {}
+        for node_id, client in self.clients.items():
+            held = device_k(client.read_calibration_block(), client.nominal_lsb()[0], node_id)
+            log.info("node %d: prior on K: %s", node_id, held.source)
+            out[node_id] = KPrior(held.k, held.source, sigma, whence)
+        return out
 
     def close(self) -> None:
         """Close the clients, stop the simulated nodes and notifiers, shut the buses down."""

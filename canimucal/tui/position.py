@@ -15,6 +15,7 @@ from enum import Enum
 from pathlib import Path
 
 import numpy as np
+from rich.text import Text
 from textual import work
 from textual.app import ComposeResult
 from textual.binding import Binding
@@ -31,7 +32,7 @@ from canimucal.tui.messages import EventsArrived, ProcedureEnded, ResultsReady
 from canimucal.tui.modals import ConfirmSkip, ErrorModal
 from canimucal.tui.runner import Command, SessionRunner
 from canimucal.tui.source import NodeStatus
-from canimucal.tui.text import live_line, pose_drawing, short_live_line
+from canimucal.tui.text import UNIT_BAR, UNIT_MARK, live_line, pose_drawing, short_live_line
 
 
 class SessionState(Enum):
@@ -105,13 +106,15 @@ class PositionScreen(Screen[None]):
         self.solved: ev.Solved | None = None
         self.verification = False
         self.total = total
+        self.target_deg = (0.0, 0.0, 0.0)
+        """The target pose drawn (alpha, beta, psi in degrees); the unit's is drawn beside."""
 
     def compose(self) -> ComposeResult:
         """Lay the screen out (fits 80×24)."""
         yield Static("canimucal · position", classes="screen-title", id="title")
         yield Static("", id="words")
         with Horizontal(id="middle"):
-            yield Static(pose_drawing(0.0, 0.0), id="drawing")
+            yield Static(gauge(pose_drawing(0.0, 0.0)), id="drawing")
             yield Static("waiting for samples…", id="live")
         with Horizontal(id="progress-row"):
             yield Static("○ not still", id="stillness")
@@ -307,7 +310,8 @@ class PositionScreen(Screen[None]):
         self.phase = Phase.INSTRUCT  # the first instruction comes without a PhaseChanged
         alpha, beta, psi = (float(np.rad2deg(x)) for x in event.position.angles)
         self.words.update(f"{event.words}\naverage {event.seconds:g} s once still")
-        self.drawing.update(pose_drawing(alpha, beta, psi))
+        self.target_deg = (alpha, beta, psi)
+        self.drawing.update(gauge(pose_drawing(alpha, beta, psi)))
         self.progress.update(total=event.seconds, progress=0.0)
         self.seconds_left.update(f"{event.seconds:.0f} s")
         self.stillness.update("○ set the pose")
@@ -323,6 +327,10 @@ class PositionScreen(Screen[None]):
         first = next(iter(self.live))
         if event.node_id == first and event.sparkline:
             self.spark.data = list(event.sparkline)
+        if event.node_id == first and event.tilt_error_deg is not None:
+            alpha, beta, psi = self.target_deg
+            measured = (alpha + event.tilt_error_deg[0], beta + event.tilt_error_deg[1])
+            self.drawing.update(gauge(pose_drawing(alpha, beta, psi, measured)))
 
     def _tell_app(self, events: list[ev.Event]) -> None:
         if any(isinstance(e, ev.Solved) for e in events) and self.solved is not None:
@@ -377,3 +385,10 @@ def notice_text(event: ev.Event) -> str:
     if isinstance(event, ev.DeviceEventReported):
         return f"[b]{event.kind.replace('_', ' ')}[/b]: {event.message}"
     return ""
+
+
+def gauge(drawing: str) -> Text:
+    """Colour the side views: the unit's measured attitude stands out from the target."""
+    text = Text(drawing)
+    text.highlight_regex(f"[{UNIT_MARK}{UNIT_BAR}]", "bold cyan")
+    return text

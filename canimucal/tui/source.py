@@ -126,6 +126,10 @@ class DeviceSource:
     """How the unit sits in the vehicle (``"body"``: body-axis wording; None: saved/default)."""
     replace_mount: bool = False
     """Replace the map saved for the unit's serial with ``mount``."""
+    prior_k: str | None = None
+    prior_k_sigma: float | None = None
+    """The prior on K of a plan that holds one: ``prior_k`` a file (else the K each node
+    applies, read live) and its relative σ (else the plan's default)."""
     devices: Devices | None = field(default=None, init=False)
     statuses: dict[int, NodeStatus] = field(default_factory=dict, init=False)
 
@@ -166,6 +170,8 @@ class DeviceSource:
             verify_seconds=self.verify_seconds,
             mount=self.mount,
             replace_mount=self.replace_mount,
+            prior_k=self.prior_k,
+            prior_k_sigma=self.prior_k_sigma,
         )
 
     def close(self) -> None:

@@ -20,21 +20,44 @@ DRAW_COLS = 17
 MIN_DRAWN_DEG = 12.0
 
 
-def _segment(screen_angle_deg: float, end_label: str) -> list[str]:
-    """Rasterize a bar through the centre at ``screen_angle_deg`` (up-right positive)."""
-    grid = [[" "] * DRAW_COLS for _ in range(DRAW_ROWS)]
-    if 0.5 <= abs(screen_angle_deg) < MIN_DRAWN_DEG:  # a small tilt is drawn visibly
-        screen_angle_deg = float(np.copysign(MIN_DRAWN_DEG, screen_angle_deg))
-    theta = np.deg2rad(screen_angle_deg)
+TARGET_MARK = "○"
+"""The target bar's marker (5 columns from the centre towards the labelled end)."""
+UNIT_MARK = "●"
+"""The unit's measured attitude: its marker, drawn over the target's when they coincide."""
+UNIT_BAR = "·"
+"""The unit's bar, where the target's does not cover it."""
+MARK_T = 5
+
+
+def _shown(screen_angle_deg: float) -> float:
+    """Return the target's screen angle: a small tilt (0.5° to 12°) is drawn at 12°."""
+    if 0.5 <= abs(screen_angle_deg) < MIN_DRAWN_DEG:
+        return float(np.copysign(MIN_DRAWN_DEG, screen_angle_deg))
+    return screen_angle_deg
+
+
+def _cell(theta: float, t: float) -> tuple[int, int]:
     half = DRAW_COLS // 2
-    if abs(screen_angle_deg) < 8.0:
+    return int(round(half + t * np.cos(theta))), int(round(DRAW_ROWS // 2 - t * np.sin(theta) / 2))
+
+
+def _segment(target_deg: float, end_label: str, unit_deg: float | None = None) -> list[str]:
+    """Rasterize the target bar at ``target_deg`` (up-right positive) and the unit's bar.
+
+    The unit is drawn at the target's shown angle plus its real difference from the target,
+    so the two coincide exactly when the unit is at the target.
+    """
+    grid = [[" "] * DRAW_COLS for _ in range(DRAW_ROWS)]
+    shown = _shown(target_deg)
+    theta = np.deg2rad(shown)
+    half = DRAW_COLS // 2
+    if abs(shown) < 8.0:
         char = "─"
     else:
-        char = "/" if screen_angle_deg > 0 else "\\"
+        char = "/" if shown > 0 else "\\"
     last = (DRAW_ROWS // 2, half)
     for t in np.linspace(-half, half, 4 * DRAW_COLS):
-        col = int(round(half + t * np.cos(theta)))
-        row = int(round(DRAW_ROWS // 2 - t * np.sin(theta) / 2.0))
+        col, row = _cell(theta, t)
         if 0 <= row < DRAW_ROWS and 0 <= col < DRAW_COLS:
             grid[row][col] = char
             if t > 0:
@@ -43,17 +66,36 @@ def _segment(screen_angle_deg: float, end_label: str) -> list[str]:
     label_col = min(col + 1, DRAW_COLS - len(end_label))
     for k, c in enumerate(end_label):
         grid[row][label_col + k] = c
+    col, row = _cell(theta, MARK_T)
+    grid[row][col] = TARGET_MARK
+    if unit_deg is not None:
+        unit = np.deg2rad(shown + unit_deg - target_deg)
+        for t in np.linspace(-MARK_T, MARK_T, 4 * MARK_T):
+            col, row = _cell(unit, t)
+            if 0 <= row < DRAW_ROWS and 0 <= col < DRAW_COLS and grid[row][col] == " ":
+                grid[row][col] = UNIT_BAR
+        col, row = _cell(unit, MARK_T)
+        if 0 <= row < DRAW_ROWS and 0 <= col < DRAW_COLS:
+            grid[row][col] = UNIT_MARK
     return ["".join(r) for r in grid]
 
 
-def pose_drawing(alpha_deg: float, beta_deg: float, psi_deg: float = 0.0) -> str:
-    """Two side views of the target tilt, DESIGN §2 directions.
+def pose_drawing(
+    alpha_deg: float,
+    beta_deg: float,
+    psi_deg: float = 0.0,
+    measured: tuple[float, float] | None = None,
+) -> str:
+    """Two side views of the target tilt and, with ``measured``, of the unit's (DESIGN §2).
 
     Left: seen from the +z end, +x to the right; positive alpha lowers the +x end.
     Right: seen from the −x side, +z to the right; positive beta raises the +z end.
+    ``measured`` is the unit's (alpha, beta) in degrees from the live accelerometer: drawn
+    as a dotted bar marked ``●`` beside the target's ``○``, with a legend line.
     """
-    left = _segment(-alpha_deg, "+x")
-    right = _segment(beta_deg, "+z")
+    unit_alpha, unit_beta = (None, None) if measured is None else measured
+    left = _segment(-alpha_deg, "+x", None if unit_alpha is None else -unit_alpha)
+    right = _segment(beta_deg, "+z", unit_beta)
     head = f"{'alpha ' + format(alpha_deg, '+.1f') + '°':<{DRAW_COLS}}   "
     head += f"beta {beta_deg:+.1f}°"
     lines = [head]
@@ -62,6 +104,12 @@ def pose_drawing(alpha_deg: float, beta_deg: float, psi_deg: float = 0.0) -> str
     lines.append(f"{ground}   {ground}")
     turn = psi_deg % 360.0
     lines.append(f"turned {turn:g}° on its face" if turn > 1e-9 else "not turned (psi 0°)")
+    if measured is None:
+        lines.append(f"{TARGET_MARK} target   {UNIT_MARK} unit: no samples yet")
+    else:
+        lines.append(
+            f"{TARGET_MARK} target   {UNIT_MARK} unit α {measured[0]:+.1f}° β {measured[1]:+.1f}°"
+        )
     return "\n".join(lines)
 
 

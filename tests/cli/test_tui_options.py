@@ -56,3 +56,20 @@ def test_mount_goes_to_the_source_and_a_bad_map_is_refused_before_the_tui() -> N
         device_source(parse("--sim", "--g", "9.81", "--mount", "x=forward,y=left,z=down"))
     with pytest.raises(InputError, match="--replace-mount needs --mount"):
         device_source(parse("--sim", "--g", "9.81", "--replace-mount"))
+
+
+def test_the_prior_on_k_flags_go_to_the_source_and_bad_ones_exit_2(tmp_path: Path) -> None:
+    good = tmp_path / "factory.json"
+    k = [[208.0, 0.5, 0.0], [0.0, 210.0, 0.0], [0.0, 0.0, 207.0]]
+    head = {"schema": "canimucal.calibration/1", "device": {"serial": 1}}
+    good.write_text(json.dumps({**head, "accel": {"bias": [0.0] * 3, "K": k}}))
+    source = device_source(
+        parse("--sim", "--g", "9.81", "--prior-k", str(good), "--prior-k-sigma", "0.02")
+    )
+    assert (source.prior_k, source.prior_k_sigma) == (str(good), 0.02)
+    with pytest.raises(InputError, match="--prior-k-sigma must be > 0"):
+        device_source(parse("--sim", "--g", "9.81", "--prior-k-sigma", "0"))
+    partial = tmp_path / "partial.json"
+    partial.write_text(json.dumps({**head, "accel": {"bias": [0.0] * 3, "K": [[None] * 3] * 3}}))
+    with pytest.raises(InputError, match="partial.json"):
+        device_source(parse("--sim", "--g", "9.81", "--prior-k", str(partial)))
