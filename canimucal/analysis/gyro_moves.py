@@ -23,7 +23,7 @@ Earth rate stays in the bias (as imucal does), an error of at most Ω·T per mov
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,8 +60,13 @@ def recording_moves(
     *,
     tolerance_deg: float = 0.1,
     pose_moves: bool = True,
+    pose_sigmas: Mapping[int, float] | None = None,
 ) -> RecordingMoves:
-    """Collect the moves of ``rec`` (module doc); ``pose_moves`` false keeps known turns only."""
+    """Collect the moves of ``rec`` (module doc); ``pose_moves`` false keeps known turns only.
+
+    ``pose_sigmas`` (label → 1σ in rad of that position's attitude) gives a move between
+    positions ``√(σ_a² + σ_b²)`` instead of ``√2 · tolerance``.
+    """
     runs = _position_runs(rec)
     if not runs:
         raise InputError(f"{rec.source or 'recording'}: gyro moves need labelled positions")
@@ -86,7 +91,10 @@ def recording_moves(
     if pose_moves:
         for (la, _, a_end), (lb, b_start, _) in zip(runs, runs[1:], strict=False):
             label = f"position {la} → {lb}"
-            pair = _pose_move(rec, site, s0, (la, a_end), (lb, b_start), sigma_pose, label, notes)
+            known = sigma_pose
+            if pose_sigmas is not None and la in pose_sigmas and lb in pose_sigmas:
+                known = float(np.hypot(pose_sigmas[la], pose_sigmas[lb]))
+            pair = _pose_move(rec, site, s0, (la, a_end), (lb, b_start), known, label, notes)
             if pair is not None:
                 moves.append(pair[0])
                 biases.append(pair[1])
@@ -114,13 +122,27 @@ def _uniform_rows(
     sample clock, its counter is.
     """
     fs = rec.sample_rate_hz
-    g = rec.gyro[start:stop]
     counter = rec.counter[start:stop]
     if np.all(np.isfinite(counter)):
-        steps = np.diff(counter) % 65536
-        clock = np.concatenate([[0.0], np.cumsum(steps)])
+        clock = sample_clock(counter)
     else:
         clock = np.round((rec.t[start:stop] - rec.t[start]) * fs)
+    return resample_rows(rec.gyro[start:stop], clock, fs, label, notes)
+
+
+def sample_clock(counter: Array) -> Array:
+    """Sample index of each row from the node's 16-bit counter (wraps at 65536)."""
+    steps = np.diff(np.asarray(counter, dtype=float)) % 65536
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def resample_rows(g: Array, clock: Array, fs: float, label: str, notes: list[str]) -> Array | None:
+    """Gyro rows on the uniform sample clock, lost samples interpolated (or None, noted).
+
+    ``clock`` is each row's sample index; a row with a NaN gyro counts as lost. Up to
+    :data:`MAX_LOST_FRACTION` lost samples are filled linearly; more, or a gap longer than
+    :data:`MAX_GAP_S`, drop the move with a note.
+    """
     ok = np.all(np.isfinite(g), axis=1) & np.isfinite(clock)
     if ok.sum() < 2:
         notes.append(f"{label}: dropped, no gyro samples")
@@ -160,16 +182,37 @@ def _pose_move(
     rows = _uniform_rows(rec, a_end, b_start + 1, label, notes)
     if rows is None:
         return None
-    ca, cb = position_dcm(*pa), position_dcm(*pb)
     mean_a = np.nanmean(rec.gyro[rec.position == la], axis=0)
     mean_b = np.nanmean(rec.gyro[rec.position == lb], axis=0)
+    return move_between(rows, rec.sample_rate_hz, site, s0, (pa, mean_a), (pb, mean_b),
+                        sigma_pose, label)  # fmt: skip
+
+
+def move_between(
+    rows: Array,
+    fs: float,
+    site: SiteConditions,
+    s0: Array,
+    start: tuple[Array, Array],
+    end: tuple[Array, Array],
+    sigma_pose: float,
+    label: str,
+) -> tuple[Move, Array]:
+    """Build the move from one still position to the next and its bias (counts).
+
+    ``start``/``end``: each position's angles ``(alpha, beta, psi)`` (rad) and mean gyro
+    (counts). The bias is the mean of the two means, each less the Earth rate its pose sees
+    through the nominal ``s0`` when the latitude is known (module doc).
+    """
+    (pa, mean_a), (pb, mean_b) = start, end
+    ca, cb = position_dcm(*pa), position_dcm(*pb)
     earth = None
     if site.latitude is not None:
         w_level = earth_rate_level(site.latitude, site.heading)
         mean_a = mean_a - s0 @ (ca @ w_level)
         mean_b = mean_b - s0 @ (cb @ w_level)
         earth = ca @ w_level
-    move = pose_move(rows, 1.0 / rec.sample_rate_hz, ca, cb, sigma_pose, label, earth)
+    move = pose_move(rows, 1.0 / fs, ca, cb, sigma_pose, label, earth)
     return move, 0.5 * (mean_a + mean_b)
 
 
@@ -230,9 +273,14 @@ def with_moves(solution: Solution, fit: MovesFit, notes: Sequence[str]) -> Solut
 
 
 def solve_gyro_moves(
-    rec: Recording, solution: Solution, site: SiteConditions, *, pose_moves: bool = True
+    rec: Recording,
+    solution: Solution,
+    site: SiteConditions,
+    *,
+    pose_moves: bool = True,
+    pose_sigmas: Mapping[int, float] | None = None,
 ) -> tuple[Solution, MovesFit]:
     """Estimate S from the recording's moves and put it in the solution's record."""
-    found = recording_moves(rec, site, pose_moves=pose_moves)
+    found = recording_moves(rec, site, pose_moves=pose_moves, pose_sigmas=pose_sigmas)
     fit = fit_recording_moves(found, site)
     return with_moves(solution, fit, found.notes), fit

@@ -30,7 +30,13 @@ from canimucal.analysis.session_model import (
 )
 from canimucal.errors import InputError, ModelError
 from canimucal.io.calibration import Calibration, Device, RecordingRef, sha256_of
-from canimucal.io.grouping import average_rows, has_angles, position_averages, position_rows
+from canimucal.io.grouping import (
+    average_rows,
+    has_angles,
+    position_averages,
+    position_labels,
+    position_rows,
+)
 from canimucal.io.importers import read_any
 from canimucal.io.recording import Recording
 from canimucal.model.layout import JointSpec
@@ -107,7 +113,10 @@ def solve_recording(
             prior_source=session.prior_source,
         )
         if choice.gyro == "moves":  # imucal's turns are known; its poses leave psi free
-            solution, _ = solve_gyro_moves(rec, solution, site, pose_moves=not rec.turns)
+            sigmas = _pose_sigmas(rec, averages) if session.tolerance_source != "default" else None
+            solution, _ = solve_gyro_moves(
+                rec, solution, site, pose_moves=not rec.turns, pose_sigmas=sigmas
+            )
     else:
         if choice.gyro == "moves":
             raise InputError("--gyro moves needs labelled positions with angles")
@@ -124,6 +133,18 @@ def solve_recording(
     return RecordingSolution(
         replace(solution, record=record, warnings=warnings), g_source, verdict, notes
     )
+
+
+def _pose_sigmas(rec: Recording, averages: Sequence[PositionAverage]) -> dict[int, float] | None:
+    """Return label → 1σ (rad) of each position's attitude: its largest tolerance.
+
+    The procedure weighs its moves so (:mod:`canimucal.procedure.gyro_fit`); None when the
+    averages are not one per label.
+    """
+    labels = [int(k) for k in position_labels(rec)]
+    if len(labels) != len(averages):
+        return None
+    return {k: float(np.max(a.pose.tolerances)) for k, a in zip(labels, averages, strict=True)}
 
 
 MIN_DOF = 10

@@ -515,7 +515,8 @@ def model_header(cfg: ProcedureConfig) -> dict[str, Any]:
     """Header keys naming the model the session solves (DESIGN §9), for ``solve`` to reuse.
 
     ``tolerance_deg`` is the plan's largest tilt tolerance; ``solve`` takes each position's
-    own from the built-in plan that ``plan`` names.
+    own from the built-in plan that ``plan`` names. ``gyro`` is ``moves`` when the session
+    fits the MEMS gyro's S to its moves.
     """
     spec = cfg.spec
     tolerance = max(p.tolerance for p in cfg.plan.positions)
@@ -523,7 +524,7 @@ def model_header(cfg: ProcedureConfig) -> dict[str, Any]:
         "plan": cfg.plan_name or cfg.plan.name,
         "model": spec.accel_k,
         "tilt": spec.tilt,
-        "gyro": spec.gyro,
+        "gyro": "moves" if spec.gyro == "mems" and cfg.gyro_moves else spec.gyro,
         "tolerance_deg": round(float(np.rad2deg(tolerance)), 10),
     }
 
