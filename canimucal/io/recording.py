@@ -418,11 +418,13 @@ HEADER_PARSERS: Mapping[str, Callable[[str], HeaderValue]] = {
     "tilt": _choice("rigid", "additive", "none"),
     "gyro": _choice("none", "mems", "moves", "nav"),
     "tolerance_deg": _non_negative,
+    "gyro_g": _bool,
 }
 """Every header key DESIGN §5 and §9 allow, with the parser of its value; any other is refused.
 
-``plan``, ``model``, ``tilt``, ``gyro`` and ``tolerance_deg`` (the plan's angle-setting 1σ)
-are written by the tool's own sessions: the model the session solved, for ``solve``."""
+``plan``, ``model``, ``tilt``, ``gyro``, ``tolerance_deg`` (the plan's angle-setting 1σ)
+and ``gyro_g`` (G estimated) are written by the tool's own sessions: the model the session
+solved, for ``solve``."""
 
 
 def parse_header_line(line: str, where: str) -> tuple[str, HeaderValue]:

@@ -23,8 +23,10 @@ from numpy.typing import NDArray
 
 from canimucal.analysis.calibrate import SiteConditions, Solution
 from canimucal.analysis.gyro_moves import (
+    GSensitivity,
     RecordingMoves,
     fit_recording_moves,
+    g_sensitivity_of,
     move_between,
     resample_rows,
     sample_clock,
@@ -48,6 +50,7 @@ class ConfirmedMove:
     gyro: Array
     counter: Array
     label: str
+    accel: Array | None = None
 
 
 def pose_sigma_rad(pose: Pose) -> float:
@@ -56,9 +59,16 @@ def pose_sigma_rad(pose: Pose) -> float:
 
 
 def build_moves(
-    confirmed: Sequence[ConfirmedMove], site: SiteConditions, sample_rate_hz: float
+    confirmed: Sequence[ConfirmedMove],
+    site: SiteConditions,
+    sample_rate_hz: float,
+    g_sensitivity: GSensitivity | None = None,
 ) -> tuple[list[Move], list[Array], list[str]]:
-    """Turn confirmed moves into fit moves with their biases; notes say which were dropped."""
+    """Turn confirmed moves into fit moves with their biases; notes say which were dropped.
+
+    With ``g_sensitivity`` a move whose accelerometer rows are complete enough carries its
+    specific force, and ``G f`` is removed from it (:func:`move_between`).
+    """
     s0 = np.eye(3) / site.gyro_lsb
     moves: list[Move] = []
     biases: list[Array] = []
@@ -72,6 +82,11 @@ def build_moves(
         if rows is None:
             continue
         sigma = float(np.hypot(pose_sigma_rad(m.start), pose_sigma_rad(m.end)))
+        force = None
+        if g_sensitivity is not None and m.accel is not None:
+            accel = resample_rows(m.accel, clock, sample_rate_hz, m.label, [])
+            if accel is not None and accel.shape == rows.shape:
+                force = g_sensitivity.force(accel)
         move, bias = move_between(
             rows,
             sample_rate_hz,
@@ -81,6 +96,8 @@ def build_moves(
             (m.end.angles, m.end_gyro),
             sigma,
             m.label,
+            g_sensitivity,
+            force,
         )
         moves.append(move)
         biases.append(bias)
@@ -101,11 +118,12 @@ def fit_confirmed_moves(
     stds = [a.std_gyro for a in averages if a.std_gyro is not None]
     if not confirmed or not stds or solution.joint is None:
         return solution
-    moves, biases, notes = build_moves(confirmed, site, sample_rate_hz)
+    gs = g_sensitivity_of(solution, site)
+    moves, biases, notes = build_moves(confirmed, site, sample_rate_hz, gs)
     rate_sigma = np.median(np.asarray(stds, dtype=float), axis=0)
     found = RecordingMoves(tuple(moves), tuple(biases), rate_sigma, tuple(notes))
     try:
-        fit = fit_recording_moves(found, site)
+        fit = fit_recording_moves(found, site, None if gs is None else gs.G)
     except InputError as exc:
         return dataclasses.replace(solution, warnings=(*solution.warnings, str(exc)))
     return with_moves(solution, fit, found.notes)

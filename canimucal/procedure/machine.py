@@ -141,7 +141,7 @@ class Procedure:
         step = track.advance(block)
         averaging = self.phase is Phase.AVERAGING and track.attempt is not None
         track.record(block, undecided=averaging)
-        self.move_trackers[node_id].add(block.gyro, block.counter)
+        self.move_trackers[node_id].add(block.gyro, block.counter, block.accel)
         out: list[ev.Event] = []
         out += self._live(track, block)
         if self.phase is Phase.WARMUP:
@@ -245,8 +245,9 @@ class Procedure:
             if rows is None or start is None or bias is None:
                 continue
             label = f"position {self.index - 1} → {self.index}"
+            gyro, accel, counter = rows
             self.pending_moves[node_id] = ConfirmedMove(
-                start, self.target, bias, np.full(3, np.nan), rows[0], rows[1], label
+                start, self.target, bias, np.full(3, np.nan), gyro, counter, label, accel
             )
 
     def _averaging(self, track: NodeTrack, block: SampleBlock, step: int) -> list[ev.Event]:

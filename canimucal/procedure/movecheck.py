@@ -92,6 +92,7 @@ class MoveTracker:
         self._q = np.array([1.0, 0.0, 0.0, 0.0])
         self._last: Array | None = None
         self._rows: list[Array] = []
+        self._accel: list[Array] = []
         self._counters: list[Array] = []
         self._kept = 0
 
@@ -105,11 +106,16 @@ class MoveTracker:
         """That position's mean gyro (counts)."""
         return self._bias
 
-    def raw_rows(self) -> tuple[Array, Array] | None:
-        """Raw gyro rows and counters since the start (None: inactive, or kept too long)."""
+    def raw_rows(self) -> tuple[Array, Array, Array] | None:
+        """Raw gyro rows, accelerometer rows (NaN when not given) and counters since the start.
+
+        None when inactive, or when the move was longer than :data:`MAX_KEPT_MOVE_S`.
+        """
         if self._start is None or self._kept > self._max_rows or not self._rows:
             return None
-        return np.concatenate(self._rows), np.concatenate(self._counters)
+        rows = (self._rows, self._accel, self._counters)
+        gyro, accel, counter = (np.concatenate(r) for r in rows)
+        return gyro, accel, counter
 
     @property
     def active(self) -> bool:
@@ -125,18 +131,24 @@ class MoveTracker:
         self._start = pose
         self._q = np.array([1.0, 0.0, 0.0, 0.0])
         self._last = None
-        self._rows, self._counters, self._kept = [], [], 0
+        self._rows, self._accel, self._counters, self._kept = [], [], [], 0
 
     def clear(self) -> None:
         """Forget the reference (a skipped position: the next move is not checked)."""
         self._bias, self._start, self._last = None, None, None
-        self._rows, self._counters, self._kept = [], [], 0
+        self._rows, self._accel, self._counters, self._kept = [], [], [], 0
 
-    def add(self, gyro_counts: Array, counter: NDArray[np.integer] | Array | None = None) -> None:
+    def add(
+        self,
+        gyro_counts: Array,
+        counter: NDArray[np.integer] | Array | None = None,
+        accel_counts: Array | None = None,
+    ) -> None:
         """Integrate a block of raw gyro rows (a NaN row repeats the previous rate).
 
-        The rows and their sample counters (``None``: NaN) are also kept, up to
-        :data:`MAX_KEPT_MOVE_S`, for the fit of S from the moves the checks confirm.
+        The rows, the accelerometer's and their sample counters (``None``: NaN) are also
+        kept, up to :data:`MAX_KEPT_MOVE_S`, for the fit of S from the moves the checks
+        confirm.
         """
         if self._bias is None or gyro_counts.shape[0] == 0:
             return
@@ -146,6 +158,8 @@ class MoveTracker:
             n = gyro_counts.shape[0]
             c = np.full(n, np.nan) if counter is None else np.asarray(counter, dtype=float)
             self._counters.append(c)
+            a = np.full((n, 3), np.nan) if accel_counts is None else accel_counts
+            self._accel.append(np.array(a, dtype=float))
         rates = self._lsb * (np.asarray(gyro_counts, dtype=float) - self._bias)
         bad = ~np.all(np.isfinite(rates), axis=1)
         if bad.any():

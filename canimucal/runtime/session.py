@@ -516,7 +516,7 @@ def model_header(cfg: ProcedureConfig) -> dict[str, Any]:
 
     ``tolerance_deg`` is the plan's largest tilt tolerance; ``solve`` takes each position's
     own from the built-in plan that ``plan`` names. ``gyro`` is ``moves`` when the session
-    fits the MEMS gyro's S to its moves.
+    fits the MEMS gyro's S to its moves; ``gyro_g`` (only when true) that it estimates G.
     """
     spec = cfg.spec
     tolerance = max(p.tolerance for p in cfg.plan.positions)
@@ -526,6 +526,7 @@ def model_header(cfg: ProcedureConfig) -> dict[str, Any]:
         "tilt": spec.tilt,
         "gyro": "moves" if spec.gyro == "mems" and cfg.gyro_moves else spec.gyro,
         "tolerance_deg": round(float(np.rad2deg(tolerance)), 10),
+        **({"gyro_g": True} if spec.gyro_g else {}),
     }
 
 

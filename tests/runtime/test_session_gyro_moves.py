@@ -1,4 +1,9 @@
-"""The guided session fits the gyro's S to the moves it confirmed and writes S⁻¹ to the node."""
+"""The guided session fits the gyro's S to the moves it confirmed and writes S⁻¹ to the node.
+
+The simulated unit's S is off nominal (scales ±3 %, cross-axis ±1 %) and it has a
+g-sensitivity G; the session estimates G from its static positions and S from its moves
+with ``G f`` removed, writes S⁻¹ (0x2111) and G (0x2112), and reads both back.
+"""
 
 from __future__ import annotations
 
@@ -22,7 +27,11 @@ def test_the_session_recovers_an_off_nominal_s_from_its_moves_and_reads_it_back(
     tmp_path: Path,
 ) -> None:
     truth = Truth.random(
-        np.random.default_rng(31), scale_error_max=0.03, cross_axis_max=0.01, tilt_max_deg=0.0
+        np.random.default_rng(31),
+        scale_error_max=0.03,
+        cross_axis_max=0.01,
+        tilt_max_deg=0.0,
+        gyro_g_max=0.5,
     )
     nominal = np.eye(3) / DEFAULT_GYRO_LSB
     rel = (truth.gyro.S - nominal) / np.diag(nominal)
@@ -34,6 +43,7 @@ def test_the_session_recovers_an_off_nominal_s_from_its_moves_and_reads_it_back(
             turns_plan(seconds=3.0),
             tmp_path,
             plan_name="custom",
+            gyro_g=True,
             warmup=False,
             averaging=AveragingPolicy(fixed_s=3.0),
             verify_seconds=2.0,
@@ -57,4 +67,8 @@ def test_the_session_recovers_an_off_nominal_s_from_its_moves_and_reads_it_back(
     )
     deviations = {d.name: d for d in readback_deviations(raw, truth)}
     assert all(f"gyro.S[{i}][{j}]" in deviations for i in range(3) for j in range(3))
+    assert all(f"gyro.G[{i}][{j}]" in deviations for i in range(3) for j in range(3))
+    np.testing.assert_array_equal(
+        np.array(raw["readback"]["gyro_g"], dtype=np.float32), written.gyro_g.astype(np.float32)
+    )
     assert max(abs(d.dev_sigma) for d in deviations.values()) < 4.0
