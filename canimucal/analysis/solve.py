@@ -3,8 +3,11 @@
 One place decides how a recording becomes positions: its labels, else the static intervals
 the detector finds (:func:`canimucal.io.grouping.position_rows`). Positions with known angles
 go to the joint least squares (:func:`~canimucal.analysis.calibrate.solve_positions`), others
-to the scalar ``|f| = g`` fit. The acceptance limits are checked and their verdict travels in
-the record (never an exception: a failed check is a result).
+to the scalar ``|f| = g`` fit. With ``--gyro moves`` the moves give the gyro's S: between
+positions of known angles (:mod:`~canimucal.analysis.gyro_moves`), or, without angles
+(imu_tk), between static intervals matched on gravity
+(:mod:`~canimucal.analysis.gravity_moves`). The acceptance limits are checked and their
+verdict travels in the record (never an exception: a failed check is a result).
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import numpy as np
 from canimucal.analysis.acceptance import AcceptanceLimits, Verdict, judge, load_limits
 from canimucal.analysis.calibrate import SiteConditions, Solution, solve_positions, solve_scalar
 from canimucal.analysis.conditions import recording_conditions
+from canimucal.analysis.gravity_moves import solve_gravity_moves_recording
 from canimucal.analysis.gyro_moves import solve_gyro_moves
 from canimucal.analysis.pose_scatter import fit_scatter
 from canimucal.analysis.session_model import (
@@ -118,7 +122,7 @@ def solve_recording(
                 rec, solution, site, pose_moves=not rec.turns, pose_sigmas=sigmas
             )
     else:
-        if choice.gyro == "moves":
+        if choice.gyro == "moves" and position_labels(rec):
             raise InputError("--gyro moves needs labelled positions with angles")
         solution = solve_scalar(
             _unknown_pose_averages(rec),
@@ -127,6 +131,8 @@ def solve_recording(
             full=choice.model == "full",
             recording=recording,
         )
+        if choice.gyro == "moves":  # imu_tk: the moves' rotations known through gravity only
+            solution, _ = solve_gravity_moves_recording(rec, solution, site)
     warnings = solution.warnings + _unchecked_gyro(solution) + _few_dof(solution)
     verdict = judge(solution, site, limits)
     record = replace(solution.record, acceptance=verdict.block)
