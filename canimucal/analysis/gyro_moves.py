@@ -75,6 +75,19 @@ def g_sensitivity_of(solution: Solution, site: SiteConditions) -> GSensitivity |
     return GSensitivity(gyro.G_matrix(), solution.record.accel, site.accel_lsb)
 
 
+def g_unused_note(solution: Solution, g_sensitivity: GSensitivity | None) -> tuple[str, ...]:
+    """Say so when G was asked for but the positions left some of it undetermined."""
+    joint = solution.joint
+    if g_sensitivity is not None or joint is None:
+        return ()
+    if not any(n.startswith("gyro.G") for n in joint.names):
+        return ()
+    return (
+        "gyro G is not determined by these positions: the moves are integrated with G f "
+        "left in each move's bias",
+    )
+
+
 def recording_moves(
     rec: Recording,
     site: SiteConditions,
@@ -333,4 +346,4 @@ def solve_gyro_moves(
         rec, site, pose_moves=pose_moves, pose_sigmas=pose_sigmas, g_sensitivity=gs
     )
     fit = fit_recording_moves(found, site, None if gs is None else gs.G)
-    return with_moves(solution, fit, found.notes), fit
+    return with_moves(solution, fit, (*found.notes, *g_unused_note(solution, gs))), fit

@@ -27,6 +27,7 @@ from canimucal.analysis.gyro_moves import (
     RecordingMoves,
     fit_recording_moves,
     g_sensitivity_of,
+    g_unused_note,
     move_between,
     resample_rows,
     sample_clock,
@@ -126,4 +127,4 @@ def fit_confirmed_moves(
         fit = fit_recording_moves(found, site, None if gs is None else gs.G)
     except InputError as exc:
         return dataclasses.replace(solution, warnings=(*solution.warnings, str(exc)))
-    return with_moves(solution, fit, found.notes)
+    return with_moves(solution, fit, (*found.notes, *g_unused_note(solution, gs)))
