@@ -14,6 +14,11 @@ Run: ``PYTHONPATH=. .venv/bin/python benchmarks/gyro.py [--seeds N] [--imucal-py
    integrated raw, with canimucal's S and with imucal's. imucal runs in a scratch venv
    (``--imucal-python``, or one this script creates with pinned versions: it is not a
    dependency of canimucal); without network or data, that part is skipped with a note.
+4. **imu_tk's Xsens session, gravity only.** No pose has angles: S is fitted to the moves
+   between still intervals through gravity's direction at their ends, on every other move;
+   the other moves are held out and their gravity error (degrees) compared with the best
+   common scale factor and with the fitted S, both ways round. S is printed beside the
+   factory scale published with the data (the truth is unknown).
 """
 
 from __future__ import annotations
@@ -30,11 +35,17 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.support
 
-from canimucal.analysis.calibrate import SiteConditions
+from canimucal.analysis.calibrate import SiteConditions, solve_scalar
+from canimucal.analysis.gravity_moves import recording_gravity_moves
 from canimucal.analysis.gyro_bounds import gyro_move_bounds
 from canimucal.analysis.gyro_moves import fit_recording_moves, recording_moves
+from canimucal.analysis.session_model import ModelChoice
 from canimucal.analysis.simulated import simulate_plan_recording
-from canimucal.io.importers import read_imucal
+from canimucal.analysis.solve import site_of as recording_site
+from canimucal.io.calibration import Device
+from canimucal.io.grouping import average_rows, position_rows
+from canimucal.io.importers import read_imucal, read_imutk
+from canimucal.model import gravity_moves as gm
 from canimucal.model import moves as mv
 from canimucal.model.plan import builtin_plan
 from canimucal.sim.truth import Truth
@@ -180,6 +191,45 @@ def imucal_side_by_side(python: str | None) -> None:
     print("   (both fitted on these turns: their calibrated angles are a consistency check)")
 
 
+def imutk_gravity() -> None:
+    print("\n4. imu_tk's Xsens session: S from moves matched on gravity, held-out moves")
+    acc, gyr = DATA / "imutk_xsens_acc.mat", DATA / "imutk_xsens_gyro.mat"
+    if not (acc.is_file() and gyr.is_file()):
+        print(f"   skipped: no imu_tk data in {DATA}")
+        return
+    rec = read_imutk(acc, gyr)
+    site, _ = recording_site(rec, ModelChoice(model="full", g=9.81744))
+    averages = [average_rows(rec, r) for r in position_rows(rec)[0]]
+    scalar = solve_scalar(averages, site, Device(serial=0), full=True)
+    found = recording_gravity_moves(rec, scalar.record.accel, site.accel_lsb)
+    s0 = np.eye(3) / site.gyro_lsb
+    print(f"   {len(found.moves)} moves; nominal scale {1 / site.gyro_lsb:.1f} counts per rad/s")
+    print(
+        f"   {'fit on':<7} {'common k':>9} {'rms before':>11} {'rms after':>10} {'max after':>10}"
+    )
+    for first in (0, 1):
+        fitted, held = found.moves[first::2], found.moves[1 - first :: 2]
+        fit = gm.solve_gravity_moves(fitted, s0, found.rate_sigma_counts)
+        k = gm.start_scale(fitted, s0)
+        before = np.array([gm.gravity_angle_deg(m, k * s0) for m in held])
+        after = np.array([gm.gravity_angle_deg(m, fit.S_used()) for m in held])
+        print(
+            f"   {'even' if first == 0 else 'odd':<7} {k:>9.4f} "
+            f"{np.sqrt(np.mean(before**2)):>10.2f}° {np.sqrt(np.mean(after**2)):>9.2f}° "
+            f"{after.max():>9.2f}°"
+        )
+    fit = gm.solve_gravity_moves(found.moves, s0, found.rate_sigma_counts)
+    print("   S on every move (counts per rad/s, the accelerometer's axes), ± σ:")
+    for i in range(3):
+        row = "  ".join(f"{fit.S[i, j]:8.1f} ± {fit.S_sigma[i, j]:4.1f}" for j in range(3))
+        print(f"     {row}")
+    print("   factory scale (published with the data): 4778, 4758, 4766")
+    print(
+        f"   χ²/dof {fit.chi2 / fit.dof:.1f} (σ scaled by {fit.sigma_inflation:.2f}); "
+        f"identifiable columns: {''.join(mv.AXES[j] for j in np.flatnonzero(fit.identifiable))}"
+    )
+
+
 def _vec(v: np.ndarray) -> str:
     return "[" + ", ".join(f"{x:8.3f}" for x in v) + "]"
 
@@ -193,6 +243,7 @@ def main() -> None:
     held_out(args.seeds)
     s_against_truth(args.seeds)
     imucal_side_by_side(args.imucal_python)
+    imutk_gravity()
     print(f"\n{time.perf_counter() - start:.1f} s")
 
 

@@ -23,7 +23,7 @@ Earth rate stays in the bias (as imucal does), an error of at most Ω·T per mov
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,9 +31,9 @@ from numpy.typing import NDArray
 
 from canimucal.analysis.calibrate import SiteConditions, Solution
 from canimucal.errors import InputError
-from canimucal.io.calibration import record_from_estimates
+from canimucal.io.calibration import AccelBlock, record_from_estimates
 from canimucal.io.recording import Recording
-from canimucal.model.frames import earth_rate_level, position_dcm
+from canimucal.model.frames import earth_rate_level, position_dcm, specific_force_level
 from canimucal.model.moves import AXES, Move, MovesFit, pose_move, solve_moves, turn_move
 
 Array = NDArray[np.float64]
@@ -54,14 +54,55 @@ class RecordingMoves:
     notes: tuple[str, ...]
 
 
+@dataclass(frozen=True)
+class GSensitivity:
+    """The gyro's G (counts per m/s²) and the accelerometer correction giving the force."""
+
+    G: Array
+    accel: AccelBlock
+    accel_lsb: float
+
+    def force(self, accel_counts: Array) -> Array:
+        """Specific force (m/s²) of raw accelerometer rows, as the calibration corrects them."""
+        return self.accel.correct(accel_counts, self.accel_lsb)
+
+
+def g_sensitivity_of(solution: Solution, site: SiteConditions) -> GSensitivity | None:
+    """G of a solution when the static fit determined every entry, else None."""
+    gyro = solution.record.gyro
+    if gyro is None or gyro.G is None or any(v is None for row in gyro.G for v in row):
+        return None
+    return GSensitivity(gyro.G_matrix(), solution.record.accel, site.accel_lsb)
+
+
+def g_unused_note(solution: Solution, g_sensitivity: GSensitivity | None) -> tuple[str, ...]:
+    """Say so when G was asked for but the positions left some of it undetermined."""
+    joint = solution.joint
+    if g_sensitivity is not None or joint is None:
+        return ()
+    if not any(n.startswith("gyro.G") for n in joint.names):
+        return ()
+    return (
+        "gyro G is not determined by these positions: the moves are integrated with G f "
+        "left in each move's bias",
+    )
+
+
 def recording_moves(
     rec: Recording,
     site: SiteConditions,
     *,
     tolerance_deg: float = 0.1,
     pose_moves: bool = True,
+    pose_sigmas: Mapping[int, float] | None = None,
+    g_sensitivity: GSensitivity | None = None,
 ) -> RecordingMoves:
-    """Collect the moves of ``rec`` (module doc); ``pose_moves`` false keeps known turns only."""
+    """Collect the moves of ``rec`` (module doc); ``pose_moves`` false keeps known turns only.
+
+    ``pose_sigmas`` (label → 1σ in rad of that position's attitude) gives a move between
+    positions ``√(σ_a² + σ_b²)`` instead of ``√2 · tolerance``. ``g_sensitivity`` removes
+    ``G f`` from the moves between positions (:func:`move_between`).
+    """
     runs = _position_runs(rec)
     if not runs:
         raise InputError(f"{rec.source or 'recording'}: gyro moves need labelled positions")
@@ -76,7 +117,7 @@ def recording_moves(
     sigma_pose = float(np.sqrt(2.0) * np.deg2rad(tolerance_deg))
     for turn in rec.turns:
         start, stop = max(turn.start - 1, 0), min(turn.stop + 1, rec.n_rows)
-        rows = _uniform_rows(rec, start, stop, turn.label, notes)
+        rows = uniform_rows(rec, start, stop, turn.label, notes)
         if rows is None:
             continue
         moves.append(
@@ -86,7 +127,12 @@ def recording_moves(
     if pose_moves:
         for (la, _, a_end), (lb, b_start, _) in zip(runs, runs[1:], strict=False):
             label = f"position {la} → {lb}"
-            pair = _pose_move(rec, site, s0, (la, a_end), (lb, b_start), sigma_pose, label, notes)
+            known = sigma_pose
+            if pose_sigmas is not None and la in pose_sigmas and lb in pose_sigmas:
+                known = float(np.hypot(pose_sigmas[la], pose_sigmas[lb]))
+            pair = _pose_move(
+                rec, site, s0, (la, a_end), (lb, b_start), known, label, notes, g_sensitivity
+            )
             if pair is not None:
                 moves.append(pair[0])
                 biases.append(pair[1])
@@ -104,8 +150,8 @@ def _position_runs(rec: Recording) -> list[tuple[int, int, int]]:
     ]
 
 
-def _uniform_rows(
-    rec: Recording, start: int, stop: int, label: str, notes: list[str]
+def uniform_rows(
+    rec: Recording, start: int, stop: int, label: str, notes: list[str], *, accel: bool = False
 ) -> Array | None:
     """Gyro rows ``start:stop`` on the sample clock, lost samples interpolated (or None).
 
@@ -114,13 +160,28 @@ def _uniform_rows(
     sample clock, its counter is.
     """
     fs = rec.sample_rate_hz
-    g = rec.gyro[start:stop]
     counter = rec.counter[start:stop]
     if np.all(np.isfinite(counter)):
-        steps = np.diff(counter) % 65536
-        clock = np.concatenate([[0.0], np.cumsum(steps)])
+        clock = sample_clock(counter)
     else:
         clock = np.round((rec.t[start:stop] - rec.t[start]) * fs)
+    data = rec.accel if accel else rec.gyro
+    return resample_rows(data[start:stop], clock, fs, label, notes)
+
+
+def sample_clock(counter: Array) -> Array:
+    """Sample index of each row from the node's 16-bit counter (wraps at 65536)."""
+    steps = np.diff(np.asarray(counter, dtype=float)) % 65536
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def resample_rows(g: Array, clock: Array, fs: float, label: str, notes: list[str]) -> Array | None:
+    """Gyro rows on the uniform sample clock, lost samples interpolated (or None, noted).
+
+    ``clock`` is each row's sample index; a row with a NaN gyro counts as lost. Up to
+    :data:`MAX_LOST_FRACTION` lost samples are filled linearly; more, or a gap longer than
+    :data:`MAX_GAP_S`, drop the move with a note.
+    """
     ok = np.all(np.isfinite(g), axis=1) & np.isfinite(clock)
     if ok.sum() < 2:
         notes.append(f"{label}: dropped, no gyro samples")
@@ -150,6 +211,7 @@ def _pose_move(
     sigma_pose: float,
     label: str,
     notes: list[str],
+    g_sensitivity: GSensitivity | None = None,
 ) -> tuple[Move, Array] | None:
     (la, a_end), (lb, b_start) = start, end
     angles = np.deg2rad(np.column_stack([rec.alpha_deg, rec.beta_deg, rec.psi_deg]))
@@ -157,31 +219,70 @@ def _pose_move(
     if not (np.all(np.isfinite(pa)) and np.all(np.isfinite(pb))):
         notes.append(f"{label}: dropped, a position without angles")
         return None
-    rows = _uniform_rows(rec, a_end, b_start + 1, label, notes)
+    rows = uniform_rows(rec, a_end, b_start + 1, label, notes)
     if rows is None:
         return None
-    ca, cb = position_dcm(*pa), position_dcm(*pb)
     mean_a = np.nanmean(rec.gyro[rec.position == la], axis=0)
     mean_b = np.nanmean(rec.gyro[rec.position == lb], axis=0)
+    force = None
+    if g_sensitivity is not None:
+        accel = uniform_rows(rec, a_end, b_start + 1, label, [], accel=True)
+        if accel is not None and accel.shape == rows.shape:
+            force = g_sensitivity.force(accel)
+    return move_between(rows, rec.sample_rate_hz, site, s0, (pa, mean_a), (pb, mean_b),
+                        sigma_pose, label, g_sensitivity, force)  # fmt: skip
+
+
+def move_between(
+    rows: Array,
+    fs: float,
+    site: SiteConditions,
+    s0: Array,
+    start: tuple[Array, Array],
+    end: tuple[Array, Array],
+    sigma_pose: float,
+    label: str,
+    g_sensitivity: GSensitivity | None = None,
+    force: Array | None = None,
+) -> tuple[Move, Array]:
+    """Build the move from one still position to the next and its bias (counts).
+
+    ``start``/``end``: each position's angles ``(alpha, beta, psi)`` (rad) and mean gyro
+    (counts). The bias is the mean of the two means, each less the Earth rate its pose sees
+    through the nominal ``s0`` when the latitude is known (module doc). With
+    ``g_sensitivity`` and the move's specific force ``force`` (m/s², one row per gyro row),
+    each mean also loses ``G f`` of its still pose (``f = C f_L``) and the move carries
+    ``force``, so the fit integrates ``S⁻¹ (V − B − G f)`` (eq. 35 with g-sensitivity).
+    """
+    (pa, mean_a), (pb, mean_b) = start, end
+    ca, cb = position_dcm(*pa), position_dcm(*pb)
     earth = None
     if site.latitude is not None:
         w_level = earth_rate_level(site.latitude, site.heading)
         mean_a = mean_a - s0 @ (ca @ w_level)
         mean_b = mean_b - s0 @ (cb @ w_level)
         earth = ca @ w_level
-    move = pose_move(rows, 1.0 / rec.sample_rate_hz, ca, cb, sigma_pose, label, earth)
+    move = pose_move(rows, 1.0 / fs, ca, cb, sigma_pose, label, earth)
+    if g_sensitivity is not None and force is not None:
+        f_level = specific_force_level(site.g)
+        mean_a = mean_a - g_sensitivity.G @ (ca @ f_level)
+        mean_b = mean_b - g_sensitivity.G @ (cb @ f_level)
+        move = dataclasses.replace(move, specific_force=np.asarray(force, dtype=float))
     return move, 0.5 * (mean_a + mean_b)
 
 
-def fit_recording_moves(found: RecordingMoves, site: SiteConditions) -> MovesFit:
-    """Fit S to the moves, each with its own bias (counts)."""
+def fit_recording_moves(
+    found: RecordingMoves, site: SiteConditions, G: Array | None = None
+) -> MovesFit:
+    """Fit S to the moves, each with its own bias (counts); ``G`` held (moves with a force)."""
     if not found.moves:
         raise InputError("gyro moves: the recording has no usable move; " + "; ".join(found.notes))
     shifted = [
         dataclasses.replace(m, gyro=m.gyro - b + found.biases[0])
         for m, b in zip(found.moves, found.biases, strict=True)
     ]
-    return solve_moves(shifted, found.biases[0], np.eye(3) / site.gyro_lsb, found.rate_sigma_counts)
+    s0 = np.eye(3) / site.gyro_lsb
+    return solve_moves(shifted, found.biases[0], s0, found.rate_sigma_counts, G=G)
 
 
 def with_moves(solution: Solution, fit: MovesFit, notes: Sequence[str]) -> Solution:
@@ -220,6 +321,8 @@ def with_moves(solution: Solution, fit: MovesFit, notes: Sequence[str]) -> Solut
         positions=old.positions,
         fit=old.fit,
         recording=old.recording,
+        priors=old.priors,
+        created=old.created,
     )
     undetermined = {n: r for n, r in solution.undetermined.items() if not n.startswith("gyro.S")}
     undetermined.update({n: r for n, r in held.items() if n.startswith("gyro.S")})
@@ -230,9 +333,17 @@ def with_moves(solution: Solution, fit: MovesFit, notes: Sequence[str]) -> Solut
 
 
 def solve_gyro_moves(
-    rec: Recording, solution: Solution, site: SiteConditions, *, pose_moves: bool = True
+    rec: Recording,
+    solution: Solution,
+    site: SiteConditions,
+    *,
+    pose_moves: bool = True,
+    pose_sigmas: Mapping[int, float] | None = None,
 ) -> tuple[Solution, MovesFit]:
     """Estimate S from the recording's moves and put it in the solution's record."""
-    found = recording_moves(rec, site, pose_moves=pose_moves)
-    fit = fit_recording_moves(found, site)
-    return with_moves(solution, fit, found.notes), fit
+    gs = g_sensitivity_of(solution, site)
+    found = recording_moves(
+        rec, site, pose_moves=pose_moves, pose_sigmas=pose_sigmas, g_sensitivity=gs
+    )
+    fit = fit_recording_moves(found, site, None if gs is None else gs.G)
+    return with_moves(solution, fit, (*found.notes, *g_unused_note(solution, gs))), fit

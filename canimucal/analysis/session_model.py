@@ -1,9 +1,9 @@
 """Which model to solve, and the model a recording's session solved (DESIGN §9 header keys).
 
 A session writes ``plan``, ``model``, ``tilt``, ``gyro`` and ``tolerance_deg`` into its
-recording. An option given (a flag, a keyword of ``cm.calibrate``) wins over the header;
-without either, the defaults are bias + diagonal K, no tilt, gyro ``mems`` when there are
-gyro data, 0.1°.
+recording (and ``gyro_g: true`` when it estimated the gyro's G). An option given (a flag,
+a keyword of ``cm.calibrate``) wins over the header; without either, the defaults are
+bias + diagonal K, no tilt, gyro ``mems`` when there are gyro data, 0.1°.
 When ``plan`` names a built-in plan whose poses the recording's positions match, each
 position takes that plan's own tolerances (a vehicle's turn: 5°) and the plan's prior on K:
 the one the session held (header ``prior_k``, ``prior_k_sigma`` and their sources) unless
@@ -160,6 +160,7 @@ def session_model(rec: Recording, choice: ModelChoice) -> tuple[ModelChoice, Ses
         tilt=tilt,
         tilt_model=tilt_model or "rigid",
         gyro=gyro,
+        gyro_g=choice.gyro_g or header.get("gyro_g") is True,
         tolerance_deg=tolerance,
     )
     session = SessionModel(

@@ -3,8 +3,11 @@
 One place decides how a recording becomes positions: its labels, else the static intervals
 the detector finds (:func:`canimucal.io.grouping.position_rows`). Positions with known angles
 go to the joint least squares (:func:`~canimucal.analysis.calibrate.solve_positions`), others
-to the scalar ``|f| = g`` fit. The acceptance limits are checked and their verdict travels in
-the record (never an exception: a failed check is a result).
+to the scalar ``|f| = g`` fit. With ``--gyro moves`` the moves give the gyro's S: between
+positions of known angles (:mod:`~canimucal.analysis.gyro_moves`), or, without angles
+(imu_tk), between static intervals matched on gravity
+(:mod:`~canimucal.analysis.gravity_moves`). The acceptance limits are checked and their
+verdict travels in the record (never an exception: a failed check is a result).
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import numpy as np
 from canimucal.analysis.acceptance import AcceptanceLimits, Verdict, judge, load_limits
 from canimucal.analysis.calibrate import SiteConditions, Solution, solve_positions, solve_scalar
 from canimucal.analysis.conditions import recording_conditions
+from canimucal.analysis.gravity_moves import solve_gravity_moves_recording
 from canimucal.analysis.gyro_moves import solve_gyro_moves
 from canimucal.analysis.pose_scatter import fit_scatter
 from canimucal.analysis.session_model import (
@@ -30,7 +34,13 @@ from canimucal.analysis.session_model import (
 )
 from canimucal.errors import InputError, ModelError
 from canimucal.io.calibration import Calibration, Device, RecordingRef, sha256_of
-from canimucal.io.grouping import average_rows, has_angles, position_averages, position_rows
+from canimucal.io.grouping import (
+    average_rows,
+    has_angles,
+    position_averages,
+    position_labels,
+    position_rows,
+)
 from canimucal.io.importers import read_any
 from canimucal.io.recording import Recording
 from canimucal.model.layout import JointSpec
@@ -107,9 +117,12 @@ def solve_recording(
             prior_source=session.prior_source,
         )
         if choice.gyro == "moves":  # imucal's turns are known; its poses leave psi free
-            solution, _ = solve_gyro_moves(rec, solution, site, pose_moves=not rec.turns)
+            sigmas = _pose_sigmas(rec, averages) if session.tolerance_source != "default" else None
+            solution, _ = solve_gyro_moves(
+                rec, solution, site, pose_moves=not rec.turns, pose_sigmas=sigmas
+            )
     else:
-        if choice.gyro == "moves":
+        if choice.gyro == "moves" and position_labels(rec):
             raise InputError("--gyro moves needs labelled positions with angles")
         solution = solve_scalar(
             _unknown_pose_averages(rec),
@@ -118,12 +131,26 @@ def solve_recording(
             full=choice.model == "full",
             recording=recording,
         )
+        if choice.gyro == "moves":  # imu_tk: the moves' rotations known through gravity only
+            solution, _ = solve_gravity_moves_recording(rec, solution, site)
     warnings = solution.warnings + _unchecked_gyro(solution) + _few_dof(solution)
     verdict = judge(solution, site, limits)
     record = replace(solution.record, acceptance=verdict.block)
     return RecordingSolution(
         replace(solution, record=record, warnings=warnings), g_source, verdict, notes
     )
+
+
+def _pose_sigmas(rec: Recording, averages: Sequence[PositionAverage]) -> dict[int, float] | None:
+    """Return label → 1σ (rad) of each position's attitude: its largest tolerance.
+
+    The procedure weighs its moves so (:mod:`canimucal.procedure.gyro_fit`); None when the
+    averages are not one per label.
+    """
+    labels = [int(k) for k in position_labels(rec)]
+    if len(labels) != len(averages):
+        return None
+    return {k: float(np.max(a.pose.tolerances)) for k, a in zip(labels, averages, strict=True)}
 
 
 MIN_DOF = 10

@@ -521,13 +521,14 @@ HEADER_PARSERS: Mapping[str, Callable[[str], HeaderValue]] = {
     "prior_k_sigma": _positive,
     "prior_k_source": _text,
     "prior_k_sigma_source": _text,
+    "gyro_g": _bool,
 }
 """Every header key DESIGN §5 and §9 allow, with the parser of its value; any other is refused.
 
-``plan``, ``model``, ``tilt``, ``gyro`` and ``tolerance_deg`` (the plan's angle-setting 1σ)
-are written by the tool's own sessions: the model the session solved, for ``solve``. So are
-``prior_k`` (the mean of the prior on K the session held, counts per m/s², row-major),
-``prior_k_sigma`` (its relative 1σ) and where each came from."""
+``plan``, ``model``, ``tilt``, ``gyro``, ``tolerance_deg`` (the plan's angle-setting 1σ) and
+``gyro_g`` (G estimated) are written by the tool's own sessions: the model the session solved,
+for ``solve``. So are ``prior_k`` (the mean of the prior on K the session held, counts per
+m/s², row-major), ``prior_k_sigma`` (its relative 1σ) and where each came from."""
 
 
 def parse_header_line(line: str, where: str) -> tuple[str, HeaderValue]:

@@ -51,6 +51,10 @@ class ProcedureConfig:
     first_pose_tolerance_deg: float = 5.0
     move_tolerance_deg: float | None = 15.0
     """Largest attitude error the gyro may see over a move (None: moves are not checked)."""
+    gyro_moves: bool = True
+    """Fit the gyro's S to the moves the gyro confirmed (a ``mems`` gyro; columns the plan's
+    moves do not turn about stay nominal, reported as not identifiable). The moves are those
+    the check passed, so ``move_tolerance_deg`` None leaves S nominal."""
     disturbance_k: float = 6.0
     chunk_s: float = 0.5
     verify_seconds: float = 10.0

@@ -13,7 +13,7 @@ stillness and progress wait for the slowest node; motion on any node restarts th
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -28,6 +28,7 @@ from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import choose_time
 from canimucal.procedure.config import LEVEL, ProcedureConfig
 from canimucal.procedure.events import Phase
+from canimucal.procedure.gyro_fit import ConfirmedMove, fit_confirmed_moves
 from canimucal.procedure.level import level_check
 from canimucal.procedure.movecheck import MoveTracker
 from canimucal.procedure.posecheck import (
@@ -58,6 +59,10 @@ class Procedure:
         self.move_trackers = {
             n: MoveTracker(config.sample_rate_hz, site.gyro_lsb) for n in config.node_ids
         }
+        self.pending_moves: dict[int, ConfirmedMove] = {}
+        """Per node, the move the last passed check saw (its end pose not yet accepted)."""
+        self.confirmed_moves: dict[int, list[ConfirmedMove]] = {n: [] for n in config.node_ids}
+        """Per node, the moves the gyro confirmed whose target position was accepted."""
         self.warmups = {
             n: WarmupTracker(
                 window_s=config.warmup_window_s,
@@ -136,7 +141,7 @@ class Procedure:
         step = track.advance(block)
         averaging = self.phase is Phase.AVERAGING and track.attempt is not None
         track.record(block, undecided=averaging)
-        self.move_trackers[node_id].add(block.gyro)
+        self.move_trackers[node_id].add(block.gyro, block.counter, block.accel)
         out: list[ev.Event] = []
         out += self._live(track, block)
         if self.phase is Phase.WARMUP:
@@ -185,8 +190,8 @@ class Procedure:
         refused, worst = check_poses(tracks, self.target, cfg.site.g, tol, cfg.settle_s)
         if refused is not None:
             node_id, result = refused
-            self._set_phase(Phase.INSTRUCT)
-            return [
+            back = self._set_phase(Phase.INSTRUCT)  # the screen offers confirm again
+            return back + [
                 ev.PoseRefused(
                     self.index,
                     node_id,
@@ -200,8 +205,7 @@ class Procedure:
         assert worst is not None
         moved = self._check_moves(worst.target_deg)
         if moved is not None:
-            self._set_phase(Phase.INSTRUCT)
-            return [moved]
+            return self._set_phase(Phase.INSTRUCT) + [moved]
         for track in self.tracks.values():
             track.attempt = Attempt()
         self._last_progress_s = -np.inf
@@ -212,6 +216,7 @@ class Procedure:
     def _check_moves(self, tilt_deg: tuple[float, float]) -> ev.MoveRefused | None:
         """Return the refusal of the first node whose gyro saw another move than the plan's."""
         tol = self.config.move_tolerance_deg
+        self.pending_moves = {}
         if tol is None or self.verifying:
             return None
         for node_id, tracker in self.move_trackers.items():
@@ -230,7 +235,20 @@ class Procedure:
                 result.measured_deg,
                 result.target_deg,
             )
+        self._keep_moves()
         return None
+
+    def _keep_moves(self) -> None:
+        """Keep each node's checked move, to be confirmed when its position is accepted."""
+        for node_id, tracker in self.move_trackers.items():
+            rows, start, bias = tracker.raw_rows(), tracker.start_pose, tracker.start_bias
+            if rows is None or start is None or bias is None:
+                continue
+            label = f"position {self.index - 1} → {self.index}"
+            gyro, accel, counter = rows
+            self.pending_moves[node_id] = ConfirmedMove(
+                start, self.target, bias, np.full(3, np.nan), gyro, counter, label, accel
+            )
 
     def _averaging(self, track: NodeTrack, block: SampleBlock, step: int) -> list[ev.Event]:
         cfg = self.config
@@ -297,6 +315,10 @@ class Procedure:
             track.decide(index, (angles[0], angles[1], angles[2]))
             track.attempt = None
             learn_from_average(track, average, pose, self.config.site.g)
+            moved = self.pending_moves.pop(node_id, None)
+            if moved is not None and average.mean_gyro is not None:
+                confirmed = replace(moved, end_gyro=np.asarray(average.mean_gyro, dtype=float))
+                self.confirmed_moves[node_id].append(confirmed)
             self.move_trackers[node_id].start(pose, average.mean_gyro)
         events: list[ev.Event] = [ev.PositionAccepted(index), *chosen]
         return events + self._next_position()
@@ -331,6 +353,7 @@ class Procedure:
         if self.phase not in (Phase.INSTRUCT, Phase.SETTLING) or self.index == 0:
             return []
         self.skipped.add(self.index)
+        self.pending_moves = {}
         for tracker in self.move_trackers.values():
             tracker.clear()  # the unit is somewhere the plan does not say: next move unchecked
         return self._next_position()
@@ -346,7 +369,7 @@ class Procedure:
         """Solve every node and check the acceptance limits."""
         if self.phase is not Phase.READY_TO_SOLVE:
             return []
-        solutions, acceptance = solve_nodes(self.config, self.averages)
+        solutions, acceptance = solve_nodes(self.config, self.averages, self.confirmed_moves)
         self.solutions = solutions
         self.solved = ev.Solved(solutions, acceptance)
         events = self._set_phase(Phase.REVIEW)
@@ -490,9 +513,15 @@ def learn_from_average(track: NodeTrack, average: PositionAverage, pose: Pose, g
 
 
 def solve_nodes(
-    cfg: ProcedureConfig, averages_of: Callable[[int], list[PositionAverage]]
+    cfg: ProcedureConfig,
+    averages_of: Callable[[int], list[PositionAverage]],
+    moves: Mapping[int, Sequence[ConfirmedMove]] | None = None,
 ) -> tuple[dict[int, Solution], dict[int, AcceptanceReport]]:
-    """Solve every node at its mean temperature and check the acceptance limits."""
+    """Solve every node at its mean temperature and check the acceptance limits.
+
+    With ``cfg.gyro_moves`` and a ``mems`` gyro, each node's S comes from the ``moves`` its
+    gyro confirmed (:mod:`.gyro_fit`), where they identify it.
+    """
     solutions, acceptance = {}, {}
     for node_id in cfg.node_ids:
         device = cfg.devices.get(node_id, Device(node_id=node_id, serial=0))
@@ -509,6 +538,9 @@ def solve_nodes(
             prior=k_prior.prior(cfg.plan, cfg.spec, site.accel_lsb),
             prior_source=k_prior.describe(cfg.plan),
         )
+        if cfg.gyro_moves and cfg.spec.gyro == "mems" and moves:
+            node_moves = moves.get(node_id, ())
+            solution = fit_confirmed_moves(solution, node_moves, averages, site, cfg.sample_rate_hz)
         solutions[node_id] = solution
         acceptance[node_id] = check_acceptance(solution, cfg.limits, cfg.site.accel_lsb, cfg.site.g)
     return solutions, acceptance

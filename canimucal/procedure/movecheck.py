@@ -31,6 +31,8 @@ Array = NDArray[np.float64]
 
 DEFAULT_MOVE_TOLERANCE_DEG = 15.0
 """Largest attitude error (degrees) a checked move may show before calibration."""
+MAX_KEPT_MOVE_S = 600.0
+"""Raw rows of a move longer than this (sample time) are not kept for the fit of S."""
 
 
 @dataclass(frozen=True)
@@ -84,10 +86,36 @@ class MoveTracker:
     def __init__(self, sample_rate_hz: float, gyro_lsb: float) -> None:
         self._dt = 1.0 / float(sample_rate_hz)
         self._lsb = float(gyro_lsb)
+        self._max_rows = int(MAX_KEPT_MOVE_S * float(sample_rate_hz))
         self._bias: Array | None = None
         self._start: Pose | None = None
         self._q = np.array([1.0, 0.0, 0.0, 0.0])
         self._last: Array | None = None
+        self._rows: list[Array] = []
+        self._accel: list[Array] = []
+        self._counters: list[Array] = []
+        self._kept = 0
+
+    @property
+    def start_pose(self) -> Pose | None:
+        """The accepted position integrated from (None when inactive)."""
+        return self._start
+
+    @property
+    def start_bias(self) -> Array | None:
+        """That position's mean gyro (counts)."""
+        return self._bias
+
+    def raw_rows(self) -> tuple[Array, Array, Array] | None:
+        """Raw gyro rows, accelerometer rows (NaN when not given) and counters since the start.
+
+        None when inactive, or when the move was longer than :data:`MAX_KEPT_MOVE_S`.
+        """
+        if self._start is None or self._kept > self._max_rows or not self._rows:
+            return None
+        rows = (self._rows, self._accel, self._counters)
+        gyro, accel, counter = (np.concatenate(r) for r in rows)
+        return gyro, accel, counter
 
     @property
     def active(self) -> bool:
@@ -103,15 +131,35 @@ class MoveTracker:
         self._start = pose
         self._q = np.array([1.0, 0.0, 0.0, 0.0])
         self._last = None
+        self._rows, self._accel, self._counters, self._kept = [], [], [], 0
 
     def clear(self) -> None:
         """Forget the reference (a skipped position: the next move is not checked)."""
         self._bias, self._start, self._last = None, None, None
+        self._rows, self._accel, self._counters, self._kept = [], [], [], 0
 
-    def add(self, gyro_counts: Array) -> None:
-        """Integrate a block of raw gyro rows (a NaN row repeats the previous rate)."""
+    def add(
+        self,
+        gyro_counts: Array,
+        counter: NDArray[np.integer] | Array | None = None,
+        accel_counts: Array | None = None,
+    ) -> None:
+        """Integrate a block of raw gyro rows (a NaN row repeats the previous rate).
+
+        The rows, the accelerometer's and their sample counters (``None``: NaN) are also
+        kept, up to :data:`MAX_KEPT_MOVE_S`, for the fit of S from the moves the checks
+        confirm.
+        """
         if self._bias is None or gyro_counts.shape[0] == 0:
             return
+        self._kept += gyro_counts.shape[0]
+        if self._kept <= self._max_rows:
+            self._rows.append(np.array(gyro_counts, dtype=float))
+            n = gyro_counts.shape[0]
+            c = np.full(n, np.nan) if counter is None else np.asarray(counter, dtype=float)
+            self._counters.append(c)
+            a = np.full((n, 3), np.nan) if accel_counts is None else accel_counts
+            self._accel.append(np.array(a, dtype=float))
         rates = self._lsb * (np.asarray(gyro_counts, dtype=float) - self._bias)
         bad = ~np.all(np.isfinite(rates), axis=1)
         if bad.any():

@@ -29,9 +29,9 @@ class Deviation:
 def readback_deviations(record: Mapping[str, Any], truth: Truth) -> list[Deviation]:
     """Compare a calibration JSON's ``readback`` with the truth, for every estimated value.
 
-    Accel bias and K (K = M⁻¹ of the read-back correction), gyro bias and the base tilt
-    (degrees), each with the σ of the record; values the record holds ``null`` (held at
-    nominal) are skipped.
+    Accel bias and K (K = M⁻¹ of the read-back correction), gyro bias, S (S = N⁻¹) and G,
+    and the base tilt (degrees), each with the σ of the record; values the record holds
+    ``null`` (held at nominal) are skipped.
     """
     back = record.get("readback")
     if not back:
@@ -55,6 +55,22 @@ def readback_deviations(record: Mapping[str, Any], truth: Truth) -> list[Deviati
         for j in range(3):
             sigma = _at(_at(accel.get("K_sigma"), i), j)
             out += _dev(f"accel.K[{i}][{j}]", truth.accel.K[i, j], k_back[i, j], sigma)
+    if gyro.get("S") is not None and back.get("gyro_correction") is not None:
+        s_back = np.linalg.inv(np.asarray(back["gyro_correction"], dtype=float))
+        for i in range(3):
+            for j in range(3):
+                if _at(_at(gyro["S"], i), j) is None:
+                    continue  # held at nominal: not an estimate
+                sigma = _at(_at(gyro.get("S_sigma"), i), j)
+                out += _dev(f"gyro.S[{i}][{j}]", truth.gyro.S[i, j], s_back[i, j], sigma)
+    if gyro.get("G") is not None and back.get("gyro_g") is not None:
+        for i in range(3):
+            for j in range(3):
+                if _at(_at(gyro["G"], i), j) is None:
+                    continue
+                sigma = _at(_at(gyro.get("G_sigma"), i), j)
+                value = back["gyro_g"][i][j]
+                out += _dev(f"gyro.G[{i}][{j}]", truth.gyro.G[i, j], value, sigma)
     tilt = record.get("base_tilt_deg") or {}
     sig = tilt.get("sigma") or [None, None]
     for k, (name, true) in enumerate((("alpha0", truth.alpha0), ("beta0", truth.beta0))):

@@ -521,7 +521,8 @@ def model_header(cfg: ProcedureConfig) -> dict[str, Any]:
     """Header keys naming the model the session solves (DESIGN §9), for ``solve`` to reuse.
 
     ``tolerance_deg`` is the plan's largest tilt tolerance; ``solve`` takes each position's
-    own from the built-in plan that ``plan`` names.
+    own from the built-in plan that ``plan`` names. ``gyro`` is ``moves`` when the session
+    fits the MEMS gyro's S to its moves; ``gyro_g`` (only when true) that it estimates G.
     """
     spec = cfg.spec
     tolerance = max(p.tolerance for p in cfg.plan.positions)
@@ -529,8 +530,9 @@ def model_header(cfg: ProcedureConfig) -> dict[str, Any]:
         "plan": cfg.plan_name or cfg.plan.name,
         "model": spec.accel_k,
         "tilt": spec.tilt,
-        "gyro": spec.gyro,
+        "gyro": "moves" if spec.gyro == "mems" and cfg.gyro_moves else spec.gyro,
         "tolerance_deg": round(float(np.rad2deg(tolerance)), 10),
+        **({"gyro_g": True} if spec.gyro_g else {}),
     }
 
 

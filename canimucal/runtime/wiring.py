@@ -95,18 +95,19 @@ def demo_settings(
     )
 
 
-def spec_for_plan(plan_name: str, gyro: str = "mems") -> JointSpec:
+def spec_for_plan(plan_name: str, gyro: str = "mems", gyro_g: bool = False) -> JointSpec:
     """Return the model each plan can determine (``gyro``: ``mems`` or ``nav``, checked).
 
     two → bias + diagonal K; five → bias + diagonal K + base tilt; recommended and custom →
-    bias, full K and base tilt.
+    bias, full K and base tilt. ``gyro_g`` adds the gyro's g-sensitivity G (what the
+    positions cannot determine of it is held at zero and reported).
     """
     grade = cast(GyroSpec, gyro)  # JointSpec checks the value
     if plan_name == "two":
-        return JointSpec(accel_k="diag", tilt="none", gyro=grade)
+        return JointSpec(accel_k="diag", tilt="none", gyro=grade, gyro_g=gyro_g)
     if plan_name == "five":
-        return JointSpec(accel_k="diag", tilt="rigid", gyro=grade)
-    return JointSpec(accel_k="full", tilt="rigid", gyro=grade)
+        return JointSpec(accel_k="diag", tilt="rigid", gyro=grade, gyro_g=gyro_g)
+    return JointSpec(accel_k="full", tilt="rigid", gyro=grade, gyro_g=gyro_g)
 
 
 def instruction_mounting(
@@ -241,6 +242,7 @@ class Devices:
         *,
         plan_name: str,
         gyro: str = "mems",
+        gyro_g: bool = False,
         site: SiteConditions | None = None,
         backup_dir: Path | None = None,
         overwrite: bool = False,
@@ -293,7 +295,7 @@ class Devices:
             node_ids=tuple(self.clients),
             sample_rate_hz=rate,
             site=site,
-            spec=spec_for_plan(plan_name, gyro),
+            spec=spec_for_plan(plan_name, gyro, gyro_g),
             devices={n: device_of(n, i) for n, i in identities.items()},
             plan_name=plan_name,
             **config,

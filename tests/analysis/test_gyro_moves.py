@@ -121,3 +121,27 @@ def test_without_labelled_positions_moves_are_refused() -> None:
     unlabelled = dataclasses.replace(rec, position=np.full(rec.n_rows, -1, dtype=np.int64))
     with pytest.raises(InputError, match="labelled positions"):
         recording_moves(unlabelled, site_of(truth))
+
+
+@pytest.mark.parametrize(("plan", "determined"), [("two", False), ("five", True)])
+def test_g_from_the_positions_feeds_the_moves_where_the_plan_allows(
+    plan: str, determined: bool
+) -> None:
+    """Five positions determine G, which the moves then remove; two do not, and it is said."""
+    truth = Truth.random(np.random.default_rng(4), sample_rate_hz=100, gyro_g_max=0.5)
+    rec = simulate_plan_recording(truth, builtin_plan(plan), seed=4, transient_s=2.0)
+    site = site_of(truth)
+    spec = JointSpec(accel_k="diag", tilt="none", gyro="mems", gyro_g=True)
+    solution = solve_positions(position_averages(rec), spec, site, Device(serial=0))
+    solved, fit = solve_gyro_moves(rec, solution, site)
+    gyro = solved.record.gyro
+    assert gyro is not None and gyro.G is not None
+    said = [w for w in solved.warnings if w.startswith("gyro G is not determined")]
+    if determined:
+        G, sigma = np.array(gyro.G, dtype=float), np.array(gyro.G_sigma, dtype=float)
+        assert np.all(np.abs(G - truth.gyro.G) < 4.0 * sigma) and not said
+    else:
+        assert all(v is None for row in gyro.G for v in row) and len(said) == 1
+    assert fit.identifiable[2]  # both plans turn about z: that column is fitted either way
+    z = (fit.S[:, 2] - truth.gyro.S[:, 2]) / fit.S_sigma[:, 2]
+    assert np.all(np.abs(z) < 4.0), z

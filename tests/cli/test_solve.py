@@ -445,3 +445,22 @@ def test_pose_scatter_from_header_else_estimated(cli: Cli, simulated: Sim, tmp_p
     run = cli(["solve", path, "--no-check"])
     assert run.code == 0, run.err
     assert "pose-setting scatter" not in run.err
+
+
+IMUTK_ACC, IMUTK_GYRO = DATA / "imutk_xsens_acc.mat", DATA / "imutk_xsens_gyro.mat"
+
+
+@pytest.mark.skipif(not IMUTK_GYRO.is_file(), reason=f"imu_tk example absent at {DATA}")
+def test_imutk_session_gyro_moves_matched_on_gravity(cli: Cli, tmp_path: Path) -> None:
+    out = tmp_path / "imutk.json"
+    run = cli(
+        ["solve", "--format", "imutk", IMUTK_ACC, IMUTK_GYRO, "--model", "full",
+         "--gyro", "moves", "--g", "9.81744", "--no-check", "--json", out]
+    )  # fmt: skip
+    assert run.code == 0, run.err
+    assert "matched on gravity (rotations about the vertical unseen)" in run.err
+    gyro = read_calibration(out).gyro
+    assert gyro is not None and gyro.S is not None and gyro.S_sigma is not None
+    scale = np.diag(np.array(gyro.S, dtype=float))
+    np.testing.assert_allclose(scale, [4778.0, 4758.0, 4766.0], rtol=0.01)  # Xsens factory
+    assert np.all(np.array(gyro.S_sigma, dtype=float) < 0.005 * scale.mean())
