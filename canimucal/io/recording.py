@@ -523,7 +523,8 @@ HEADER_PARSERS: Mapping[str, Callable[[str], HeaderValue]] = {
     "prior_k_sigma_source": _text,
     "gyro_g": _bool,
 }
-"""Every header key DESIGN §5 and §9 allow, with the parser of its value; any other is refused.
+"""Every header key (DESIGN §5, §9 and docs/recording-header.md), with the parser of its value;
+any other is refused.
 
 ``plan``, ``model``, ``tilt``, ``gyro``, ``tolerance_deg`` (the plan's angle-setting 1σ) and
 ``gyro_g`` (G estimated) are written by the tool's own sessions: the model the session solved,
