@@ -8,7 +8,11 @@
 Parameters the plan cannot determine (held at nominal) are not checked; the report names them.
 The limits come from ``$XDG_CONFIG_HOME/canimucal/acceptance.toml`` (else
 ``~/.config/canimucal/acceptance.toml``; DESIGN §9), with the keys of
-:class:`AcceptanceLimits`, each optional; the built-in defaults when the file is absent.
+:class:`AcceptanceLimits`, each optional; the built-in defaults when the file is absent. A
+table ``[plan.NAME]`` with the same keys overrides them for the sessions and recordings of
+plan NAME: the vehicle plan holds K at a 1 % prior, so its bias σ cannot go below ~10 mg and
+a quality department that accepts that for vehicles says so there, not by lowering the limit
+for every bench calibration.
 """
 
 from __future__ import annotations
@@ -51,11 +55,13 @@ def acceptance_config_path(environ: Mapping[str, str] | None = None) -> Path:
     return Path(base) / "canimucal" / "acceptance.toml"
 
 
-def load_limits(path: Path | None = None) -> AcceptanceLimits:
+def load_limits(path: Path | None = None, plan: str | None = None) -> AcceptanceLimits:
     """Read the acceptance limits (defaults for keys absent, or for an absent file).
 
-    An unreadable file, an unknown key or a value that is not a positive number is an
-    :class:`InputError` naming the file: a quality limit is never silently dropped.
+    ``plan``: the plan's own ``[plan.NAME]`` table, when the file has one, overrides the
+    top-level keys. An unreadable file, an unknown key or a value that is not a positive
+    number is an :class:`InputError` naming the file: a quality limit is never silently
+    dropped.
     """
     path = acceptance_config_path() if path is None else path
     if not path.is_file():
@@ -64,17 +70,29 @@ def load_limits(path: Path | None = None) -> AcceptanceLimits:
         document = tomllib.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise InputError(f"{path}: cannot read the acceptance limits ({exc})") from None
+    plans = document.pop("plan", {})
+    if not isinstance(plans, dict) or not all(isinstance(t, dict) for t in plans.values()):
+        raise InputError(f"{path}: 'plan' must hold tables [plan.NAME] of limits")
+    values = _limit_values(document, path, "")
+    for name, table in plans.items():  # every table checked, not only this plan's
+        own = _limit_values(table, path, f"plan.{name}.")
+        if name == plan:
+            values.update(own)
+    return AcceptanceLimits(**values)
+
+
+def _limit_values(table: Mapping[str, object], path: Path, prefix: str) -> dict[str, float]:
     known = AcceptanceLimits().as_dict()
     values = {}
-    for key, value in document.items():
+    for key, value in table.items():
         if key not in known:
-            raise InputError(f"{path}: unknown key {key!r} (known: {', '.join(known)})")
+            raise InputError(f"{path}: unknown key '{prefix}{key}' (known: {', '.join(known)})")
         if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
-            raise InputError(f"{path}: {key} must be a positive number, got {value!r}")
+            raise InputError(f"{path}: {prefix}{key} must be a positive number, got {value!r}")
         if not np.isfinite(value):
-            raise InputError(f"{path}: {key} must be finite, got {value!r}")
+            raise InputError(f"{path}: {prefix}{key} must be finite, got {value!r}")
         values[key] = float(value)
-    return AcceptanceLimits(**values)
+    return values
 
 
 @dataclass(frozen=True)

@@ -95,8 +95,9 @@ def solve_recording(
     Options ``choice`` leaves unset come from the recording's header (the session's own
     model, tolerance and plan prior); ``limits`` None reads ``acceptance.toml``.
     """
-    limits = load_limits() if limits is None else limits  # a bad file: exit 2 before work
     choice, session = session_model(rec, choice or ModelChoice())
+    # a bad file: exit 2 before work; the session's plan may have limits of its own
+    limits = load_limits(plan=session.plan_name) if limits is None else limits
     notes: tuple[str, ...] = ()
     site, g_source = site_of(rec, choice)
     serial, node_id = _header_int(rec, "device_serial"), _header_int(rec, "node_id")

@@ -25,6 +25,7 @@ import can
 import canopen
 import numpy as np
 
+from canimucal.analysis.acceptance import load_limits
 from canimucal.analysis.calibrate import SiteConditions
 from canimucal.analysis.session_model import read_factory_k
 from canimucal.device.bus import BusSettings, describe, open_bus
@@ -290,6 +291,7 @@ class Devices:
             config["k_priors"] = resumed.k_priors  # the prior the first part held
         else:
             config["k_priors"] = self.k_priors(plan, prior_k, prior_k_sigma)
+        config.setdefault("limits", load_limits(plan=plan_name))  # acceptance.toml (DESIGN §9)
         cfg = ProcedureConfig(
             plan=plan,
             node_ids=tuple(self.clients),
