@@ -49,11 +49,11 @@ from canimucal.analysis.data import (
     TestRecord,
 )
 from canimucal.analysis.drift import (
-    WALK_FACTOR,
     DriftTest,
     allan_walk_upper,
     drift_test,
     random_walk_covariance,
+    walk_consistent,
 )
 from canimucal.analysis.holdout import MIN_GAIN_DOF, Holdout, Selector, refit_holdout
 from canimucal.analysis.noise_model import ScatterEstimate, ScatterModel, estimate_scatter
@@ -235,7 +235,7 @@ def _walk_like(drift: DriftTest, data: SessionData, sensor: str) -> bool:
     settling the exponential does not describe, and are reported as such, not as drift.
     """
     bound = allan_walk_upper(_sensor_windows(data, sensor))
-    return bool(np.all(drift.random_walk <= WALK_FACTOR * bound))
+    return walk_consistent(drift, bound)
 
 
 def _sensor_windows(data: SessionData, sensor: str) -> list[tuple[Array, Array]]:

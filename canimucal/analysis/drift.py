@@ -128,3 +128,18 @@ def allan_walk_upper(windows: Sequence[tuple[Array, Array]]) -> Array:
     edf = res.edf[:, None]
     upper = res.avar * edf / stats.chi2.ppf(0.05, edf)
     return np.asarray(np.sqrt(np.min(3.0 * upper / res.taus_s[:, None], axis=0)))
+
+
+def walk_consistent(drift: DriftTest, bound: Array, *, alpha: float = 0.01) -> bool:
+    """Whether the axes that carry the trend have a walk within the Allan bound.
+
+    The axes whose own slope χ² (``Σ_p z²`` on P dof) is significant at ``alpha/3`` carry the
+    trend (the largest one when none does alone); each must have ``q ≤ WALK_FACTOR · bound``.
+    The other axes' q, noise of the slope-variance excess, are not judged.
+    """
+    per_axis = np.sum(drift.z**2, axis=0)
+    p = stats.chi2.sf(per_axis, drift.z.shape[0])
+    axes = np.flatnonzero(p < alpha / drift.z.shape[1])
+    if axes.size == 0:
+        axes = np.array([int(np.argmax(per_axis))])
+    return bool(np.all(drift.random_walk[axes] <= WALK_FACTOR * np.asarray(bound)[axes]))

@@ -463,7 +463,9 @@ def noise_intervals(allan: AllanResult, terms: NoiseTerms) -> NoiseIntervals:
     what a walk allows. Since every term of ``σ² = N²/τ + B_f² + q²τ/3`` is non-negative, a
     term's coefficient is at most ``min_τ σ²_high(τ)/b(τ)`` (b its basis function) and at least
     ``max_τ (σ²_low(τ) − the other fitted terms at τ)/b(τ)`` (clipped at 0). B, read off as
-    the smallest ADEV over 0.664, takes the interval of that point.
+    the smallest ADEV over 0.664, takes the interval of that point. When the points admit no
+    curve of the three terms (coloured or filtered noise), an interval can come out empty
+    (lower above upper) or miss the fitted value: the fit's ``reduced_chi2`` then says so.
     """
     tau = allan.taus_s
     m = np.round(tau * allan.sample_rate_hz).astype(np.int64)
