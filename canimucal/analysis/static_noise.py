@@ -117,7 +117,10 @@ def static_rows(rec: Recording) -> NDArray[np.intp] | None:
     if not groups:
         return None
     means = np.array([np.nanmean(rec.accel[g], axis=0) for g in groups])
-    unit = means / np.linalg.norm(means, axis=1, keepdims=True)
+    norm = np.linalg.norm(means, axis=1, keepdims=True)
+    if not np.all(np.isfinite(norm) & (norm > 0)):
+        return None
+    unit = means / norm
     cos = np.clip(unit @ unit[0], -1.0, 1.0)
     if np.max(np.rad2deg(np.arccos(cos))) >= SAME_POSE_DEG:
         return None
@@ -131,22 +134,25 @@ def analyse_static(
     *,
     where: str = "the whole record",
     clip: tuple[float, float] = DEFAULT_CLIP_S,
+    min_seconds: float = MIN_STATIC_SECONDS,
 ) -> StaticAnalysis:
-    """Analyse ``rows`` of ``rec`` as one static record (module doc)."""
+    """Analyse ``rows`` of ``rec`` as one static record (module doc).
+
+    A sensor needs ``min_seconds`` of finite samples; with none, :class:`InputError`.
+    """
     fs = rec.sample_rate_hz
     seconds = rows.size / fs
-    if seconds < MIN_STATIC_SECONDS:
-        raise InputError(
-            f"{rec.source or 'recording'}: the static record lasts {seconds:.1f} s; "
-            f"at least {MIN_STATIC_SECONDS:g} s are needed"
-        )
     sensors = {}
     for name, data in (("accel", rec.accel), ("gyro", rec.gyro)):
         x = data[rows]
-        if np.sum(np.all(np.isfinite(x), axis=1)) >= MIN_STATIC_SECONDS * fs:
+        keep = np.all(np.isfinite(x), axis=1)
+        if np.sum(keep) >= min_seconds * fs:
             sensors[name] = _sensor(rec.t[rows], x, fs)
     if not sensors:
-        raise InputError(f"{rec.source or 'recording'}: no sensor has {MIN_STATIC_SECONDS:g} s")
+        raise InputError(
+            f"{rec.source or 'recording'}: no sensor has {min_seconds:g} s of samples in "
+            f"{where} ({seconds:.1f} s)"
+        )
     choice = choose_averaging({k: v.terms for k, v in sensors.items()}, clip=clip)
     return StaticAnalysis(where, seconds, fs, sensors, lsb, choice, _misfits(sensors))
 
@@ -176,7 +182,7 @@ def _sensor(t: Array, x: Array, fs: float) -> SensorStatic:
     allan = allan_deviation(x, fs)
     terms = fit_noise(allan)
     cuts = np.array_split(np.arange(t.size), DRIFT_SEGMENTS)
-    drift = drift_test([(t[c], x[c]) for c in cuts])
+    drift = drift_test([(t[c], x[c]) for c in cuts if np.all(np.isfinite(x[c]), axis=1).sum() > 2])
     upper = allan_walk_upper([(t, x)])
     named = drift.p_value < DRIFT_ALPHA and walk_consistent(drift, upper)
     return SensorStatic(
