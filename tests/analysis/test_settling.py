@@ -11,7 +11,7 @@ import pytest
 
 from canimucal.analysis.discrepancy import _drift_tests
 from canimucal.analysis.drift import allan_walk_upper, drift_test
-from canimucal.analysis.report import analyse_recording
+from canimucal.analysis.report import analyse_recording, analysis_document
 from canimucal.analysis.settling import fit_settling, trim_mask
 from canimucal.analysis.simulated import simulate_plan_recording
 from canimucal.io.grouping import position_rows
@@ -98,6 +98,12 @@ def test_settling_after_moves_is_trimmed_not_called_drift() -> None:
             assert fit.found and fit.tau_s == pytest.approx(2.0, rel=0.02)
             covered += fit.tau_ci95_s[0] <= 2.0 <= fit.tau_ci95_s[1]
         assert any("settling after each move" in w for w in a.result.warnings)
+        noise = analysis_document(a)["noise"]
+        assert noise["settling"]["accel"]["found"] and noise["limiting_axis"][:5] in (
+            "accel",
+            "gyro.",
+        )
+        assert len(noise["best_averaging_s_per_axis"]["accel"]) == 3
         assert not np.any(a.result.params.accel_random_walk)
         assert not np.any(a.result.params.gyro_random_walk)
     # 8 nominal 95 % intervals: fewer than 6 covering has binomial probability < 1 %
