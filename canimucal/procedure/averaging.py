@@ -85,6 +85,20 @@ def noise_choice(
     return choose_averaging(terms, clip=clip_s), terms
 
 
+def describe_rule(policy: AveragingPolicy) -> str:
+    """One line saying how the procedure times its positions under ``policy``."""
+    if policy.fixed_s is not None:
+        return f"every position {policy.fixed_s:g} s (fixed)"
+    if policy.user_s is not None:
+        return f"first position {policy.first_seconds():g} s, then {policy.user_s:g} s (user)"
+    lo, hi = policy.clip_s
+    return (
+        f"first position {policy.first_seconds():g} s; then the time that keeps every "
+        f"{LIMITING_SENSOR} axis nearest its own Allan minimum, measured on the first "
+        f"position ({lo:g}–{hi:g} s; {policy.default_s:g} s until known)"
+    )
+
+
 def choose_time(
     policy: AveragingPolicy, accel_rows: list[Array], sample_rate_hz: float
 ) -> AveragingTimeChosen:

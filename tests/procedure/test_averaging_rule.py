@@ -2,8 +2,15 @@
 
 from __future__ import annotations
 
-import numpy as np
+import json
+from pathlib import Path
 
+import numpy as np
+import pytest
+
+from canimucal.cli.main import main
+from canimucal.io.recording import read_recording, recording_from_columns
+from canimucal.io.recording_writer import write_recording
 from canimucal.model.plan import TWO
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy, choose_time, noise_choice
@@ -66,3 +73,19 @@ def test_session_and_resume_average_the_later_positions_alike() -> None:
     # a user's time still overrides, on resume too
     fixed = Bench([truth], TWO, averaging=AveragingPolicy(user_s=20.0), resume_from=state)
     assert fixed.proc.seconds_for(1) == 20.0
+
+
+def test_plan_prints_the_rule_per_axis_from_a_still_recording(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    accel = _rows(3, [0.0, 0.0, 0.04]) + np.array([0.0, 0.0, 4000.0])
+    t = np.arange(accel.shape[0]) / FS
+    rec = recording_from_columns({"sample_rate_hz": FS}, t=t, accel=accel)
+    path = write_recording(tmp_path / "still.csv", rec, overwrite=False)
+    assert main(["plan", "--plan", "two", "--noise", str(path), "--json", "-"]) == 0
+    doc = json.loads(capsys.readouterr().out)["averaging"]
+    session = choose_time(AveragingPolicy(), [read_recording(path).accel], FS)
+    assert doc["seconds"] == session.seconds and doc["limiting_axis"] == "accel.z"
+    assert doc["optima_s"]["accel"] == list(session.optima_s)
+    assert main(["plan", "--plan", "two"]) == 0
+    assert "averaging: first position 120 s; then" in capsys.readouterr().out
