@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import textwrap
 from typing import Any
 
 import numpy as np
@@ -107,7 +108,7 @@ def _averaging(noise: str | None) -> tuple[dict[str, Any], str]:
     policy = AveragingPolicy()
     rule = describe_rule(policy)
     doc: dict[str, Any] = {"rule": rule}
-    text = f"averaging: {rule}\n"
+    text = textwrap.fill(f"averaging: {rule}", 80, subsequent_indent="  ") + "\n"
     if noise is None:
         return doc, text
     rec = load_any(noise)
@@ -122,7 +123,8 @@ def _averaging(noise: str | None) -> tuple[dict[str, Any], str]:
         optima_s={LIMITING_SENSOR: list(event.optima_s)},
         limiting_axis=event.limiting_axis,
     )
-    text += f"  from {noise}: later positions {event.describe()}\n"
+    later = f"from {noise}: later positions {event.describe()}"
+    text += textwrap.fill(later, 80, initial_indent="  ", subsequent_indent="    ") + "\n"
     return doc, text
 
 

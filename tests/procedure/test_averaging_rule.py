@@ -88,4 +88,7 @@ def test_plan_prints_the_rule_per_axis_from_a_still_recording(
     assert doc["seconds"] == session.seconds and doc["limiting_axis"] == "accel.z"
     assert doc["optima_s"]["accel"] == list(session.optima_s)
     assert main(["plan", "--plan", "two"]) == 0
-    assert "averaging: first position 120 s; then" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "averaging: first position 120 s; then" in out
+    block = out[out.index("averaging: ") :].splitlines()
+    assert max(len(line) for line in block) <= 80
