@@ -21,7 +21,6 @@ from canimucal.analysis.conditions import recording_conditions
 from canimucal.analysis.data import DiscrepancyResult, SessionData
 from canimucal.analysis.discrepancy import analyse_discrepancy
 from canimucal.analysis.session import session_from_recording
-from canimucal.io.grouping import position_rows
 from canimucal.io.recording import Recording
 from canimucal.model.noise import (
     NoiseTerms,
@@ -115,16 +114,15 @@ def analyse_recording(
         "%d positions (%s)", len(session.averages), "known" if session.known_positions else "scalar"
     )
     result = analyse_discrepancy(session)
-    allan = {"accel": _allan(rec, rec.accel)}
-    if session.has_gyro:
-        allan["gyro"] = _allan(rec, rec.gyro)
+    longest = max(session.windows, key=lambda w: w.t_s.size)
+    allan = {"accel": _allan(rec, longest.accel)}
+    if session.has_gyro and longest.gyro is not None:
+        allan["gyro"] = _allan(rec, longest.gyro)
     return Analysis(rec, session, result, allan, g_source)
 
 
-def _allan(rec: Recording, samples: Array) -> AllanCheck:
-    """Allan deviation of the longest position window of ``samples``."""
-    rows = max(position_rows(rec)[0], key=len)
-    x = samples[rows]
+def _allan(rec: Recording, x: Array) -> AllanCheck:
+    """Allan deviation of the samples of the longest position (settling trimmed)."""
     fs = rec.sample_rate_hz
     res = allan_deviation(x, fs)
     terms = fit_noise(res)
