@@ -9,6 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.analysis.noise_model import ScatterEstimate
+from canimucal.analysis.settling import Settling
 from canimucal.model.positions import PositionAverage
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
 
@@ -51,6 +52,8 @@ class SessionData:
     ``scatter_source`` says where the pose-setting scatter comes from: ``"estimated"`` (from
     the data; the poses' tolerances are then ignored), ``"header"`` or ``"flag"`` (the poses'
     tolerances hold it), ``"plan"`` (the poses' tolerances, as a simulation drew them).
+    ``settling`` holds each sensor's settling fit (:mod:`.settling`):
+    the windows and averages are already trimmed by it.
     """
 
     averages: tuple[PositionAverage, ...]
@@ -62,6 +65,7 @@ class SessionData:
     gyro_lsb: float = DEFAULT_GYRO_LSB
     known_positions: bool = True
     scatter_source: str = "plan"
+    settling: Mapping[str, Settling] = field(default_factory=dict)
 
     @property
     def has_gyro(self) -> bool:

@@ -4,9 +4,12 @@
 known-position joint model when angles are labelled, the scalar ``|f| = g`` fit otherwise),
 then
 
-1. recognises drift inside the positions first (:mod:`.discrepancy_drift`); when found, the
-   random walk's covariance joins that of the position means and the later tests become F
-   tests, so a wandering bias is not mistaken for temperature or scale terms;
+1. recognises drift inside the positions first (:mod:`.drift`), on windows already trimmed of
+   the settling after each move (:mod:`.settling`). Trends are named ``bias_drift`` only when
+   their random walk is one the Allan deviation of the same windows allows; then the walk's
+   covariance joins that of the position means. With trends of any kind the later tests
+   become F tests, so a wandering bias or motion is not mistaken for temperature or scale
+   terms;
 2. tests every candidate of the vocabulary with a nested-model LR (or F) test, adding terms
    in Holm's step-down order at a family-wise ``alpha`` (:mod:`.discrepancy_tests`);
 3. keeps a chosen term only if leave-one-position-out cross-validation agrees;
@@ -45,7 +48,13 @@ from canimucal.analysis.data import (
     SessionData,
     TestRecord,
 )
-from canimucal.analysis.drift import DriftTest, drift_test, random_walk_covariance
+from canimucal.analysis.drift import (
+    DriftTest,
+    allan_walk_upper,
+    drift_test,
+    random_walk_covariance,
+    walk_consistent,
+)
 from canimucal.analysis.holdout import MIN_GAIN_DOF, Holdout, Selector, refit_holdout
 from canimucal.analysis.noise_model import ScatterEstimate, ScatterModel, estimate_scatter
 from canimucal.analysis.significance import (
@@ -83,7 +92,8 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
         untestable["temperature_bias"] = temp_reason
     drifts = _drift_tests(data, temps)
     family = len(candidates) + len(drifts) + (1 if data.known_positions else 0)
-    drifting = {s for s, d in drifts.items() if d.p_value < alpha / family}
+    trending = {s for s, d in drifts.items() if d.p_value < alpha / family}
+    drifting = {s for s in trending if _walk_like(drifts[s], data, s)}
     raw_columns = {c.key: c.columns for c in candidates}
     scatter = _scatter_model(prepared, drifts, drifting, data)
     tau = _scatter_in(scatter, prepared, raw_columns, list(raw_columns))
@@ -93,14 +103,14 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
         untestable.setdefault(key.split(".", 1)[1], "not identifiable from these positions")
         del columns[key]
         del raw_columns[key]
-    use_f = bool(drifting)
+    use_f = bool(trending)  # trends of any kind: the residual scale comes from the fit
     chosen = forward_select(problem.linear, columns, alpha=alpha, family_size=family, use_f=use_f)
     if scatter.fixed is None:
         tau = _scatter_in(scatter, prepared, raw_columns, chosen)
         problem = _whitened(prepared, scatter, tau.value)
         columns = {k: problem.whiten @ col for k, col in raw_columns.items()}
     chosen = confirm_by_cv(problem.linear, columns, chosen)
-    tests = _final_tests(problem.linear, columns, chosen, use_f, drifts, prepared, data)
+    tests = _final_tests(problem.linear, columns, chosen, use_f, drifts, drifting, prepared, data)
     fit = fit_terms(problem.linear, columns, chosen)
     findings = _findings(tests, fit, {c.key: c for c in candidates}, drifts, prepared, data, alpha)
     duel = _head_to_head(problem.linear, columns, chosen, alpha, family, use_f)
@@ -130,7 +140,7 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
         base_sigmas=sigmas,
         drift_found=bool(drifting),
         noise=NoiseSummary(tau, fit.chi2, fit.dof) if data.known_positions else None,
-        warnings=_warnings(chosen, held),
+        warnings=_warnings(chosen, held) + _drift_warnings(drifts, drifting, data, alpha, family),
         ambiguous=tuple(duel),
     )
 
@@ -214,6 +224,51 @@ def _drift_tests(data: SessionData, temps: Array | None) -> dict[str, DriftTest]
         gyro = [(w.t_s, np.asarray(w.gyro)) for w in data.windows]
         out["gyro"] = drift_test(gyro, rates)
     return out
+
+
+def _walk_like(drift: DriftTest, data: SessionData, sensor: str) -> bool:
+    """Whether the slopes' random walk is one the Allan deviation of the same windows allows.
+
+    The slope test sees any within-position trend; only one whose size ``q`` stays within
+    :data:`~.drift.WALK_FACTOR` of the Allan deviation's 95 % random-walk bound
+    (:func:`~.drift.allan_walk_upper`) is a wandering bias. Larger trends are motion or a
+    settling the exponential does not describe, and are reported as such, not as drift.
+    """
+    bound = allan_walk_upper(_sensor_windows(data, sensor))
+    return walk_consistent(drift, bound)
+
+
+def _sensor_windows(data: SessionData, sensor: str) -> list[tuple[Array, Array]]:
+    if sensor == "accel":
+        return [(w.t_s, w.accel) for w in data.windows]
+    return [(w.t_s, np.asarray(w.gyro)) for w in data.windows if w.gyro is not None]
+
+
+def _drift_warnings(
+    drifts: Mapping[str, DriftTest],
+    drifting: set[str],
+    data: SessionData,
+    alpha: float,
+    family: int,
+) -> tuple[str, ...]:
+    """Say what the settling fit trimmed, and which trends were not taken for drift."""
+    out = []
+    for sensor, fit in data.settling.items():
+        if fit.found:
+            low, high = fit.tau_ci95_s
+            out.append(
+                f"{sensor}: settling after each move, time constant {fit.tau_s:.3g} s "
+                f"(95 % {low:.3g}–{high:.3g} s); the first {np.min(fit.trim_s):.3g}–"
+                f"{np.max(fit.trim_s):.3g} s of each position were trimmed"
+            )
+    for sensor, d in drifts.items():
+        if d.p_value < alpha / family and sensor not in drifting:
+            out.append(
+                f"{sensor}: trends inside the positions (slope χ² = {d.statistic:.1f} on {d.df} "
+                "dof) exceed the random walk the Allan deviation allows: motion or settling, "
+                "not named bias_drift"
+            )
+    return tuple(out)
 
 
 def _temp_rate(t: Array, temp: Array | None) -> float:
@@ -314,6 +369,7 @@ def _final_tests(
     chosen: Sequence[str],
     use_f: bool,
     drifts: Mapping[str, DriftTest],
+    drifting: set[str],
     prepared: PreparedBase,
     data: SessionData,
 ) -> list[TestRecord]:
@@ -324,7 +380,9 @@ def _final_tests(
         sensor, effect = key.split(".", 1)
         raw.append((effect, sensor, t.kind, t.statistic, t.df, t.p_value, key in chosen))
     for sensor, d in drifts.items():
-        raw.append(("bias_drift", sensor, "slope χ²", d.statistic, d.df, d.p_value, False))
+        raw.append(
+            ("bias_drift", sensor, "slope χ²", d.statistic, d.df, d.p_value, sensor in drifting)
+        )
     if data.known_positions:
         z, p = _axis_sign(prepared, data)
         raw.append(("axis_sign", "accel", "sign z", z, 1, p, z > AXIS_SIGN_SIGMAS))
@@ -354,7 +412,7 @@ def _findings(
     out = []
     for t in tests:
         key = f"{t.sensor}.{t.effect}"
-        if t.effect == "bias_drift" and t.p_adjusted < alpha:
+        if t.effect == "bias_drift" and t.chosen and t.p_adjusted < alpha:
             q = drifts[t.sensor].random_walk
             evidence = (
                 f"within-position slopes χ² = {t.statistic:.1f} on {t.df} dof; random walk "

@@ -21,6 +21,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats
 
+from canimucal.model.noise import DEFAULT_MAX_GAP_SAMPLES, allan_deviation
+
 Array = NDArray[np.float64]
 
 
@@ -96,3 +98,48 @@ def random_walk_covariance(mid_times_s: Array, seconds: Array, q: float) -> Arra
     t = np.asarray(mid_times_s, dtype=float) - float(np.min(mid_times_s))
     cov = q**2 * np.minimum.outer(t, t)
     return cov + np.diag(q**2 * np.asarray(seconds, dtype=float) / 3.0)
+
+
+WALK_FACTOR = 2.0
+"""A slope-based random walk is named only up to this factor over the Allan bound."""
+
+
+def allan_walk_upper(windows: Sequence[tuple[Array, Array]]) -> Array:
+    """95 % upper bound (per axis, units/√s) of a random walk from the windows' Allan deviation.
+
+    Every term of ``σ²(τ) = N²/τ + B² + q²τ/3`` is non-negative, so ``q² ≤ 3σ²(τ)/τ`` at every
+    τ; with the one-sided 95 % bound of the Allan variance, ``σ̂²·edf/χ²_edf(0.05)`` (edf the
+    equivalent dof of the point), ``q_up = min_τ √(3 σ²_up(τ)/τ)``. The windows are pooled as
+    segments (separated by gaps longer than the interpolated ones). A walk that the slope test
+    reports far above this bound is a trend the Allan deviation does not see as a random walk
+    (motion, settling of another shape), not a wandering bias.
+    """
+    parts, dts = [], []
+    gap = np.full((DEFAULT_MAX_GAP_SAMPLES + 1, 3), np.nan)
+    for t, x in windows:
+        keep = np.all(np.isfinite(x), axis=1)
+        if keep.sum() < 8:
+            continue
+        parts += [x[keep] - x[keep].mean(axis=0), gap]
+        dts.append(float(np.median(np.diff(t[keep]))))
+    if not parts:
+        return np.full(3, np.inf)
+    res = allan_deviation(np.concatenate(parts[:-1]), 1.0 / float(np.median(dts)))
+    edf = res.edf[:, None]
+    upper = res.avar * edf / stats.chi2.ppf(0.05, edf)
+    return np.asarray(np.sqrt(np.min(3.0 * upper / res.taus_s[:, None], axis=0)))
+
+
+def walk_consistent(drift: DriftTest, bound: Array, *, alpha: float = 0.01) -> bool:
+    """Whether the axes that carry the trend have a walk within the Allan bound.
+
+    The axes whose own slope χ² (``Σ_p z²`` on P dof) is significant at ``alpha/3`` carry the
+    trend (the largest one when none does alone); each must have ``q ≤ WALK_FACTOR · bound``.
+    The other axes' q, noise of the slope-variance excess, are not judged.
+    """
+    per_axis = np.sum(drift.z**2, axis=0)
+    p = stats.chi2.sf(per_axis, drift.z.shape[0])
+    axes = np.flatnonzero(p < alpha / drift.z.shape[1])
+    if axes.size == 0:
+        axes = np.array([int(np.argmax(per_axis))])
+    return bool(np.all(drift.random_walk[axes] <= WALK_FACTOR * np.asarray(bound)[axes]))

@@ -21,9 +21,14 @@ from canimucal.analysis.conditions import recording_conditions
 from canimucal.analysis.data import DiscrepancyResult, SessionData
 from canimucal.analysis.discrepancy import analyse_discrepancy
 from canimucal.analysis.session import session_from_recording
-from canimucal.io.grouping import position_rows
 from canimucal.io.recording import Recording
-from canimucal.model.noise import allan_deviation, best_averaging_time_s, fit_noise
+from canimucal.model.noise import (
+    NoiseTerms,
+    allan_deviation,
+    best_averaging_time_s,
+    choose_averaging,
+    fit_noise,
+)
 from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.sim.truth import SAMPLE_RATES_HZ
 
@@ -43,7 +48,7 @@ class AllanCheck:
     ``adev`` and ``white`` are ``(len(taus_s), 3)`` counts; ``density`` the white-noise
     density (counts·√s) read at short τ; ``ratio_long`` measured over white at the longest
     τ (> 1: something beyond white noise, e.g. bias drift); ``best_averaging_s`` the fit's
-    best averaging time.
+    best averaging time; ``terms`` the fitted noise terms (:func:`.fit_noise`).
     """
 
     taus_s: Array
@@ -52,6 +57,7 @@ class AllanCheck:
     density: Array
     ratio_long: Array
     best_averaging_s: float
+    terms: NoiseTerms | None = None
 
 
 @dataclass(frozen=True)
@@ -108,16 +114,15 @@ def analyse_recording(
         "%d positions (%s)", len(session.averages), "known" if session.known_positions else "scalar"
     )
     result = analyse_discrepancy(session)
-    allan = {"accel": _allan(rec, rec.accel)}
-    if session.has_gyro:
-        allan["gyro"] = _allan(rec, rec.gyro)
+    longest = max(session.windows, key=lambda w: w.t_s.size)
+    allan = {"accel": _allan(rec, longest.accel)}
+    if session.has_gyro and longest.gyro is not None:
+        allan["gyro"] = _allan(rec, longest.gyro)
     return Analysis(rec, session, result, allan, g_source)
 
 
-def _allan(rec: Recording, samples: Array) -> AllanCheck:
-    """Allan deviation of the longest position window of ``samples``."""
-    rows = max(position_rows(rec)[0], key=len)
-    x = samples[rows]
+def _allan(rec: Recording, x: Array) -> AllanCheck:
+    """Allan deviation of the samples of the longest position (settling trimmed)."""
     fs = rec.sample_rate_hz
     res = allan_deviation(x, fs)
     terms = fit_noise(res)
@@ -127,7 +132,7 @@ def _allan(rec: Recording, samples: Array) -> AllanCheck:
     last = good[-1] if good.size else res.taus_s.size - 1
     return AllanCheck(
         res.taus_s, res.adev, white, density, res.adev[last] / white[last],
-        best_averaging_time_s(terms, clip=(0.1, 1e4)),
+        best_averaging_time_s(terms, clip=(0.1, 1e4)), terms,
     )  # fmt: skip
 
 
@@ -189,6 +194,17 @@ def analysis_document(a: Analysis) -> dict[str, Any]:
         "best_averaging_s": best,
     }
     noise["warnings"] = list(a.result.warnings)
+    terms = {k: c.terms for k, c in a.allan.items() if c.terms is not None}
+    if terms:
+        choice = choose_averaging(terms)
+        noise["best_averaging_s_per_axis"] = {k: v.tolist() for k, v in choice.optima_s.items()}
+        noise["limiting_axis"] = choice.limiting_axis
+        noise["averaging_s"] = choice.seconds
+    noise["settling"] = {
+        k: {"found": f.found, "tau_s": _finite(f.tau_s), "ci95": [_finite(x) for x in f.tau_ci95_s],
+            "trimmed_s": [float(x) for x in f.trim_s], "p_value": f.p_value}
+        for k, f in a.session.settling.items()
+    }  # fmt: skip
     summary = a.result.noise
     if summary is not None:
         est = summary.pose_scatter
@@ -208,6 +224,10 @@ def analysis_document(a: Analysis) -> dict[str, Any]:
         ],
         "noise": noise,
     }
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
 
 
 def extended_truth(a: Analysis) -> dict[str, Any]:

@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 
 from canimucal.analysis.data import SessionData, Window
 from canimucal.analysis.pose_scatter import header_tolerance_deg
+from canimucal.analysis.settling import fit_settling, trim_mask
 from canimucal.errors import InputError
 from canimucal.io.grouping import has_angles, position_rows
 from canimucal.io.recording import Recording
@@ -47,20 +48,29 @@ def session_from_recording(
 
     The pose-setting scatter is ``tolerance_deg`` when given (source ``flag``), else the
     recording's ``tolerance_deg`` header (``header``), else left to be estimated from the
-    data (``estimated``: the poses carry no tolerance).
+    data (``estimated``: the poses carry no tolerance). A settling transient after each move
+    (:mod:`.settling`, fitted per sensor) is trimmed from every position before averaging,
+    each by the longer of the two sensors' trims.
     """
     tolerance_deg, source = scatter_source(rec, tolerance_deg)
     groups, labelled = position_rows(rec)
     known = labelled and has_angles(rec)
     gyro_ok = bool(np.isfinite(rec.gyro).any())
     temp_ok = bool(np.isfinite(rec.temp_c).any())
-    averages: list[PositionAverage] = []
-    windows: list[Window] = []
     tol = float(np.deg2rad(tolerance_deg))
+    kept = []
     for rows in groups:
         keep = rows[np.all(np.isfinite(rec.accel[rows]), axis=1)]
-        if keep.size < MIN_POSITION_SAMPLES:
-            continue
+        if keep.size >= MIN_POSITION_SAMPLES:
+            kept.append(keep)
+    settling = {"accel": fit_settling([(rec.t[k], rec.accel[k]) for k in kept])}
+    if gyro_ok:
+        settling["gyro"] = fit_settling([(rec.t[k], rec.gyro[k]) for k in kept])
+    trim_s = np.max([s.trim_s for s in settling.values()], axis=0)
+    averages: list[PositionAverage] = []
+    windows: list[Window] = []
+    for rows, trim in zip(kept, trim_s, strict=True):
+        keep = rows[trim_mask(rec.t[rows], float(trim))]
         first = keep[0]
         angles = [rec.alpha_deg[first], rec.beta_deg[first], rec.psi_deg[first]]
         a, b, p = (float(x) for x in np.deg2rad(angles))
@@ -86,6 +96,7 @@ def session_from_recording(
         gyro_lsb=_lsb(rec, "gyro_lsb", DEFAULT_GYRO_LSB if known else 1.0),
         known_positions=known,
         scatter_source=source,
+        settling=settling,
     )
 
 

@@ -1,6 +1,7 @@
-"""`canimucal allan`: Allan deviation of a recording's longest still stretch.
+"""`canimucal allan`: Allan deviation of one static file or a recording's longest still stretch.
 
-Also the fitted noise terms and the averaging time they recommend (DESIGN §2 conventions).
+Also the fitted noise terms with intervals, a drift test, each axis's best averaging time and
+one for all axes (:mod:`canimucal.analysis.static_noise`; DESIGN §2 conventions).
 """
 
 from __future__ import annotations
@@ -11,20 +12,23 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from canimucal.analysis.static_noise import (
+    DRIFT_SEGMENTS,
+    StaticAnalysis,
+    analyse_static,
+    recording_lsb,
+    static_document,
+    static_rows,
+)
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.errors import InputError
-from canimucal.io.recording import Recording, read_recording
-from canimucal.model.noise import (
-    AllanResult,
-    NoiseTerms,
-    allan_deviation,
-    best_averaging_time_s,
-    fit_noise,
-)
-from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
+from canimucal.io.importers import FORMATS, load_any
+from canimucal.io.recording import Recording
 from canimucal.model.static import detect_static_intervals
 
 MIN_STILL_SECONDS = 10.0
+MIN_SENSOR_SECONDS = 3.0
+"""A sensor needs this many seconds of samples in the stretch to be analysed."""
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -32,11 +36,16 @@ def add_subparser(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "allan",
         help="Allan deviation, noise terms and recommended averaging time",
-        description="Overlapping Allan deviation of the longest still stretch of a recording "
-        "(one labelled position, or the longest static interval found), the fitted white "
-        "noise, bias instability and random walk, and the averaging time they recommend.",
+        description="Overlapping Allan deviation of one long static file, or of the longest "
+        "still stretch of a recording (one labelled position, or the longest static interval "
+        "found): the fitted white noise, bias instability and random walk with 95 %% "
+        "intervals, a drift test, each axis's best averaging time and one for all axes with "
+        "the limiting axis named.",
     )
-    p.add_argument("recording", help="recording CSV (canimucal.recording/1)")
+    p.add_argument("recording", help="recording CSV, imu_tk accelerometer file or imucal CSV")
+    p.add_argument("second", nargs="?", help="imu_tk gyro file, or imucal section JSON (optional)")
+    p.add_argument("--format", choices=FORMATS, help="input format (default: from content)")
+    p.add_argument("--sample-rate-hz", type=float, help="sample rate when the input has none")
     p.add_argument("--position", type=int, help="analyse this labelled position")
     add_json_option(p)
     p.set_defaults(run=run)
@@ -45,25 +54,16 @@ def add_subparser(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Analyse and report."""
     check_outputs(args)
-    rec = read_recording(args.recording)
+    rec = load_any(args.recording, args.second, fmt=args.format, sample_rate_hz=args.sample_rate_hz)
     start, stop, where = _still_stretch(rec, args.position)
     fs = rec.sample_rate_hz
-    lsb = {
-        "accel": _lsb(rec, "accel_lsb", DEFAULT_ACCEL_LSB),
-        "gyro": _lsb(rec, "gyro_lsb", DEFAULT_GYRO_LSB),
-    }
-    sensors: dict[str, tuple[AllanResult, NoiseTerms]] = {}
     for name, data in (("accel", rec.accel), ("gyro", rec.gyro)):
         x = data[start:stop]
-        if np.sum(np.all(np.isfinite(x), axis=1)) >= 3 * fs:
+        if np.sum(np.all(np.isfinite(x), axis=1)) >= MIN_SENSOR_SECONDS * fs:
             _refuse_constant(x, name, where)
-            allan = allan_deviation(x, fs)
-            sensors[name] = (allan, fit_noise(allan))
-    if not sensors:
-        raise InputError(f"{args.recording}: no sensor has 3 s of samples in {where}")
-    best = max(best_averaging_time_s(terms) for _, terms in sensors.values())
-    doc = _document(sensors, lsb, best, where, (stop - start) / fs)
-    emit(args, doc, _report(sensors, lsb, best, where, (stop - start) / fs))
+    rows = np.arange(start, stop)
+    sa = analyse_static(rec, rows, recording_lsb(rec), where=where, min_seconds=MIN_SENSOR_SECONDS)
+    emit(args, _document(sa), _report(sa))
     return 0
 
 
@@ -77,11 +77,6 @@ def _refuse_constant(x: NDArray[np.float64], name: str, where: str) -> None:
         )
 
 
-def _lsb(rec: Recording, key: str, default: float) -> float:
-    value = rec.header.get(key)
-    return abs(float(value)) if isinstance(value, float) else abs(default)
-
-
 def _still_stretch(rec: Recording, position: int | None) -> tuple[int, int, str]:
     """Sample range [start, stop) to analyse, and a phrase saying where it came from."""
     if position is not None:
@@ -90,6 +85,9 @@ def _still_stretch(rec: Recording, position: int | None) -> tuple[int, int, str]
             raise InputError(f"no samples labelled position {position}")
         return int(idx[0]), int(idx[-1]) + 1, f"position {position}"
     labels = rec.position
+    whole = static_rows(rec) if not np.any(labels >= 0) else None
+    if whole is not None and whole.size >= MIN_STILL_SECONDS * rec.sample_rate_hz:
+        return int(whole[0]), int(whole[-1]) + 1, "the whole record (one static pose)"
     if np.any(labels >= 0):
         best = max((np.flatnonzero(labels == p) for p in np.unique(labels[labels >= 0])), key=len)
         return int(best[0]), int(best[-1]) + 1, f"position {int(labels[best[0]])} (longest)"
@@ -112,48 +110,67 @@ def _si(values: NDArray[np.float64], lsb: float) -> list[float]:
     return [float(v) for v in np.asarray(values) * lsb]
 
 
-def _document(
-    sensors: dict[str, tuple[AllanResult, NoiseTerms]],
-    lsb: dict[str, float],
-    best: float,
-    where: str,
-    seconds: float,
-) -> dict[str, Any]:
-    out: dict[str, Any] = {"stretch": where, "seconds": seconds, "best_averaging_s": best}
-    for name, (allan, terms) in sensors.items():
-        unit = "m/s²" if name == "accel" else "rad/s"
+def _document(sa: StaticAnalysis) -> dict[str, Any]:
+    """Build the JSON: per sensor the ADEV, the terms with intervals, drift, best times."""
+    out: dict[str, Any] = {
+        "stretch": sa.where,
+        "seconds": sa.seconds,
+        **{k: v for k, v in static_document(sa).items() if k not in ("stretch", "seconds")},
+    }
+    for name, s in sa.sensors.items():
+        terms, lsb = s.terms, sa.lsb[name]
         out[name] = {
-            "units_si": unit,
-            "lsb": lsb[name],
-            "taus_s": allan.taus_s,
-            "adev_counts": allan.adev,
-            "adev_sigma_counts": allan.adev_sigma,
+            "units_si": "m/s²" if name == "accel" else "rad/s",
+            "lsb": lsb,
+            "taus_s": s.allan.taus_s,
+            "adev_counts": s.allan.adev,
+            "adev_sigma_counts": s.allan.adev_sigma,
             "white_noise_density_counts": terms.white_noise_density,
-            "white_noise_density_si": _si(terms.white_noise_density, lsb[name]),
+            "white_noise_density_si": _si(terms.white_noise_density, lsb),
             "bias_instability_counts": terms.bias_instability,
             "random_walk_counts_per_sqrt_s": terms.random_walk,
-            "best_averaging_s": best_averaging_time_s(terms),
+            "best_averaging_s": sa.choice.seconds,
+            "best_averaging_s_per_axis": [float(v) for v in sa.choice.optima_s[name]],
         }
     return out
 
 
-def _report(
-    sensors: dict[str, tuple[AllanResult, NoiseTerms]],
-    lsb: dict[str, float],
-    best: float,
-    where: str,
-    seconds: float,
-) -> str:
-    lines = [f"Allan deviation of {where}, {seconds:.1f} s"]
-    for name, (_allan, terms) in sensors.items():
+def _report(sa: StaticAnalysis) -> str:
+    lines = [f"Allan deviation of {sa.where}, {sa.seconds:.1f} s"]
+    for name, s in sa.sensors.items():
         unit = "m/s²/√Hz" if name == "accel" else "rad/s/√Hz"
-        lines.append(f"{name}:")
+        terms, ci, lsb = s.terms, s.intervals, sa.lsb[name]
+        lines.append(f"{name} (95 % intervals in brackets):")
         for axis, label in enumerate("xyz"):
             n = terms.white_noise_density[axis]
             lines.append(
-                f"  {label}: white {n:.4g} counts/√Hz ({n * lsb[name]:.3g} {unit}), "
-                f"bias instability {terms.bias_instability[axis]:.3g} counts, "
-                f"random walk {terms.random_walk[axis]:.3g} counts/√s"
+                f"  {label}: white {n:.4g} counts/√Hz ({n * lsb:.3g} {unit}) "
+                f"[{_band(ci.white_noise_density[axis])}], "
+                f"bias instability {terms.bias_instability[axis]:.3g} counts "
+                f"[{_band(ci.bias_instability[axis])}], "
+                f"random walk {terms.random_walk[axis]:.3g} counts/√s "
+                f"[{_band(ci.random_walk[axis])}], best averaging {_best(s.optima_s[axis])}"
             )
-    lines.append(f"recommended averaging time: {best:.0f} s (clipped to 15–120 s)")
+        verdict = "bias_drift" if s.drift_named else "no bias_drift"
+        if s.drift.p_value < 0.01 and not s.drift_named:
+            verdict += " (trends beyond the Allan random-walk bound: not a wandering bias)"
+        lines.append(
+            f"  drift: slopes of {DRIFT_SEGMENTS} segments χ² = {s.drift.statistic:.1f} on "
+            f"{s.drift.df} dof, p = {s.drift.p_value:.2g}: {verdict}"
+        )
+    c = sa.choice
+    worst = max(float(np.max(v)) for v in c.loss.values())
+    lines.append(
+        f"recommended averaging time: {c.seconds:.0f} s for every axis (each within ×{worst:.2f} "
+        f"of its own best ADEV; clipped to 15–120 s); limiting axis {c.limiting_axis}"
+    )
+    lines += [f"warning: {w}" for w in sa.warnings]
     return "\n".join(lines) + "\n"
+
+
+def _band(pair: NDArray[np.float64]) -> str:
+    return f"{pair[0]:.3g}–{pair[1]:.3g}"
+
+
+def _best(value: float) -> str:
+    return "none (white)" if not np.isfinite(value) else f"{value:.3g} s"

@@ -7,16 +7,26 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from canimucal.analysis.conditions import recording_conditions
 from canimucal.analysis.reference import Reference, reference_for
 from canimucal.analysis.replay import ReplayRow, replay, replay_ratios
 from canimucal.analysis.report import (
+    ANALYSIS_SCHEMA,
     Analysis,
     analyse_recording,
     analysis_document,
     extended_truth,
     observed_poses,
+)
+from canimucal.analysis.static_noise import (
+    analyse_static,
+    recording_lsb,
+    static_document,
+    static_findings,
+    static_report,
+    static_rows,
 )
 from canimucal.cli.analyze_plots import check_plot_targets, write_plots
 from canimucal.cli.output import add_json_option, check_outputs, emit
@@ -24,6 +34,7 @@ from canimucal.errors import InputError
 from canimucal.io.atomic import refuse_existing
 from canimucal.io.importers import FORMATS, load_any
 from canimucal.io.plans import plan_from_document, plan_to_dict, write_plan
+from canimucal.io.recording import Recording
 from canimucal.io.truth import write_truth
 from canimucal.model.positions import Plan
 
@@ -91,6 +102,9 @@ def run(args: argparse.Namespace) -> int:
     """Analyse and report."""
     _check_files(args)
     rec = load_any(args.input, args.second, fmt=args.format, sample_rate_hz=args.sample_rate_hz)
+    rows = static_rows(rec)
+    if rows is not None:
+        return _run_static(args, rec, rows)
     reference = reference_for(args.input)
     g_flag = args.g if args.g is not None else (reference.g if reference else None)
     cond = recording_conditions(rec, g_flag)
@@ -120,6 +134,35 @@ def run(args: argparse.Namespace) -> int:
     if args.plots:
         write_plots(analysis, Path(args.plots), overwrite=bool(args.overwrite))
     return 0
+
+
+def _run_static(args: argparse.Namespace, rec: Recording, rows: NDArray[np.intp]) -> int:
+    """One static pose: noise terms, drift and averaging times, no calibration terms."""
+    for flag, value in (("--truth-out", args.truth_out), ("--poses-out", args.poses_out),
+                        ("--plots", args.plots)):  # fmt: skip
+        if value:
+            raise InputError(
+                f"{flag}: {args.input} is one static record (one pose): no model to write"
+            )
+    sa = analyse_static(rec, rows, recording_lsb(rec))
+    noise = static_document(sa)
+    document = {
+        "schema": ANALYSIS_SCHEMA,
+        "sensors": {},
+        "findings": static_findings(sa),
+        "untestable": [{"effect": e, "reason": STATIC_REASON} for e in STATIC_UNTESTABLE],
+        "ambiguous": [],
+        "noise": noise,
+    }
+    text = static_report(sa) + f"Calibration terms: untestable ({STATIC_REASON}).\n"
+    emit(args, document, text)
+    return 0
+
+
+STATIC_REASON = "one static pose: calibration terms need several positions"
+STATIC_UNTESTABLE = (
+    "base_tilt", "cross_axis", "scale_nonlinearity", "gyro_g_sensitivity", "axis_sign",
+)  # fmt: skip
 
 
 def report_text(a: Analysis, reference: Reference | None, replayed: list[ReplayRow] | None) -> str:

@@ -235,7 +235,7 @@ def _narrative(event: ev.Event) -> str:
         text = event.reason if isinstance(event, ev.PositionRejected) else event.message
         return f"  position {event.index + 1} rejected: {text}"
     if isinstance(event, ev.AveragingTimeChosen):
-        return f"  averaging time {event.seconds:.0f} s ({event.source})"
+        return f"  averaging time {event.describe()}"
     if isinstance(event, ev.Solved):
         verdicts = [
             f"node {n}: " + ("passed" if a.passed else "NOT passed (demo writes anyway)")

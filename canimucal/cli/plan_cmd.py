@@ -3,19 +3,29 @@
 from __future__ import annotations
 
 import argparse
+import textwrap
 from typing import Any
 
 import numpy as np
 
 from canimucal.analysis.gyro_bounds import GyroMoveBounds, gyro_move_bounds
+from canimucal.analysis.static_noise import static_rows
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.cli.spec_options import add_model_options, spec_from_args
 from canimucal.errors import InputError
+from canimucal.io.grouping import position_rows
+from canimucal.io.importers import load_any
 from canimucal.io.plans import BUILTIN_PLANS, plan_to_dict, resolve_plan
 from canimucal.model.layout import JointSpec
 from canimucal.model.plan import BoundTable, builtin_plan, cramer_rao, plan_prior
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, STANDARD_GRAVITY
+from canimucal.procedure.averaging import (
+    LIMITING_SENSOR,
+    AveragingPolicy,
+    choose_time,
+    describe_rule,
+)
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -56,6 +66,12 @@ def add_subparser(subparsers: Any) -> None:
         action="store_true",
         help="include each position's angle-setting tolerance in the bound",
     )
+    p.add_argument(
+        "--noise",
+        metavar="RECORDING",
+        help="a still recording of the unit (any format analyze reads): print the averaging "
+        "time the procedure would choose from it, per axis",
+    )
     add_json_option(p)
     p.set_defaults(run=run)
 
@@ -80,8 +96,36 @@ def run(args: argparse.Namespace) -> int:
         moves = gyro_move_bounds(plan)
         document["gyro_moves"] = moves_document(moves)
         report += moves_report(moves)
+    averaging, text = _averaging(args.noise)
+    document["averaging"] = averaging
+    report += text
     emit(args, document, report)
     return 0
+
+
+def _averaging(noise: str | None) -> tuple[dict[str, Any], str]:
+    """Describe the procedure's averaging rule, and its per-axis result on a still recording."""
+    policy = AveragingPolicy()
+    rule = describe_rule(policy)
+    doc: dict[str, Any] = {"rule": rule}
+    text = textwrap.fill(f"averaging: {rule}", 80, subsequent_indent="  ") + "\n"
+    if noise is None:
+        return doc, text
+    rec = load_any(noise)
+    rows = static_rows(rec)
+    if rows is None:
+        rows = max(position_rows(rec)[0], key=len, default=np.arange(0))
+    event = choose_time(policy, [rec.accel[rows]], rec.sample_rate_hz)
+    if event.source != "noise":
+        raise InputError(f"--noise: {noise} has too few still samples for an Allan deviation")
+    doc.update(
+        seconds=event.seconds,
+        optima_s={LIMITING_SENSOR: list(event.optima_s)},
+        limiting_axis=event.limiting_axis,
+    )
+    later = f"from {noise}: later positions {event.describe()}"
+    text += textwrap.fill(later, 80, initial_indent="  ", subsequent_indent="    ") + "\n"
+    return doc, text
 
 
 def _timed(args: argparse.Namespace, plan: Plan) -> Plan:

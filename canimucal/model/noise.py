@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy import stats
 from scipy.optimize import nnls
 
 from canimucal.errors import ModelError
@@ -356,3 +357,135 @@ def gauss_markov_adev(taus_s: ArrayLike, sigma: float, correlation_time_s: float
     r = t / tau
     bracket = 2.0 - r * (3.0 - 4.0 * np.exp(-1.0 / r) + np.exp(-2.0 / r))
     return np.sqrt(np.maximum(sigma**2 * r * bracket, 0.0))
+
+
+def axis_optima_s(terms: NoiseTerms) -> Array:
+    """Averaging time minimising each axis's fitted ADEV, ``τ* = √3·N/q`` (inf when q = 0)."""
+    n, q = terms.white_noise_density, terms.random_walk
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.asarray(np.where(q > 0.0, np.sqrt(3.0) * n / np.where(q > 0, q, 1.0), np.inf))
+
+
+@dataclass(frozen=True)
+class AveragingChoice:
+    """One averaging time for several axes, from each axis's own optimum (:func:`choose_averaging`).
+
+    ``seconds`` the chosen time; ``optima_s`` each sensor's per-axis optimum clipped to the
+    allowed range; ``loss`` each sensor's per-axis ADEV at ``seconds`` over its ADEV at its own
+    clipped optimum (≥ 1); ``limiting_axis`` the axis that sets the time (``"gyro.z"``).
+    """
+
+    seconds: float
+    optima_s: dict[str, Array]
+    loss: dict[str, Array]
+    limiting_axis: str
+
+
+_CHOICE_GRID = 400
+
+TIE_FACTOR = 1.02
+"""Axes whose loss is within 2 % of the worst at the chosen time bind together."""
+
+
+def choose_averaging(
+    terms: dict[str, NoiseTerms], *, clip: tuple[float, float] = (15.0, 120.0)
+) -> AveragingChoice:
+    """Choose one averaging time for every axis of ``terms`` (sensor name → fitted terms).
+
+    Each axis a has its optimum ``τ*_a`` (:func:`axis_optima_s`, clipped to ``clip``) and, at
+    a common time T, the loss ``L_a(T) = σ_a(T)/σ_a(τ*_a)`` (fitted ADEV, ≥ 1). The time is
+    the minimax ``T = argmin_T max_a L_a(T)`` over ``clip`` (a log grid of 400 points): no axis
+    ends up further from its own best than that. The limiting axis is the one whose loss binds
+    at T; of those that bind together (within :data:`TIE_FACTOR`: one asking for less time,
+    one for more), the one whose optimum lies below T, i.e. the axis whose drift stops a
+    longer average. With every axis white
+    (no optimum) the time is the upper clip.
+    """
+    lo, hi = float(clip[0]), float(clip[1])
+    if not 0.0 < lo <= hi:
+        raise ModelError(f"clip must satisfy 0 < low <= high, got {clip!r}")
+    if not terms:
+        raise ModelError("no sensor to choose an averaging time for")
+    grid = np.geomspace(lo, hi, _CHOICE_GRID) if hi > lo else np.array([lo])
+    optima = {s: np.clip(axis_optima_s(t), lo, hi) for s, t in terms.items()}
+    names, curves = [], []
+    for sensor, t in terms.items():
+        best = np.diag(t.adev(optima[sensor]))
+        best = np.where(best > 0, best, np.inf)
+        curves.append(t.adev(grid) / best)
+        names += [f"{sensor}.{'xyz'[a]}" for a in range(best.size)]
+    loss = np.hstack(curves)
+    loss = np.where(np.isfinite(loss), loss, 1.0)
+    worst = np.max(loss, axis=1)
+    k = int(np.argmin(worst))
+    seconds = float(grid[k])
+    tied = np.flatnonzero(loss[k] >= worst[k] / TIE_FACTOR)
+    flat_optima = np.concatenate([optima[s] for s in terms])
+    drift_limited = [i for i in tied if flat_optima[i] <= seconds]
+    pick = drift_limited[0] if drift_limited else int(tied[0])
+    if worst[k] <= 1.0 + 1e-9 and not drift_limited:
+        pick = int(np.argmin(flat_optima))
+    at = {s: np.diag(t.adev(np.full(3, seconds))) for s, t in terms.items()}
+    out_loss = {}
+    for s, t in terms.items():
+        best = np.diag(t.adev(optima[s]))
+        out_loss[s] = np.where(best > 0, at[s] / np.where(best > 0, best, 1.0), 1.0)
+    return AveragingChoice(seconds, optima, out_loss, names[pick])
+
+
+@dataclass(frozen=True)
+class NoiseIntervals:
+    """95 % intervals ``(n_axes, 2)`` of the fitted terms (units of :class:`NoiseTerms`)."""
+
+    white_noise_density: Array
+    bias_instability: Array
+    random_walk: Array
+
+
+def _rw_edf(m: NDArray[np.int64], n_phase: float) -> Array:
+    """Equivalent dof of the overlapping ADEV for random-walk FM (Howe, Allan & Barnes 1981).
+
+    ``edf = ((N−2)/m) · ((N−1)² − 3m(N−1) + 4m²) / (N−3)²``, N phase points.
+    """
+    mf = m.astype(float)
+    n = float(n_phase)
+    top = (n - 2.0) / mf * ((n - 1.0) ** 2 - 3.0 * mf * (n - 1.0) + 4.0 * mf**2)
+    return np.asarray(top / (n - 3.0) ** 2)
+
+
+def noise_intervals(allan: AllanResult, terms: NoiseTerms) -> NoiseIntervals:
+    """95 % intervals of the white density N, the random walk q and the bias instability B.
+
+    Each of the K Allan variance points has the χ² interval ``σ̂²·edf/χ²_edf(1 − 0.025/K) …
+    σ̂²·edf/χ²_edf(0.025/K)`` (Bonferroni over the points, as the bounds below take a minimum
+    or maximum over them), with edf the smaller of the white-noise and the random-walk value
+    (Howe, Allan & Barnes 1981), so a point where the walk dominates is not trusted beyond
+    what a walk allows. Since every term of ``σ² = N²/τ + B_f² + q²τ/3`` is non-negative, a
+    term's coefficient is at most ``min_τ σ²_high(τ)/b(τ)`` (b its basis function) and at least
+    ``max_τ (σ²_low(τ) − the other fitted terms at τ)/b(τ)`` (clipped at 0). B, read off as
+    the smallest ADEV over 0.664, takes the interval of that point. When the points admit no
+    curve of the three terms (coloured or filtered noise), an interval can come out empty
+    (lower above upper) or miss the fitted value: the fit's ``reduced_chi2`` then says so.
+    """
+    tau = allan.taus_s
+    m = np.round(tau * allan.sample_rate_hz).astype(np.int64)
+    n_phase = allan.n_samples + 1.0
+    edf = np.maximum(np.minimum(allan.edf, _rw_edf(m, n_phase)), 1.0)[:, None]
+    avar = allan.avar
+    tail = 0.025 / tau.size  # Bonferroni: the bounds take a min/max over the τ points
+    high = avar * edf / stats.chi2.ppf(tail, edf)
+    low = avar * edf / stats.chi2.isf(tail, edf)
+    basis = np.column_stack((1.0 / tau, np.ones_like(tau), tau / 3.0))
+    coef = np.vstack([terms.white_noise_density**2, terms.floor_adev**2, terms.random_walk**2])
+    out = []
+    for k in (0, 2):
+        others = basis @ coef - basis[:, k : k + 1] * coef[k]
+        up = np.min(high / basis[:, k : k + 1], axis=0)
+        down = np.max((low - others) / basis[:, k : k + 1], axis=0)
+        out.append(np.column_stack((np.sqrt(np.clip(down, 0.0, None)), np.sqrt(up))))
+    steady = allan.edf >= MIN_EDF_FOR_FLOOR
+    idx = np.flatnonzero(steady) if np.any(steady) else np.arange(tau.size)
+    j = idx[np.argmin(allan.adev[idx], axis=0)]
+    axes = np.arange(allan.adev.shape[1])
+    b = np.column_stack((np.sqrt(low[j, axes]), np.sqrt(high[j, axes]))) / FLICKER_FACTOR
+    return NoiseIntervals(out[0], b, out[1])

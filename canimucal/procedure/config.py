@@ -6,6 +6,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+from numpy.typing import NDArray
+
 from canimucal.analysis.acceptance import AcceptanceLimits
 from canimucal.analysis.calibrate import SiteConditions
 from canimucal.io.calibration import Device
@@ -28,6 +31,9 @@ class ResumeState:
     """The file read per node (the ``.partial`` when one was left over)."""
     k_priors: dict[int, KPrior] = field(default_factory=dict)
     """The prior on K each node's recording says the session held (none: not recorded)."""
+    first_accel: NDArray[np.float64] | None = None
+    """Accelerometer samples ``(n, 3)`` of the first position (first node): the resumed
+    procedure chooses the later averaging time from them as the session did."""
 
 
 @dataclass(frozen=True)

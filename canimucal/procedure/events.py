@@ -185,12 +185,26 @@ class PositionAccepted(Event):
 
 @dataclass(frozen=True)
 class AveragingTimeChosen(Event):
-    """The averaging time of the remaining positions and why (``noise``/``user``/``fixed``)."""
+    """The averaging time of the remaining positions and why (``noise``/``user``/``fixed``).
+
+    From the noise: the limiting sensor's per-axis ``optima_s`` (clipped) and the
+    ``limiting_axis`` (``"accel.z"``) that set the time.
+    """
 
     seconds: float
     source: str
     white_noise_density: tuple[float, ...] = ()
     random_walk: tuple[float, ...] = ()
+    optima_s: tuple[float, ...] = ()
+    limiting_axis: str = ""
+
+    def describe(self) -> str:
+        """One line: the time, its source and, from the noise, the per-axis optima."""
+        text = f"{self.seconds:.0f} s ({self.source})"
+        if self.optima_s:
+            axes = ", ".join(f"{'xyz'[i]} {v:.0f} s" for i, v in enumerate(self.optima_s))
+            text += f"; per-axis optima {axes}; limiting axis {self.limiting_axis}"
+        return text
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ from canimucal.model.positions import PlannedPosition, Pose, PositionAverage, av
 from canimucal.model.samples import SampleBlock
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import choose_time
-from canimucal.procedure.config import LEVEL, ProcedureConfig
+from canimucal.procedure.config import LEVEL, ProcedureConfig, ResumeState
 from canimucal.procedure.events import Phase
 from canimucal.procedure.gyro_fit import ConfirmedMove, fit_confirmed_moves
 from canimucal.procedure.level import level_check
@@ -74,6 +74,8 @@ class Procedure:
         self.index = 0
         self.verifying = False
         self.seconds_later: float | None = None
+        self.resumed_time: ev.AveragingTimeChosen | None = None
+        """On resume: the later positions' time, chosen from the recorded first position."""
         self.accepted: dict[int, dict[int, PositionAverage]] = {n: {} for n in config.node_ids}
         self.skipped: set[int] = set()
         self.pending_averages: dict[int, PositionAverage] = {}
@@ -90,6 +92,7 @@ class Procedure:
             for node_id in config.node_ids:
                 self.preload(node_id, config.resume_from.averages.get(node_id, {}))
             self.index = config.resume_from.next_index
+            self.resumed_time = self._resumed_time(config.resume_from)
 
     # -- queries -----------------------------------------------------------------------------
 
@@ -435,6 +438,15 @@ class Procedure:
             return self._instruct()
         self.index = len(self.config.plan.positions) - 1
         return self._set_phase(Phase.READY_TO_SOLVE)
+
+    def _resumed_time(self, state: ResumeState) -> ev.AveragingTimeChosen | None:
+        """Choose the later time from the recorded first position, as :meth:`_choose_time`."""
+        if state.next_index == 0 or state.first_accel is None:
+            return None
+        event = choose_time(self.config.averaging, [state.first_accel], self.config.sample_rate_hz)
+        if event.source == "noise":
+            self.seconds_later = event.seconds
+        return event
 
     def _choose_time(self) -> list[ev.Event]:
         track = next(iter(self.tracks.values()))

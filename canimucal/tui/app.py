@@ -24,6 +24,7 @@ from textual.binding import Binding
 from canimucal.io.plans import BUILTIN_PLANS
 from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
+from canimucal.procedure.averaging import AveragingPolicy, describe_rule
 from canimucal.procedure.machine import Phase
 from canimucal.tui.connection import ConnectionScreen
 from canimucal.tui.messages import PlanWanted, ProcedureEnded, ResultsReady, StartWanted
@@ -83,12 +84,14 @@ class CalibrationApp(App[int]):
 
     def on_plan_wanted(self, message: PlanWanted) -> None:
         """Show the plan screen once the connection screen is done."""
+        policy = getattr(self.source, "averaging", None)
         plan_screen = PlanScreen(
             message.statuses,
             self.plans,
             plan_name=self.plan_name,
             gyro=self.gyro,
             mount=self.source.mount,
+            averaging=describe_rule(policy if policy is not None else AveragingPolicy()),
         )
         self.push_screen(plan_screen)
 

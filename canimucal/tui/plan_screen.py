@@ -67,8 +67,11 @@ class PlanScreen(Screen[None]):
         plan_name: str = "recommended",
         gyro: str = "mems",
         mount: MountingMap | str | None = None,
+        averaging: str = "",
     ) -> None:
         super().__init__()
+        self.averaging = averaging
+        """The procedure's averaging rule in words (:func:`.describe_rule`): shown, not chosen."""
         self.statuses = statuses
         self.plans = dict(plans)
         self.first_choice = (plan_name if plan_name in self.plans else "recommended", gyro)
@@ -121,7 +124,8 @@ class PlanScreen(Screen[None]):
             f"plan {self.plan_name}: {len(plan.positions)} positions, "
             f"{plan.total_seconds:g} s of averaging · gyro {grade} · nodes {nodes}\n"
             f"{self.instructions_line()}\n"
-            "Cramér–Rao σ at K = I/LSB, 1 count/√Hz white noise, zero tilt:"
+            + (f"averaging: {self.averaging}\n" if self.averaging else "")
+            + "Cramér–Rao σ at K = I/LSB, 1 count/√Hz white noise, zero tilt:"
         )
         self.table.clear()
         for row in bound_rows(table):

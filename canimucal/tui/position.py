@@ -377,7 +377,7 @@ def notice_text(event: ev.Event) -> str:
     if isinstance(event, ev.PositionAccepted):
         return f"position {event.index + 1} accepted"
     if isinstance(event, ev.AveragingTimeChosen):
-        return f"averaging time of the next positions: {event.seconds:.0f} s ({event.source})"
+        return f"averaging time of the next positions: {event.describe()}"
     if isinstance(event, ev.WriteFinished):
         return f"write node {event.node_id}: {event.message}"
     if isinstance(event, ev.RecordSaved):

@@ -148,6 +148,11 @@ class DeviceSource:
         """Heartbeat of one node."""
         return heartbeat_of(None if self.devices is None else self.devices.clients.get(node_id))
 
+    @property
+    def averaging(self) -> AveragingPolicy:
+        """The averaging-time policy the sessions of this source use (``--seconds``)."""
+        return AveragingPolicy(fixed_s=self.seconds)
+
     def open(self, plan: Plan, plan_name: str, gyro: str) -> Session:
         """Build the session over every node (confirming a pose moves simulated nodes)."""
         if self.devices is None:
@@ -163,7 +168,7 @@ class DeviceSource:
             overwrite=self.overwrite,
             resume=self.resume,
             identities={n: s.identity for n, s in self.statuses.items()},
-            averaging=AveragingPolicy(fixed_s=self.seconds),
+            averaging=self.averaging,
             operator=self.operator,
             site_name=self.site_name,
             warmup=self.warmup,

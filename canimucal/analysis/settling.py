@@ -1,0 +1,186 @@
+"""Settling after each move: an exponential transient at the start of every position.
+
+After a hand placement (or any move) a sensor often settles: mechanical ringing dies out, a
+mount creeps, a filter or a thermal gradient relaxes. Inside position p, axis c the samples are
+modelled as
+
+    x_pc(t) = m_pc + a_pc · exp(−(t − t_p)/τ) + e,    e white, var σ_pc²          (1)
+
+with ``t_p`` the position's first sample, one time constant ``τ`` shared by every position and
+axis of the sensor, and a free amplitude ``a_pc``. For a given τ the amplitudes are linear:
+with ``u_p = exp(−(t − t_p)/τ)`` centred within the window (``ũ``) and ``x̃`` the centred
+samples, the fit lowers χ² by
+
+    Δχ²(τ) = Σ_p Σ_c (ũ_p · x̃_pc)² / (ũ_p · ũ_p · σ_pc²)                          (2)
+
+which for white noise alone is χ² with ``3·P`` degrees of freedom at any fixed τ. ``σ_pc`` is
+taken from the first differences (``var(Δx)/2``), which a slow transient hardly touches. τ is
+profiled over a log grid from three sample periods to a third of the shortest window (a slower
+"transient" is a trend, which the drift test owns); the transient is called significant when
+``G · P(χ²_{3P} > max Δχ²) < alpha`` (Bonferroni over the ``G`` grid points), and τ's 95 %
+interval is the profile set ``max Δχ² − Δχ²(τ) ≤ χ²₁(0.95) = 3.84`` (−2 log-likelihood = χ²).
+
+A transient is called settling only when τ's interval ends below the grid's top (otherwise
+it cannot be told from a trend). A found transient is trimmed per position: with ``τ_u`` the
+interval's upper end and ``z_p`` the largest amplitude of position p in units of its standard
+error ``σ √(2/(τ_u f_s))`` (``ũ·ũ ≈ τ f_s/2``), window p loses its first
+``τ_u · max(MIN_TRIM_TIME_CONSTANTS, ln(z_p / RESIDUAL_Z))`` seconds (at most half the
+window), so that what is left of the transient, even at ``τ = τ_u``, carries less than
+``RESIDUAL_Z`` standard errors of evidence and moves neither the mean nor the drift test.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import optimize, stats
+
+Array = NDArray[np.float64]
+
+SETTLING_ALPHA = 0.01
+"""Significance level of the transient (after the Bonferroni correction over the τ grid)."""
+
+MIN_TRIM_TIME_CONSTANTS = 3.0
+"""A found transient is trimmed for at least this many times τ's upper 95 % bound."""
+
+RESIDUAL_Z = 0.1
+"""The trim leaves at most this many standard errors of each position's amplitude."""
+
+MAX_TRIM_FRACTION = 0.5
+"""No window loses more than this fraction of its length to the trim."""
+
+GRID_POINTS = 40
+_CHI2_95_1 = float(stats.chi2.ppf(0.95, 1))
+
+
+@dataclass(frozen=True)
+class Settling:
+    """The settling fit of one sensor over all positions (module doc, eq. 1–2).
+
+    ``tau_s`` the time constant and ``tau_ci95_s`` its interval (NaN when no window is long
+    enough to fit one); ``statistic`` the largest Δχ² on ``df`` dof and ``p_value`` its
+    grid-corrected p; ``found`` whether the transient is significant; ``trim_s`` ``(P,)`` the
+    seconds cut from each window's start (0 when not found); ``amplitude`` ``(P, 3)`` the fitted
+    ``a_pc`` at τ̂ (units of the data). Windows with fewer than 10 finite samples are left
+    out of the fit (amplitude and trim 0).
+    """
+
+    tau_s: float
+    tau_ci95_s: tuple[float, float]
+    statistic: float
+    df: int
+    p_value: float
+    found: bool
+    trim_s: Array
+    amplitude: Array
+
+
+def _noise_sigma(x: Array) -> Array:
+    d = np.diff(x, axis=0)
+    return np.asarray(np.sqrt(np.mean(d * d, axis=0) / 2.0))
+
+
+def fit_settling(
+    windows: Sequence[tuple[Array, Array]], *, alpha: float = SETTLING_ALPHA
+) -> Settling:
+    """Fit eq. (1) to the windows ``(t_s (n,), x (n, 3))`` of one sensor (module doc)."""
+    clean, used = [], []
+    for i, (t, x) in enumerate(windows):
+        keep = np.all(np.isfinite(x), axis=1)
+        if keep.sum() >= 10:
+            clean.append((np.asarray(t[keep], float), np.asarray(x[keep], float)))
+            used.append(i)
+    n = len(windows)
+    nan2 = (float("nan"), float("nan"))
+    if not clean:
+        return Settling(float("nan"), nan2, 0.0, 0, 1.0, False, np.zeros(n), np.zeros((n, 3)))
+    dt = min(float(np.median(np.diff(t))) for t, _ in clean)
+    shortest = min(float(t[-1] - t[0]) for t, _ in clean)
+    low, high = 3.0 * dt, shortest / 3.0
+    df = 3 * len(clean)
+    if not high > low:
+        return Settling(float("nan"), nan2, 0.0, df, 1.0, False, np.zeros(n), np.zeros((n, 3)))
+    grid = np.geomspace(low, high, GRID_POINTS)
+    prepared = []
+    for t, x in clean:
+        sigma = _noise_sigma(x)
+        prepared.append((t - t[0], x - x.mean(axis=0), np.where(sigma > 0, sigma, np.inf)))
+    gains = np.array([_gain(prepared, tau)[0] for tau in grid])
+    k = int(np.argmax(gains))
+    tau, best = _refine(prepared, grid, k, float(gains[k]))
+    ci = _interval(prepared, grid, gains, tau, best)
+    p = float(min(1.0, GRID_POINTS * stats.chi2.sf(best, df)))
+    found = p < alpha and ci[1] < grid[-1]
+    amplitude = np.zeros((n, 3))
+    amplitude[used] = _gain(prepared, tau)[1]
+    trims = np.zeros(n)
+    if found:
+        for i, (_t, _x, sigma) in zip(used, prepared, strict=True):
+            se = sigma * np.sqrt(2.0 / (ci[1] / dt))
+            z = float(np.max(np.abs(amplitude[i]) / se))
+            trims[i] = ci[1] * max(MIN_TRIM_TIME_CONSTANTS, np.log(max(z, 1.0) / RESIDUAL_Z))
+    return Settling(tau, ci, best, df, p, found, trims, amplitude)
+
+
+def _refine(
+    prepared: Sequence[tuple[Array, Array, Array]], grid: Array, k: int, best: float
+) -> tuple[float, float]:
+    """Maximise Δχ²(τ) between the grid neighbours of its best grid point."""
+    lo, hi = float(grid[max(k - 1, 0)]), float(grid[min(k + 1, grid.size - 1)])
+    res = optimize.minimize_scalar(
+        lambda t: -_gain(prepared, t)[0], bounds=(lo, hi), method="bounded",
+        options={"xatol": 1e-4 * hi},
+    )  # fmt: skip
+    if res.success and -float(res.fun) > best:
+        return float(res.x), -float(res.fun)
+    return float(grid[k]), best
+
+
+def _interval(
+    prepared: Sequence[tuple[Array, Array, Array]],
+    grid: Array,
+    gains: Array,
+    tau: float,
+    best: float,
+) -> tuple[float, float]:
+    """Profile 95 % interval of τ: where Δχ² stays within 3.84 of its maximum (grid-bounded)."""
+
+    def f(t: float) -> float:
+        return _gain(prepared, t)[0] - (best - _CHI2_95_1)
+
+    below = grid[grid < tau]
+    above = grid[grid > tau]
+    low = float(grid[0])
+    outside_low = below[gains[: below.size] < best - _CHI2_95_1]
+    if outside_low.size:
+        low = float(optimize.brentq(f, float(outside_low[-1]), tau, xtol=1e-6 * tau))
+    high = float(grid[-1])
+    outside_high = above[gains[grid.size - above.size :] < best - _CHI2_95_1]
+    if outside_high.size:
+        high = float(optimize.brentq(f, tau, float(outside_high[0]), xtol=1e-6 * tau))
+    return low, high
+
+
+def _gain(prepared: Sequence[tuple[Array, Array, Array]], tau: float) -> tuple[float, Array]:
+    """Δχ² of eq. (2) at ``tau`` and the fitted amplitudes ``(P, 3)``."""
+    total = 0.0
+    amps = []
+    for t, xc, sigma in prepared:
+        u = np.exp(-t / tau)
+        u -= u.mean()
+        uu = float(u @ u)
+        proj = u @ xc
+        total += float(np.sum(proj**2 / (uu * sigma**2)))
+        amps.append(proj / uu)
+    return total, np.array(amps)
+
+
+def trim_mask(t: Array, trim_s: float) -> NDArray[np.bool_]:
+    """Rows of a window kept after trimming ``trim_s`` (at most half the window) from its start."""
+    if trim_s <= 0 or t.size == 0:
+        return np.ones(t.size, dtype=bool)
+    cut = min(trim_s, MAX_TRIM_FRACTION * float(t[-1] - t[0]))
+    return np.asarray(t - t[0] >= cut)
