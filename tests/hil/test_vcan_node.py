@@ -51,6 +51,13 @@ class _PdoCounter(can.Listener):
             self.counters[msg.arbitration_id].append(int.from_bytes(msg.data[6:8], "little"))
 
 
+def _repeats(counters: list[int], span: np.ndarray) -> int:
+    """How many frames repeated a counter of ``span`` already delivered."""
+    seen = np.asarray(counters)
+    seen = seen[np.isin(seen, span)]
+    return int(seen.size - np.unique(seen).size)
+
+
 def test_stream_200hz_no_loss(start_node, vcan_channel: str) -> None:
     """200 Hz through the default socket buffer: nothing lost, and losses counted exactly.
 
@@ -84,7 +91,12 @@ def test_stream_200hz_no_loss(start_node, vcan_channel: str) -> None:
         f"{block.lost_accel + block.lost_gyro} halves given up, {block.late} late"
     )
     assert block.n + block.lost_samples == span.size  # every counter: a row or a lost sample
-    assert block.lost_samples == both_missing and block.duplicates == 0
+    assert block.lost_samples == both_missing
+    # a duplicate is a counter the device sent again (the durand node's event timer is a
+    # thread of its own, and under load it fires twice between samples): never more than the
+    # socket delivered twice, and none when nothing came twice
+    repeats = max(_repeats(frames.counters[cob], span) for cob in frames.cob_ids)
+    assert block.duplicates <= repeats
     # a half is given up when missing in the socket, or when it came after the 0.25 s grace
     # (late; a few may be counted in the block after the last one read: slack 5)
     halves = block.lost_accel + block.lost_gyro
