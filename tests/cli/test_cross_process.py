@@ -26,7 +26,7 @@ from tests.support.processes import bus_flags, fork_cli
 from tests.support.storm import NODE_ID, ProcessRig, storm
 
 SEED = 20261124
-RUNS = 60  # 300 more: benchmarks/soak.py --processes 300
+RUNS = 200  # issue 13 asks for 200 across processes (more: benchmarks/soak.py --processes N)
 TPDO1 = 0x180 + NODE_ID
 HEARTBEAT = 0x700 + NODE_ID
 PRE_OPERATIONAL, OPERATIONAL = 0x7F, 0x05
