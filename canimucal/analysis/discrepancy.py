@@ -47,7 +47,12 @@ from canimucal.analysis.data import (
 )
 from canimucal.analysis.drift import DriftTest, drift_test, random_walk_covariance
 from canimucal.analysis.holdout import MIN_GAIN_DOF, Holdout, Selector, refit_holdout
-from canimucal.analysis.noise_model import ScatterEstimate, ScatterModel, estimate_scatter
+from canimucal.analysis.noise_model import (
+    ScatterEstimate,
+    ScatterModel,
+    block_labels,
+    estimate_scatter,
+)
 from canimucal.analysis.significance import (
     LinearProblem,
     TermFit,
@@ -248,7 +253,9 @@ def _scatter_model(
         return ScatterModel(prepared.covariance + extra, np.zeros_like(extra), "none", 0.0)
     if data.scatter_source == "estimated":
         base = prepared.within_covariance + extra
-        return ScatterModel(base, prepared.angle_unit_covariance, "estimated")
+        unit = prepared.angle_unit_covariance
+        blocks = block_labels(base, unit, prepared.block)
+        return ScatterModel(base, unit, "estimated", blocks=blocks)
     return ScatterModel(
         prepared.covariance + extra, prepared.angle_unit_covariance, data.scatter_source, 0.0
     )
