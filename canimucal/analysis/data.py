@@ -51,6 +51,8 @@ class SessionData:
     ``scatter_source`` says where the pose-setting scatter comes from: ``"estimated"`` (from
     the data; the poses' tolerances are then ignored), ``"header"`` or ``"flag"`` (the poses'
     tolerances hold it), ``"plan"`` (the poses' tolerances, as a simulation drew them).
+    ``tilt_limit_deg`` is the largest |alpha| and |beta| of the plan that produced the
+    recording (None: no built-in plan named; a separating position then uses the default).
     """
 
     averages: tuple[PositionAverage, ...]
@@ -62,6 +64,7 @@ class SessionData:
     gyro_lsb: float = DEFAULT_GYRO_LSB
     known_positions: bool = True
     scatter_source: str = "plan"
+    tilt_limit_deg: float | None = None
 
     @property
     def has_gyro(self) -> bool:
@@ -148,12 +151,31 @@ class Ambiguity:
     """Two candidates the data cannot tell apart (analysis JSON ``ambiguous``).
 
     ``correlation`` is that of their most correlated entries' estimates in the model holding
-    both.
+    both; ``separating`` the position that would separate them best (known positions only).
     """
 
     sensor: str
     candidates: tuple[str, str]
     correlation: float
+    separating: SeparatingPosition | None = None
+
+
+@dataclass(frozen=True)
+class SeparatingPosition:
+    """The one added pose that would best tell an ambiguous pair apart (degrees).
+
+    ``noncentrality`` is the smaller of the two head-to-head tests' non-centralities with that
+    pose added (each at its candidate's size fitted without the rival), ``before`` the same
+    without it; ``correlation_after`` the pair's estimate correlation with it added.
+    """
+
+    alpha_deg: float
+    beta_deg: float
+    psi_deg: float
+    correlation_after: float
+    noncentrality: float
+    before: float
+    tilt_limit_deg: float
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,7 @@ Candidates the data cannot test are returned in ``untestable`` with the reason.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Mapping, Sequence
 
@@ -53,6 +54,7 @@ from canimucal.analysis.noise_model import (
     block_labels,
     estimate_scatter,
 )
+from canimucal.analysis.separation import separating_position
 from canimucal.analysis.significance import (
     LinearProblem,
     TermFit,
@@ -68,6 +70,7 @@ from canimucal.analysis.significance import (
     significant_masks,
 )
 from canimucal.errors import ModelError
+from canimucal.model.joint import JointResult
 
 log = logging.getLogger(__name__)
 
@@ -80,7 +83,8 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
         raise ModelError(f"{len(data.averages)} averages but {len(data.windows)} windows")
     if not 0.0 < alpha < 1.0:
         raise ModelError(f"alpha must be within (0, 1), got {alpha}")
-    prepared = fit_known(data)[0] if data.known_positions else fit_scalar_base(data)[0]
+    joint = fit_known(data) if data.known_positions else None
+    prepared = joint[0] if joint is not None else fit_scalar_base(data)[0]
     untestable = _untestable(data)
     temps, temp_reason = temperature_status(data)
     candidates = [c for c in prepared.candidates if not (temp_reason and "temperature" in c.key)]
@@ -109,6 +113,10 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
     fit = fit_terms(problem.linear, columns, chosen)
     findings = _findings(tests, fit, {c.key: c for c in candidates}, drifts, prepared, data, alpha)
     duel = _head_to_head(problem.linear, columns, chosen, alpha, family, use_f)
+    if joint is not None:
+        duel = [
+            _separate(x, data, joint[1], problem.linear, columns, chosen, tau.value) for x in duel
+        ]
     unresolved = {f"{a.sensor}.{a.candidates[0]}" for a in duel}
     findings = [f for f in findings if f"{f.sensor}.{f.effect}" not in unresolved]
     sparse = significant_columns(problem.linear, columns, chosen)
@@ -176,6 +184,22 @@ def _head_to_head(
             pair = (term.split(".", 1)[1], rival.split(".", 1)[1])
             out.append(Ambiguity(sensor, pair, r))
     return out
+
+
+def _separate(
+    pair: Ambiguity,
+    data: SessionData,
+    joint: JointResult,
+    problem: LinearProblem,
+    columns: Mapping[str, Array],
+    chosen: Sequence[str],
+    tau: float,
+) -> Ambiguity:
+    """Add the position that would separate an ambiguous pair best (:mod:`.separation`)."""
+    term, rival = (f"{pair.sensor}.{c}" for c in pair.candidates)
+    others = [c for c in chosen if c != term]
+    where = separating_position(data, joint, problem, columns, others, (term, rival), tau)
+    return dataclasses.replace(pair, separating=where)
 
 
 def _base_under(

@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 
 from canimucal.analysis.data import SessionData, Window
 from canimucal.analysis.pose_scatter import header_tolerance_deg
+from canimucal.analysis.separation import plan_tilt_limit_deg
 from canimucal.errors import InputError
 from canimucal.io.grouping import has_angles, position_rows
 from canimucal.io.recording import Recording
@@ -86,6 +87,7 @@ def session_from_recording(
         gyro_lsb=_lsb(rec, "gyro_lsb", DEFAULT_GYRO_LSB if known else 1.0),
         known_positions=known,
         scatter_source=source,
+        tilt_limit_deg=plan_tilt_limit_deg(rec.header.get("plan")),
     )
 
 
