@@ -68,13 +68,16 @@ class Candidate:
 
 def body_specific_force(averages: Sequence[PositionAverage], g: float) -> Array:
     """``f = C(alpha, beta, psi) f_L`` of each labelled position (no tilt), ``(n, 3)`` m/s²."""
-    angles = np.array([a.pose.angles for a in averages])
+    return _specific_force(np.array([a.pose.angles for a in averages]), g)
+
+
+def _specific_force(angles: Array, g: float) -> Array:
     c, _, _ = dcm_stack(angles, 0.0, 0.0, "rigid")
     return c @ ModelContext.build(g).f_level
 
 
 def _tilt_columns(
-    averages: Sequence[PositionAverage],
+    angles: Array,
     g: float,
     k_matrix: Array,
     s_matrix: Array,
@@ -82,10 +85,9 @@ def _tilt_columns(
     m: int,
 ) -> Array:
     """``K dC/d(alpha0, beta0) f_L`` (and ``S dC w_L`` on gyro rows): rigid tilt, eq. (15)."""
-    angles = np.array([a.pose.angles for a in averages])
     _, _, d_tilt = dcm_stack(angles, 0.0, 0.0, "rigid")
     f_level = ModelContext.build(g).f_level
-    n = len(averages)
+    n = angles.shape[0]
     tilt = np.zeros((n, m, 2))
     tilt[:, :3] = k_matrix @ np.einsum("nkij,j->nik", d_tilt, f_level)
     if m == 6:
@@ -112,9 +114,26 @@ def known_position_candidates(
     temperatures: Array | None,
 ) -> list[Candidate]:
     """Candidates of the joint (known-position) base fit; rows ``position × channel``."""
-    n, m = len(averages), channels
-    f = body_specific_force(averages, g)
-    tilt = _tilt_columns(averages, g, k_matrix, s_matrix, w_level, m)
+    return candidates_at_angles(
+        np.array([a.pose.angles for a in averages]), g=g, k_matrix=k_matrix,
+        s_matrix=s_matrix, w_level=w_level, channels=channels, temperatures=temperatures,
+    )  # fmt: skip
+
+
+def candidates_at_angles(
+    angles: Array,
+    *,
+    g: float,
+    k_matrix: Array,
+    s_matrix: Array,
+    w_level: Array,
+    channels: int,
+    temperatures: Array | None,
+) -> list[Candidate]:
+    """Candidates of the joint base fit at poses ``angles`` ``(n, 3)`` rad (any poses)."""
+    n, m = angles.shape[0], channels
+    f = _specific_force(angles, g)
+    tilt = _tilt_columns(angles, g, k_matrix, s_matrix, w_level, m)
     out = [Candidate("base_tilt", "accel", tilt, ("alpha0", "beta0"))]
     out.append(
         Candidate(

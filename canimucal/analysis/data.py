@@ -54,6 +54,8 @@ class SessionData:
     tolerances hold it), ``"plan"`` (the poses' tolerances, as a simulation drew them).
     ``settling`` holds each sensor's settling fit (:mod:`.settling`):
     the windows and averages are already trimmed by it.
+    ``tilt_limit_deg`` is the largest |alpha| and |beta| of the plan that produced the
+    recording (None: no built-in plan named; a separating position then uses the default).
     """
 
     averages: tuple[PositionAverage, ...]
@@ -66,6 +68,7 @@ class SessionData:
     known_positions: bool = True
     scatter_source: str = "plan"
     settling: Mapping[str, Settling] = field(default_factory=dict)
+    tilt_limit_deg: float | None = None
 
     @property
     def has_gyro(self) -> bool:
@@ -152,12 +155,31 @@ class Ambiguity:
     """Two candidates the data cannot tell apart (analysis JSON ``ambiguous``).
 
     ``correlation`` is that of their most correlated entries' estimates in the model holding
-    both.
+    both; ``separating`` the position that would separate them best (known positions only).
     """
 
     sensor: str
     candidates: tuple[str, str]
     correlation: float
+    separating: SeparatingPosition | None = None
+
+
+@dataclass(frozen=True)
+class SeparatingPosition:
+    """The one added pose that would best tell an ambiguous pair apart (degrees).
+
+    ``noncentrality`` is the smaller of the two head-to-head tests' non-centralities with that
+    pose added (each at its candidate's size fitted without the rival), ``before`` the same
+    without it; ``correlation_after`` the pair's estimate correlation with it added.
+    """
+
+    alpha_deg: float
+    beta_deg: float
+    psi_deg: float
+    correlation_after: float
+    noncentrality: float
+    before: float
+    tilt_limit_deg: float
 
 
 @dataclass(frozen=True)

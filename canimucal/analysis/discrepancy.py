@@ -21,6 +21,7 @@ Candidates the data cannot test are returned in ``untestable`` with the reason.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Mapping, Sequence
 
@@ -56,7 +57,13 @@ from canimucal.analysis.drift import (
     walk_consistent,
 )
 from canimucal.analysis.holdout import MIN_GAIN_DOF, Holdout, Selector, refit_holdout
-from canimucal.analysis.noise_model import ScatterEstimate, ScatterModel, estimate_scatter
+from canimucal.analysis.noise_model import (
+    ScatterEstimate,
+    ScatterModel,
+    block_labels,
+    estimate_scatter,
+)
+from canimucal.analysis.separation import separating_position
 from canimucal.analysis.significance import (
     LinearProblem,
     TermFit,
@@ -72,6 +79,7 @@ from canimucal.analysis.significance import (
     significant_masks,
 )
 from canimucal.errors import ModelError
+from canimucal.model.joint import JointResult
 
 log = logging.getLogger(__name__)
 
@@ -84,7 +92,8 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
         raise ModelError(f"{len(data.averages)} averages but {len(data.windows)} windows")
     if not 0.0 < alpha < 1.0:
         raise ModelError(f"alpha must be within (0, 1), got {alpha}")
-    prepared = fit_known(data)[0] if data.known_positions else fit_scalar_base(data)[0]
+    joint = fit_known(data) if data.known_positions else None
+    prepared = joint[0] if joint is not None else fit_scalar_base(data)[0]
     untestable = _untestable(data)
     temps, temp_reason = temperature_status(data)
     candidates = [c for c in prepared.candidates if not (temp_reason and "temperature" in c.key)]
@@ -114,6 +123,10 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
     fit = fit_terms(problem.linear, columns, chosen)
     findings = _findings(tests, fit, {c.key: c for c in candidates}, drifts, prepared, data, alpha)
     duel = _head_to_head(problem.linear, columns, chosen, alpha, family, use_f)
+    if joint is not None:
+        duel = [
+            _separate(x, data, joint[1], problem.linear, columns, chosen, tau.value) for x in duel
+        ]
     unresolved = {f"{a.sensor}.{a.candidates[0]}" for a in duel}
     findings = [f for f in findings if f"{f.sensor}.{f.effect}" not in unresolved]
     sparse = significant_columns(problem.linear, columns, chosen)
@@ -181,6 +194,22 @@ def _head_to_head(
             pair = (term.split(".", 1)[1], rival.split(".", 1)[1])
             out.append(Ambiguity(sensor, pair, r))
     return out
+
+
+def _separate(
+    pair: Ambiguity,
+    data: SessionData,
+    joint: JointResult,
+    problem: LinearProblem,
+    columns: Mapping[str, Array],
+    chosen: Sequence[str],
+    tau: float,
+) -> Ambiguity:
+    """Add the position that would separate an ambiguous pair best (:mod:`.separation`)."""
+    term, rival = (f"{pair.sensor}.{c}" for c in pair.candidates)
+    others = [c for c in chosen if c != term]
+    where = separating_position(data, joint, problem, columns, others, (term, rival), tau)
+    return dataclasses.replace(pair, separating=where)
 
 
 def _base_under(
@@ -303,7 +332,9 @@ def _scatter_model(
         return ScatterModel(prepared.covariance + extra, np.zeros_like(extra), "none", 0.0)
     if data.scatter_source == "estimated":
         base = prepared.within_covariance + extra
-        return ScatterModel(base, prepared.angle_unit_covariance, "estimated")
+        unit = prepared.angle_unit_covariance
+        blocks = block_labels(base, unit, prepared.block)
+        return ScatterModel(base, unit, "estimated", blocks=blocks)
     return ScatterModel(
         prepared.covariance + extra, prepared.angle_unit_covariance, data.scatter_source, 0.0
     )

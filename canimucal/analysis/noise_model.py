@@ -29,7 +29,7 @@ the smaller model lacks is not absorbed into a larger scatter under the smaller 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -59,6 +59,9 @@ class ScatterModel:
     unit: Array
     source: str
     fixed: float | None = None
+    blocks: NDArray[np.int64] | None = field(default=None, compare=False)
+    """Position of each row when ``base`` and ``unit`` are block-diagonal by position (the
+    basis is then found block by block); None: dense."""
 
     def covariance(self, tau: float) -> Array:
         """``V(τ)`` of eq. (1)."""
@@ -67,12 +70,31 @@ class ScatterModel:
     @cached_property
     def basis(self) -> tuple[Array, Array, float]:
         """``(W, λ, log|C|)`` with ``W V(τ) Wᵀ = I + τ² diag(λ)`` (see :class:`_Rotated`)."""
-        chol = np.asarray(np.linalg.cholesky(0.5 * (self.base + self.base.T)), dtype=float)
-        inv = _solve_lower(chol, np.eye(chol.shape[0]))
-        half = inv @ self.unit @ inv.T
-        lam, q = np.linalg.eigh(0.5 * (half + half.T))
-        logdet = 2.0 * float(np.sum(np.log(np.diag(chol))))
-        return np.asarray(q.T @ inv, dtype=float), np.maximum(lam, 0.0), logdet
+        size = self.base.shape[0]
+        groups = [np.arange(size)] if self.blocks is None else _groups(self.blocks)
+        w, lam, logdet = np.zeros((size, size)), np.zeros(size), 0.0
+        for rows in groups:
+            cell = np.ix_(rows, rows)
+            chol = np.asarray(np.linalg.cholesky(0.5 * (self.base[cell] + self.base[cell].T)))
+            inv = _solve_lower(chol, np.eye(rows.size))
+            half = inv @ self.unit[cell] @ inv.T
+            lam_b, q = np.linalg.eigh(0.5 * (half + half.T))
+            w[cell] = q.T @ inv
+            lam[rows] = lam_b
+            logdet += 2.0 * float(np.sum(np.log(np.diag(chol))))
+        return w, np.maximum(lam, 0.0), logdet
+
+
+def _groups(blocks: NDArray[np.int64]) -> list[NDArray[np.intp]]:
+    return [np.flatnonzero(blocks == b) for b in np.unique(blocks)]
+
+
+def block_labels(base: Array, unit: Array, blocks: NDArray[np.int64]) -> NDArray[np.int64] | None:
+    """Return ``blocks`` when both matrices vanish outside its diagonal blocks, else None."""
+    outside = blocks[:, None] != blocks[None, :]
+    if np.any(base[outside] != 0.0) or np.any(unit[outside] != 0.0):
+        return None
+    return blocks
 
 
 @dataclass(frozen=True)
@@ -100,18 +122,27 @@ class _Rotated:
     """``r`` and ``X`` in the basis where ``V(τ)`` is diagonal: ``W V(τ) Wᵀ = I + τ² diag(λ)``.
 
     ``W = Qᵀ L⁻¹`` with ``C = L Lᵀ`` and ``L⁻¹ A L⁻ᵀ = Q diag(λ) Qᵀ`` (a generalised
-    eigenproblem), so every τ costs one small SVD instead of a Cholesky of ``V``.
+    eigenproblem). ``X = U Σ Vᵀ`` (thin SVD, the ``k`` non-zero singular values) once: a
+    row scaling ``S = diag(d^-½)`` keeps the column space, so ``S X`` spans that of ``S U``,
+    and the pseudo-determinant ``|Xᵀ S² X|₊ = |Σ|² |Uᵀ S² U|``. Every τ then costs one
+    ``k × k`` Cholesky instead of an SVD or a Cholesky of ``V``.
     """
 
     residual: Array
-    design: Array
+    basis_u: Array
+    log_sv: float
     lam: Array
     logdet_base: float
 
 
 def _rotate(model: ScatterModel, residual: Array, design: Array) -> _Rotated:
     w, lam, logdet = model.basis
-    return _Rotated(w @ residual, w @ design, lam, logdet)
+    x = w @ design
+    if x.shape[1] == 0:
+        return _Rotated(w @ residual, x, 0.0, lam, logdet)
+    u, s, _vt = np.linalg.svd(x, full_matrices=False)
+    keep = s > _RANK_TOL * max(float(s[0]), 1e-300)
+    return _Rotated(w @ residual, u[:, keep], float(np.sum(np.log(s[keep]))), lam, logdet)
 
 
 def _loglik(rot: _Rotated, tau: float, restricted: bool) -> float:
@@ -119,15 +150,15 @@ def _loglik(rot: _Rotated, tau: float, restricted: bool) -> float:
     scale = 1.0 / np.sqrt(d)
     rw = rot.residual * scale
     logdet = rot.logdet_base + float(np.sum(np.log(d)))
-    if rot.design.shape[1] == 0:
+    if rot.basis_u.shape[1] == 0:
         return -0.5 * (logdet + float(rw @ rw))
-    u, s, _vt = np.linalg.svd(rot.design * scale[:, None], full_matrices=False)
-    keep = s > _RANK_TOL * max(float(s[0]) if s.size else 0.0, 1e-300)
-    uk = u[:, keep]
-    proj = rw - uk @ (uk.T @ rw)
-    out = -0.5 * (logdet + float(proj @ proj))
+    su = rot.basis_u * scale[:, None]
+    gram = su.T @ su
+    b = su.T @ rw
+    proj = max(float(rw @ rw) - float(b @ np.linalg.solve(gram, b)), 0.0)
+    out = -0.5 * (logdet + proj)
     if restricted:
-        out -= float(np.sum(np.log(s[keep])))
+        out -= rot.log_sv + 0.5 * float(np.linalg.slogdet(gram)[1])
     return out
 
 
@@ -167,6 +198,13 @@ def profile_loglik(model: ScatterModel, residual: Array, design: Array) -> tuple
     if model.fixed is not None:
         return model.fixed, _loglik(rot, model.fixed, False)
     return _maximise(rot, restricted=False)
+
+
+def reml_scatter(model: ScatterModel, residual: Array, design: Array) -> float:
+    """REML estimate of τ alone (no interval); a fixed τ as given."""
+    if model.fixed is not None:
+        return model.fixed
+    return _maximise(_rotate(model, residual, design), restricted=True)[0]
 
 
 def estimate_scatter(model: ScatterModel, residual: Array, design: Array) -> ScatterEstimate:

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.analysis.conditions import recording_conditions
-from canimucal.analysis.data import DiscrepancyResult, SessionData
+from canimucal.analysis.data import Ambiguity, DiscrepancyResult, SessionData
 from canimucal.analysis.discrepancy import analyse_discrepancy
 from canimucal.analysis.session import session_from_recording
 from canimucal.io.recording import Recording
@@ -218,16 +218,34 @@ def analysis_document(a: Analysis) -> dict[str, Any]:
         "sensors": {s: _sensor_block(a, s) for s in ("accel", "gyro") if s in a.result.scores},
         "findings": findings,
         "untestable": untestable,
-        "ambiguous": [
-            {"sensor": x.sensor, "candidates": list(x.candidates), "correlation": x.correlation}
-            for x in a.result.ambiguous
-        ],
+        "ambiguous": [_ambiguity(x) for x in a.result.ambiguous],
         "noise": noise,
     }
 
 
 def _finite(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
+
+
+def _ambiguity(x: Ambiguity) -> dict[str, Any]:
+    """One ``ambiguous`` entry of the analysis JSON (DESIGN §9), with its separating position."""
+    out: dict[str, Any] = {
+        "sensor": x.sensor,
+        "candidates": list(x.candidates),
+        "correlation": x.correlation,
+    }
+    sep = x.separating
+    if sep is not None:
+        out["separating_position"] = {
+            "alpha_deg": sep.alpha_deg,
+            "beta_deg": sep.beta_deg,
+            "psi_deg": sep.psi_deg,
+            "correlation_after": sep.correlation_after,
+            "noncentrality_after": sep.noncentrality,
+            "noncentrality_before": sep.before,
+            "tilt_limit_deg": sep.tilt_limit_deg,
+        }
+    return out
 
 
 def extended_truth(a: Analysis) -> dict[str, Any]:

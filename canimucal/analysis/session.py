@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 
 from canimucal.analysis.data import SessionData, Window
 from canimucal.analysis.pose_scatter import header_tolerance_deg
+from canimucal.analysis.separation import plan_tilt_limit_deg
 from canimucal.analysis.settling import fit_settling, trim_mask
 from canimucal.errors import InputError
 from canimucal.io.grouping import has_angles, position_rows
@@ -97,6 +98,7 @@ def session_from_recording(
         known_positions=known,
         scatter_source=source,
         settling=settling,
+        tilt_limit_deg=plan_tilt_limit_deg(rec.header.get("plan")),
     )
 
 

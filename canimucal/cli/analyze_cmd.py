@@ -185,11 +185,19 @@ def report_text(a: Analysis, reference: Reference | None, replayed: list[ReplayR
     lines += [f"  {f.effect} ({f.sensor}): {f.evidence}; p = {f.p_value:.2g}" for f in r.findings]
     if not r.findings:
         lines.append("  none: the base model explains the data")
-    lines += [
-        f"  ambiguous ({x.sensor}): {x.candidates[0]} or {x.candidates[1]} (estimates correlated "
-        f"{x.correlation:+.2f} in the model holding both; neither is named)"
-        for x in r.ambiguous
-    ]
+    for x in r.ambiguous:
+        lines.append(
+            f"  ambiguous ({x.sensor}): {x.candidates[0]} or {x.candidates[1]} (estimates "
+            f"correlated {x.correlation:+.2f} in the model holding both; neither is named)"
+        )
+        sep = x.separating
+        if sep is not None:
+            lines.append(
+                f"    to separate them add one position: alpha {sep.alpha_deg:g}°, beta "
+                f"{sep.beta_deg:g}°, psi {sep.psi_deg:g}° (tilts within ±{sep.tilt_limit_deg:g}°; "
+                f"head-to-head non-centrality {sep.before:.1f} → {sep.noncentrality:.1f}, "
+                f"correlation after {sep.correlation_after:+.2f})"
+            )
     lines += [f"  untestable {k}: {v}" for k, v in r.untestable.items()]
     lines += [
         "",
