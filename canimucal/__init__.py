@@ -20,6 +20,7 @@ from canimucal.version import __version__
 if TYPE_CHECKING:
     from canimucal.analysis.report import Analysis, analyze
     from canimucal.analysis.solve import calibrate
+    from canimucal.analysis.static_noise import StaticAnalysis, analyze_static
     from canimucal.errors import CanimucalError, DeviceError, InputError, ModelError
     from canimucal.io.calibration import Calibration
     from canimucal.io.importers import read_any as read_recording
@@ -40,6 +41,8 @@ _PUBLIC = {
     "BoundTable": ("canimucal.model.plan", "BoundTable"),
     "analyze": ("canimucal.analysis.report", "analyze"),
     "Analysis": ("canimucal.analysis.report", "Analysis"),
+    "analyze_static": ("canimucal.analysis.static_noise", "analyze_static"),
+    "StaticAnalysis": ("canimucal.analysis.static_noise", "StaticAnalysis"),
     "CanimucalError": ("canimucal.errors", "CanimucalError"),
     "InputError": ("canimucal.errors", "InputError"),
     "ModelError": ("canimucal.errors", "ModelError"),
@@ -58,8 +61,10 @@ __all__ = [
     "Pose",
     "PositionAverage",
     "Recording",
+    "StaticAnalysis",
     "__version__",
     "analyze",
+    "analyze_static",
     "average_position",
     "calibrate",
     "plan_bounds",

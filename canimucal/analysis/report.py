@@ -21,6 +21,8 @@ from canimucal.analysis.conditions import recording_conditions
 from canimucal.analysis.data import Ambiguity, DiscrepancyResult, SessionData
 from canimucal.analysis.discrepancy import analyse_discrepancy
 from canimucal.analysis.session import session_from_recording
+from canimucal.analysis.static_noise import static_rows
+from canimucal.errors import InputError
 from canimucal.io.recording import Recording
 from canimucal.model.noise import (
     NoiseTerms,
@@ -78,7 +80,16 @@ def analyze(
     latitude_deg: float | None = None,
     tolerance_deg: float | None = None,
 ) -> Analysis:
-    """Run the discrepancy loop as ``canimucal analyze`` does (g: flag, header, latitude)."""
+    """Run the discrepancy loop as ``canimucal analyze`` does (g: flag, header, latitude).
+
+    One long static recording has no calibration terms to test: :class:`InputError`
+    pointing to ``canimucal.analyze_static`` (its noise terms and averaging times).
+    """
+    if static_rows(recording) is not None:
+        raise InputError(
+            f"{recording.source or 'recording'}: one static record (one pose): no calibration "
+            "terms to test; use canimucal.analyze_static for its noise and averaging times"
+        )
     cond = recording_conditions(recording, g)
     latitude = cond.latitude_rad
     if latitude_deg is not None:

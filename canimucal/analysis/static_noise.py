@@ -127,6 +127,21 @@ def static_rows(rec: Recording) -> NDArray[np.intp] | None:
     return np.arange(int(groups[0][0]), int(groups[-1][-1]) + 1)
 
 
+def analyze_static(recording: Recording) -> StaticAnalysis:
+    """Analyse one long static recording as ``canimucal analyze``/``allan`` do (public API).
+
+    A recording holding several poses is an :class:`InputError` that points to
+    ``canimucal.analyze``.
+    """
+    rows = static_rows(recording)
+    if rows is None:
+        raise InputError(
+            f"{recording.source or 'recording'}: holds several poses, not one static record: "
+            "use canimucal.analyze"
+        )
+    return analyse_static(recording, rows, recording_lsb(recording))
+
+
 def analyse_static(
     rec: Recording,
     rows: NDArray[np.intp],

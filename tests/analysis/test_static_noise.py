@@ -116,3 +116,18 @@ def test_real_static_stretch_gives_per_axis_times() -> None:
             assert any(w.startswith(f"{name} {'xyz'[axis]}: the three-term") for w in sa.warnings)
     assert sa.choice.limiting_axis.split(".")[0] in {"accel", "gyro"}
     assert 15.0 <= sa.choice.seconds <= 120.0
+
+
+def test_the_public_api_analyses_a_static_file_and_points_each_kind_to_its_function() -> None:
+    import canimucal as cm
+
+    rec = _static(1406)
+    sa = cm.analyze_static(rec)
+    assert isinstance(sa, cm.StaticAnalysis)
+    assert sa.choice.limiting_axis == "accel.y" and sa.sensors["accel"].drift_named
+    with pytest.raises(cm.InputError, match="use canimucal.analyze_static"):
+        cm.analyze(rec)
+    if all(p.exists() for p in HAND_HELD):  # several poses: the other way round
+        poses = load_any(str(HAND_HELD[0]), str(HAND_HELD[1]))
+        with pytest.raises(cm.InputError, match="several poses.*use canimucal.analyze"):
+            cm.analyze_static(poses)
