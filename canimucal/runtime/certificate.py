@@ -17,6 +17,7 @@ from typing import Any
 from canimucal.analysis.acceptance import AcceptanceLimits, AcceptanceReport
 from canimucal.device.client import Identity
 from canimucal.io.calibration import Calibration, Verification, calibration_to_dict
+from canimucal.model.mounting import MountingMap
 from canimucal.procedure.events import LevelChecked
 from canimucal.untrusted import markdown_text
 
@@ -40,6 +41,16 @@ class SessionFacts:
     verification: Verification | None = None
     warmup: str = "not required"
     """``waited until stable``, ``skipped by the operator`` or ``not required``."""
+    mounting: str = ""
+    """How the unit sat in the vehicle (``x=forward,y=down,z=left``, where it came from); ""
+    when the instructions were worded in the unit's own axes."""
+
+
+def mounting_text(mounting: MountingMap | None, note: str = "") -> str:
+    """Return the certificate's mounting line: the map and its origin ("" in body axes)."""
+    if mounting is None:
+        return ""
+    return note or mounting.text()
 
 
 def verification_of(
@@ -204,6 +215,7 @@ def _head(d: dict[str, Any], identity: Identity, facts: SessionFacts) -> list[st
         f"hardware {markdown_text(identity.hardware_version) or '—'}, "
         f"software {markdown_text(identity.software_version) or '—'}",
         f"- Plan: {d.get('plan', 'unknown')}, {len(d.get('positions') or [])} positions",
+        f"- Mounting: {markdown_text(facts.mounting) if facts.mounting else 'unit axes (bench)'}",
         f"- Conditions: g = {cond.get('g')} m/s², latitude {cond.get('latitude_deg')}°, "
         f"heading {cond.get('heading_deg')}°, temperature {cond.get('temp_c')} °C",
         f"- Fit: rms {fit.get('rms', float('nan')):.3g} m/s², dof {fit.get('dof')}",
@@ -253,6 +265,7 @@ def certificate_html(
         ("Operator", e(facts.operator) if facts.operator else "not given"),
         ("Site", e(facts.site) if facts.site else "not given"),
         ("Plan", f"{e(str(d.get('plan', 'unknown')))}, {len(d.get('positions') or [])} positions"),
+        ("Mounting", e(facts.mounting) if facts.mounting else "unit axes (bench)"),
         (
             "Conditions",
             f"g = {cond.get('g')} m/s², latitude {cond.get('latitude_deg')}°, "

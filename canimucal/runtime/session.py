@@ -60,6 +60,7 @@ from canimucal.runtime.certificate import (
     SessionFacts,
     certificate_html,
     certificate_markdown,
+    mounting_text,
     verification_of,
 )
 from canimucal.runtime.resume import partial_path
@@ -386,7 +387,7 @@ class Session:
         )
 
     def facts(self, node_id: int) -> SessionFacts:
-        """Operator, site, written or not, the verification verdict and the warm-up."""
+        """Operator, site, written or not, verification, warm-up and the mounting map."""
         proc = self.procedure
         result = proc.write_results.get(node_id)
         written = result is not None and result.ok
@@ -403,6 +404,7 @@ class Session:
             written=written,
             verification=verification_of(after, written, proc.config.limits, proc.config.site.g),
             warmup=warmup,
+            mounting=mounting_text(proc.config.mounting, proc.config.mounting_note),
         )
 
     def _write_certificates(self, node_id: int) -> None:

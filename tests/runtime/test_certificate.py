@@ -7,11 +7,13 @@ import numpy as np
 from canimucal.analysis.acceptance import AcceptanceLimits, AcceptanceReport, Check
 from canimucal.device.client import Identity
 from canimucal.io.calibration import Device, record_from_estimates
+from canimucal.model.mounting import MountingMap
 from canimucal.procedure.events import LevelChecked
 from canimucal.runtime.certificate import (
     SessionFacts,
     certificate_html,
     certificate_markdown,
+    mounting_text,
     verification_of,
 )
 
@@ -52,6 +54,7 @@ def test_certificate_states_the_verdicts_and_escapes_device_text() -> None:
         written=True,
         verification=verification_of(None, True, LIMITS, G),
         warmup="skipped by the operator",
+        mounting=mounting_text(MountingMap.parse("x=left,y=down,z=back"), "asked for *this* run"),
     )
     args = (record, identity, report, LIMITS, [])
     markdown = certificate_markdown(*args, warnings=["held at the stated prior"], facts=facts)
@@ -60,6 +63,19 @@ def test_certificate_states_the_verdicts_and_escapes_device_text() -> None:
         assert "k = 1" in text and "NOT PASSED" in text and "skipped by the operator" in text
         assert "NOT DONE" in text and "held at the stated prior" in text and "Bay 3" in text
     assert "Written to the device: yes" in markdown
+    assert "Mounting: asked for \\*this\\* run" in markdown  # our own text, escaped too
+    assert "<td>Mounting</td><td>asked for *this* run</td>" in page
     assert r"\*imu\*" in markdown and "&lt;script&gt;" in markdown and "<script>" not in markdown
     assert "<script>" not in page and "&lt;script&gt;" in page
     assert "&lt;b&gt;Tester&lt;/b&gt;" in page and "<b>" not in page
+
+
+def test_the_mounting_line_is_empty_in_body_axes_and_says_bench() -> None:
+    assert mounting_text(None, "anything") == ""
+    turned = MountingMap.parse("x=left,y=down,z=back")
+    assert mounting_text(turned) == "x=left,y=down,z=back"
+    record = record_from_estimates(["accel.bias[0]"], [1.0], np.eye(1), device=Device(serial=7))
+    text = certificate_markdown(
+        record, Identity(1, 2, 3, 7, "imu"), AcceptanceReport(()), LIMITS, []
+    )
+    assert "- Mounting: unit axes (bench)" in text

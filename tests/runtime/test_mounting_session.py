@@ -38,6 +38,7 @@ def test_a_session_loads_the_map_saved_for_its_unit_and_words_the_first_pose(
         session = rig.session(plan, tmp_path, plan_name="vehicle", warmup=False)
         config = session.procedure.config
         assert config.mounting == TURNED and f"serial {serial}" in config.mounting_note
+        assert session.facts(0x10).mounting == config.mounting_note  # the certificate's line
         events = session.procedure.start()
         session.finish()
     first = next(e for e in events if isinstance(e, ev.PoseInstructed))
