@@ -20,7 +20,6 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import can
 import canopen
@@ -36,13 +35,10 @@ from canimucal.sim.truth import Truth
 from canimucal.simnode.faults import FaultStats
 from canimucal.simnode.node import SimulatedImuNode
 from tests.support.buses import FaultyBus, LoopbackBus, loopback_pair
+from tests.support.calibrations import NODE_ID, SERIAL, calibration
 from tests.support.independent_node import Behaviour, IndependentImuNode
 from tests.support.nodes import DeviceUnderTest
 
-NODE_ID = 0x10
-SERIAL = 4242
-ACCEL_LSB = 9.80665 / 2048.0
-GYRO_LSB = float(np.pi / (180.0 * 16.4))
 N_FAULTS = 1000
 SEED = 20260601
 STORE_TIMEOUT_S = 0.2  # the loopback answers in microseconds; a real store may take seconds
@@ -51,21 +47,6 @@ Raw = dict[tuple[int, int], bytes]
 STORE_REQUEST = bytes([0x23, 0x10, 0x10, od.STORE_CALIBRATION_SUB])
 VALID_UPLOAD = bytes([0x40, 0x21, 0x21, od.CAL_VALID_SUB])
 CRC_UPLOAD = bytes([0x40, 0x21, 0x21, od.CAL_CRC_SUB])
-
-
-def calibration(scale: float, bias: float) -> dict[str, Any]:
-    """A calibration JSON dict near nominal (cross-axis terms, g-sensitivity, tilt)."""
-    k = np.diag([scale, -scale, 0.99]) / ACCEL_LSB
-    k[0, 1] = 0.01 / ACCEL_LSB
-    s = np.eye(3) * 1.02 / GYRO_LSB
-    return {
-        "schema": "canimucal.calibration/1",
-        "plan": "five",
-        "device": {"node_id": NODE_ID, "serial": SERIAL},
-        "accel": {"bias": [bias, -3.25, 1.5], "K": k.tolist()},
-        "gyro": {"bias": [1.0, 2.0, 3.0], "S": s.tolist(), "G": np.eye(3).tolist()},
-        "base_tilt_deg": {"alpha0": 0.3, "beta0": -0.2},
-    }
 
 
 @dataclass

@@ -31,31 +31,13 @@ from canimucal.device.client import ImuClient
 from canimucal.device.transaction import write_calibration_transaction
 from canimucal.io.calibration import Calibration
 from tests.support import tcpbus
+from tests.support.calibrations import NODE_ID, SERIAL, calibration
 from tests.support.processes import CliProcess, bus_flags, fork_cli, start_sim_node
 
-NODE_ID = 0x10
-SERIAL = 4242
-ACCEL_LSB = 9.80665 / 2048.0
-GYRO_LSB = float(np.pi / (180.0 * 16.4))
 SDO_REQUEST = 0x600 + NODE_ID
 EXIT_CODES = {0, 3, 130, 143}
 Raw = dict[tuple[int, int], bytes]
 KINDS = ("term", "int", "double")
-
-
-def calibration(scale: float, bias: float) -> dict[str, Any]:
-    """A calibration JSON dict near nominal for the rig's unit."""
-    k = np.diag([scale, -scale, 0.99]) / ACCEL_LSB
-    k[0, 1] = 0.01 / ACCEL_LSB
-    s = np.eye(3) * 1.02 / GYRO_LSB
-    return {
-        "schema": "canimucal.calibration/1",
-        "plan": "five",
-        "device": {"node_id": NODE_ID, "serial": SERIAL},
-        "accel": {"bias": [bias, -3.25, 1.5], "K": k.tolist()},
-        "gyro": {"bias": [1.0, 2.0, 3.0], "S": s.tolist(), "G": np.eye(3).tolist()},
-        "base_tilt_deg": {"alpha0": 0.3, "beta0": -0.2},
-    }
 
 
 @dataclass
