@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from canimucal.analysis.calibrate import SiteConditions, Solution
 from canimucal.analysis.gyro_moves import uniform_rows
 from canimucal.errors import InputError
-from canimucal.io.calibration import AccelBlock, record_from_estimates
+from canimucal.io.calibration import AccelBlock, re_estimated
 from canimucal.io.grouping import position_rows
 from canimucal.io.recording import Recording
 from canimucal.model.gravity_moves import GravityMove, GravityMovesFit, solve_gravity_moves
@@ -104,19 +104,12 @@ def solve_gravity_moves_recording(
         for j in np.flatnonzero(~fit.identifiable)
         for i in range(3)
     }
-    old = solution.record
-    record = record_from_estimates(
+    record = re_estimated(
+        solution.record,
         [*names, *bias_names, *s_names],
         np.concatenate([scalar.params, found.first_bias, s_values]),
         cov,
-        device=old.device,
-        held_fixed=held,
-        plan=old.plan,
-        created=old.created,
-        conditions=old.conditions,
-        positions=old.positions,
-        fit=old.fit,
-        recording=old.recording,
+        held,
     )
     warnings = (
         *solution.warnings,

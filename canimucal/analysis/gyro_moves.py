@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from canimucal.analysis.calibrate import SiteConditions, Solution
 from canimucal.errors import InputError
-from canimucal.io.calibration import AccelBlock, record_from_estimates
+from canimucal.io.calibration import AccelBlock, re_estimated
 from canimucal.io.recording import Recording
 from canimucal.model.frames import earth_rate_level, position_dcm, specific_force_level
 from canimucal.model.moves import AXES, Move, MovesFit, pose_move, solve_moves, turn_move
@@ -309,21 +309,10 @@ def with_moves(solution: Solution, fit: MovesFit, notes: Sequence[str]) -> Solut
             held[f"gyro.S[{i}][{j}]"] = (
                 f"the moves turn {fit.turned_deg[j]:.1f}° about body {AXES[j]}: not identifiable"
             )
-    old = solution.record
-    record = record_from_estimates(
-        [*names, *s_names],
-        np.concatenate([joint.values[keep], s_values]),
-        cov,
-        device=old.device,
-        held_fixed=held,
-        plan=old.plan,
-        conditions=old.conditions,
-        positions=old.positions,
-        fit=old.fit,
-        recording=old.recording,
-        priors=old.priors,
-        created=old.created,
-    )
+    record = re_estimated(
+        solution.record, [*names, *s_names], np.concatenate([joint.values[keep], s_values]),
+        cov, held,
+    )  # fmt: skip
     undetermined = {n: r for n, r in solution.undetermined.items() if not n.startswith("gyro.S")}
     undetermined.update({n: r for n, r in held.items() if n.startswith("gyro.S")})
     warnings = (*solution.warnings, *notes, *fit.notes)

@@ -457,6 +457,34 @@ def record_from_estimates(
     )
 
 
+def re_estimated(
+    old: Calibration,
+    names: Sequence[str],
+    values: ArrayLike,
+    covariance: ArrayLike,
+    held_fixed: Mapping[str, str] | None = None,
+) -> Calibration:
+    """Return ``old`` with new estimates (:func:`record_from_estimates`), its context kept.
+
+    Device, plan, creation time, conditions, positions, fit, recording and priors carry
+    over: a later fit (the gyro's S from the moves) replaces numbers, not the session.
+    """
+    return record_from_estimates(
+        names,
+        values,
+        covariance,
+        device=old.device,
+        held_fixed=held_fixed,
+        plan=old.plan,
+        created=old.created,
+        conditions=old.conditions,
+        positions=old.positions,
+        fit=old.fit,
+        recording=old.recording,
+        priors=old.priors,
+    )
+
+
 def _sensor_blocks(
     table: Mapping[str, tuple[float, float]], held: Mapping[str, str], everything: list[str]
 ) -> tuple[AccelBlock, GyroBlock | None]:
