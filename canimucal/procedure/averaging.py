@@ -18,12 +18,15 @@ between positions). A position mean over T seconds scatters by the axis's Allan 
 (:func:`~canimucal.model.noise.choose_averaging`): the parameter served worst is as close to
 its own best as one shared time allows. The binding axis, named ``sensor.axis``, is the axis
 that limits the plan; of two that bind together, the drifting one (optimum below T). The upper
-clip is the operator's time budget, so a white axis's best is the clip: a white gyro pulls
-the time up only as far as a drifting accelerometer axis loses no more than the gyro gains,
-and a drifting gyro (bias instability with its optimum at 30–40 s) pulls a white
-accelerometer's 120 s down the same way. The ratio is free of units, so it compares an
-accelerometer axis with a gyro axis without a conversion between them (the acceptance limits,
-which might rank the sensors, bound the accelerometer alone).
+clip is the operator's time budget, so a white axis's best is the clip: a white gyro and a
+drifting accelerometer axis meet at the time where both lose the same factor, and a drifting
+gyro (optimum 20–40 s) pulls a white accelerometer's 120 s down the same way. The ratio is
+free of units, so it compares an accelerometer axis with a gyro axis without a conversion
+(the acceptance limits, which might rank the sensors, bound the accelerometer alone).
+
+The optima come from 120 s, where a white axis's fitted walk scatters: on pure white noise
+(40 seeds, 100 Hz) the time had median 113 s over the three accelerometer axes and 92 s over
+all six (5th percentile 60 s in both).
 """
 
 from __future__ import annotations
