@@ -69,11 +69,11 @@ from canimucal.analysis.significance import (
     TermFit,
     confirm_by_cv,
     effective_rank,
-    entry_correlation,
     fit_terms,
     forward_select,
     holm_adjust,
     nested_test,
+    pair_correlation,
     score_model,
     significant_columns,
     significant_masks,
@@ -190,7 +190,7 @@ def _head_to_head(
             p_rival = nested_test(problem, columns, [*others, term], rival, use_f=use_f).p_value
             if p_term * family < alpha and p_rival > RIVAL_P:
                 continue
-            r = entry_correlation(problem, columns, [*others, term, rival], term, rival)
+            r = pair_correlation(problem, columns, [*others, term, rival], term, rival)
             pair = (term.split(".", 1)[1], rival.split(".", 1)[1])
             out.append(Ambiguity(sensor, pair, r))
     return out

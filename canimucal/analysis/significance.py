@@ -315,18 +315,45 @@ def confirm_by_cv(
     return kept
 
 
-def entry_correlation(
+def canonical_correlation(cov: Array, a: slice, b: slice) -> Array:
+    """Largest canonical correlation between the estimates of blocks ``a`` and ``b``.
+
+    ``cov`` is a stack ``(k, p, p)`` of estimate covariances. The canonical correlation
+    (Hotelling 1936) is the largest correlation between any linear combination of the ``a``
+    estimates and any of the ``b`` estimates: the largest singular value of
+    ``Σ_aa^(−1/2) Σ_ab Σ_bb^(−1/2)``. It is the correlation of two scalar estimates when each
+    block has one entry (its magnitude), does not change when a block's entries are rescaled
+    or mixed, and is at least the largest |correlation| of any entry pair. Entries with no
+    variance (columns zeroed, directions no data determine: below 1e-12 of the block's
+    largest eigenvalue) are left out; a block with none left gives 0.
+    """
+
+    def inverse_root(m: Array) -> Array:
+        w, v = np.linalg.eigh(m)
+        top = np.max(w, axis=1, keepdims=True)
+        kept = w > np.maximum(top, 0.0) * 1e-12
+        root = np.where(kept, 1.0 / np.sqrt(np.where(kept, w, 1.0)), 0.0)
+        return np.asarray(np.einsum("kij,kj,klj->kil", v, root, v))
+
+    whitened = inverse_root(cov[:, a, a]) @ cov[:, a, b] @ inverse_root(cov[:, b, b])
+    if whitened.shape[1] == 0 or whitened.shape[2] == 0:
+        return np.zeros(cov.shape[0])
+    rho = np.linalg.svd(whitened, compute_uv=False)[:, 0]
+    return np.asarray(np.minimum(rho, 1.0))
+
+
+def pair_correlation(
     problem: LinearProblem, columns: Mapping[str, Array], terms: Sequence[str], a: str, b: str
 ) -> float:
-    """Largest |correlation| (signed) between an entry of ``a`` and one of ``b``, both in."""
+    """Correlation of the estimates of ``a`` and ``b`` in the model holding ``terms`` (both in).
+
+    The largest canonical correlation (:func:`canonical_correlation`) of the two candidates'
+    coefficient blocks under the least-squares covariance ``(DᵀD)⁺`` of the whitened design.
+    """
     design = _design(problem, columns, terms)
-    cov = np.linalg.pinv(design.T @ design)
+    cov = np.asarray(np.linalg.pinv(design.T @ design, hermitian=True), dtype=float)
     start, k = {}, problem.base_w.shape[1]
     for t in terms:
-        start[t] = (k, k + columns[t].shape[1])
+        start[t] = slice(k, k + columns[t].shape[1])
         k += columns[t].shape[1]
-    sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
-    corr = cov / np.outer(sd, sd)
-    block = corr[start[a][0] : start[a][1], start[b][0] : start[b][1]]
-    i, j = np.unravel_index(int(np.argmax(np.abs(block))), block.shape)
-    return float(block[i, j])
+    return float(canonical_correlation(cov[None], start[a], start[b])[0])

@@ -25,7 +25,7 @@ from canimucal.model.plan import KPrior
 from canimucal.model.positions import PlannedPosition, Pose, PositionAverage, average_position
 from canimucal.model.samples import SampleBlock
 from canimucal.procedure import events as ev
-from canimucal.procedure.averaging import choose_time
+from canimucal.procedure.averaging import averaged_sensors, choose_time
 from canimucal.procedure.config import LEVEL, ProcedureConfig, ResumeState
 from canimucal.procedure.events import Phase
 from canimucal.procedure.gyro_fit import ConfirmedMove, fit_confirmed_moves
@@ -443,15 +443,29 @@ class Procedure:
         """Choose the later time from the recorded first position, as :meth:`_choose_time`."""
         if state.next_index == 0 or state.first_accel is None:
             return None
-        event = choose_time(self.config.averaging, [state.first_accel], self.config.sample_rate_hz)
+        samples = {"accel": [state.first_accel]}
+        if state.first_gyro is not None:
+            samples["gyro"] = [state.first_gyro]
+        event = choose_time(
+            self.config.averaging,
+            samples,
+            self.config.sample_rate_hz,
+            averaged_sensors(self.config.spec.gyro),
+        )
         if event.source == "noise":
             self.seconds_later = event.seconds
         return event
 
     def _choose_time(self) -> list[ev.Event]:
         track = next(iter(self.tracks.values()))
-        accel = track.attempt.accel if track.attempt is not None else []
-        event = choose_time(self.config.averaging, accel, self.config.sample_rate_hz)
+        attempt = track.attempt
+        samples = {"accel": attempt.accel, "gyro": attempt.gyro} if attempt is not None else {}
+        event = choose_time(
+            self.config.averaging,
+            samples,
+            self.config.sample_rate_hz,
+            averaged_sensors(self.config.spec.gyro),
+        )
         if event.source == "noise":
             self.seconds_later = event.seconds
         return [event]
