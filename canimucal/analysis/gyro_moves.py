@@ -154,6 +154,8 @@ def recording_moves(
             moves.append(pair[0])
             biases.append(pair[1])
             for key, row in ((la, a_end), (lb, b_start)):
+                if key in attitude:
+                    continue
                 tol = np.deg2rad(tolerance_deg)
                 if pose_sigmas is not None and key in pose_sigmas:
                     tol = np.asarray(pose_sigmas[key], dtype=float)
@@ -365,7 +367,7 @@ def solve_gyro_moves(
     site: SiteConditions,
     *,
     pose_moves: bool = True,
-    pose_sigmas: Mapping[int, float] | None = None,
+    pose_sigmas: Mapping[int, float | Sequence[float]] | None = None,
 ) -> tuple[Solution, MovesFit]:
     """Estimate S from the recording's moves and put it in the solution's record."""
     gs = g_sensitivity_of(solution, site)
