@@ -297,13 +297,10 @@ def attitude_covariance(angles: ArrayLike, tolerances: ArrayLike) -> Array:
     tol = np.broadcast_to(np.asarray(tolerances, dtype=float), (3,))
     c = position_dcm(*a0)
     h = 1e-6
-    cols = []
-    for i in range(3):
-        step = np.zeros(3)
-        step[i] = h
-        plus, minus = position_dcm(*(a0 + step)), position_dcm(*(a0 - step))
-        cols.append((matrix_to_rotvec(plus @ c.T) - matrix_to_rotvec(minus @ c.T)) / (2 * h))
-    a = np.column_stack(cols)
+    steps = np.concatenate([np.eye(3), -np.eye(3)]) * h
+    turned = np.stack([position_dcm(*(a0 + step)) @ c.T for step in steps])
+    eps = matrix_to_rotvec(turned)  # central differences of ε over each angle
+    a = ((eps[:3] - eps[3:]) / (2 * h)).T
     return np.asarray(a @ np.diag(tol**2) @ a.T, dtype=np.float64)
 
 
@@ -461,22 +458,22 @@ def solve_moves(
         if not free_cols[j]
     ]
     weights = _Weights(np.array([move_sigma(m, noise, s0) for m in moves]), shared)
-    free_cols = _precise_columns(moves, s0, b, g, weights, free_cols, max_relative_sigma, notes)
+    r, jac, chol = _whitened(moves, s0, b, g, weights)
+    free_cols = _precise_columns(jac, s0, free_cols, max_relative_sigma, notes)
     if not free_cols.any():
         return _unidentified(s0, turned, notes)
     free = np.repeat(free_cols[None, :], 3, axis=0).reshape(9)
     s = s0.reshape(9).copy()
     for _ in range(max_iterations):  # Gauss–Newton on the whitened residuals
-        r, jac, _ = _whitened(moves, s.reshape(3, 3), b, g, weights)
         step = np.linalg.lstsq(jac[:, free], -r, rcond=None)[0]
         s[free] += step
         info = jac[:, free].T @ jac[:, free]
         sigma = np.sqrt(np.abs(np.diag(np.linalg.pinv(info))))
-        if np.all(np.abs(step) <= 1e-6 * sigma):  # converged far below the noise
+        r, jac, chol = _whitened(moves, s.reshape(3, 3), b, g, weights)
+        if np.all(np.abs(step) <= 1e-4 * sigma):  # converged far below the noise
             break
     else:
         notes.append(f"gyro from moves: Gauss–Newton stopped after {max_iterations} steps")
-    r, jac, chol = _whitened(moves, s.reshape(3, 3), b, g, weights)
     try:
         cov = _free_covariance(jac, free, s0)
     except np.linalg.LinAlgError:
@@ -526,24 +523,20 @@ def _free_covariance(jac: Array, free: NDArray[np.bool_], s0: Array) -> Array:
 
 
 def _precise_columns(
-    moves: Sequence[Move],
+    jac: Array,
     s0: Array,
-    bias: Array,
-    G: Array | None,
-    weights: _Weights,
     cols: NDArray[np.bool_],
     max_relative_sigma: float,
     notes: list[str],
 ) -> NDArray[np.bool_]:
     """Drop, worst first, columns whose predicted σ exceeds ``max_relative_sigma`` · scale.
 
-    The σ are those of the linearised fit at ``s0`` over the columns still free, with the
-    held columns' prior (:func:`_free_covariance`); a column
-    the moves see only through a cancelling path (a turn about y during a tilt about x)
-    has a σ too large to be a calibration.
+    The σ are those of the linearised fit at ``s0`` (whitened Jacobian ``jac`` there) over
+    the columns still free, with the held columns' prior (:func:`_free_covariance`); a
+    column the moves see only through a cancelling path (a turn about y during a tilt
+    about x) has a σ too large to be a calibration.
     """
     cols = cols.copy()
-    _, jac, _ = _whitened(moves, s0, bias, G, weights)
     scale = np.abs(np.diag(s0))
     while cols.any():
         free = np.repeat(cols[None, :], 3, axis=0).reshape(9)
@@ -693,7 +686,13 @@ def _whitened(
     r = np.concatenate([e for e, _, _ in parts])
     jac = np.concatenate([j for _, j, _ in parts])
     cov = residual_covariance(moves, [jb for _, _, jb in parts], weights.sigmas, weights.shared)
-    chol = np.asarray(np.linalg.cholesky(cov), dtype=np.float64)
+    try:
+        chol = np.asarray(np.linalg.cholesky(cov), dtype=np.float64)
+    except np.linalg.LinAlgError:
+        raise InputError(
+            "gyro from moves: the moves' errors have a singular covariance (a gyro without "
+            "noise and poses set exactly?)"
+        ) from None
     white = np.asarray(np.linalg.solve(chol, np.column_stack([r, jac])), dtype=np.float64)
     return white[:, 0], white[:, 1:], chol  # L is small: 3m ≤ a few hundred rows
 

@@ -103,7 +103,8 @@ def build_moves(
         if keys is not None:  # the poses' errors are shared with the neighbouring moves
             sigma = 0.0
             for key, pose, cov in ((keys[0], m.start, m.start_cov), (keys[1], m.end, m.end_cov)):
-                attitude[key] = attitude_covariance(pose.angles, pose.tolerances)
+                if key not in attitude:
+                    attitude[key] = attitude_covariance(pose.angles, pose.tolerances)
                 if cov is not None and np.all(np.isfinite(cov)):
                     mean_gyro[key] = np.asarray(cov, dtype=float)
         force = None
