@@ -675,6 +675,24 @@ def residual_covariance(
     return np.asarray(cov, dtype=np.float64)
 
 
+def moves_covariance(
+    moves: Sequence[Move],
+    biases: Sequence[Array],
+    S: Array,
+    rate_sigma_counts: ArrayLike,
+    shared: Shared | None = None,
+) -> Array:
+    """Covariance ``R`` (F2) of the residuals of ``moves``, each with its own bias, at ``S``.
+
+    For moves not used in a fit (held out): with the fit's covariance ``C`` of S and the
+    residuals' Jacobian ``J``, the residuals of calibrated moves have ``J C Jᵀ + R``.
+    """
+    noise = np.asarray(rate_sigma_counts, dtype=float).reshape(3)
+    jb = [_residual_parts(m, S, b, None)[2] for m, b in zip(moves, biases, strict=True)]
+    sigmas = np.array([move_sigma(m, noise, S) for m in moves])
+    return residual_covariance(moves, jb, sigmas, shared)
+
+
 def _whitened(
     moves: Sequence[Move], S: Array, bias: Array, G: Array | None, weights: _Weights
 ) -> tuple[Array, Array, Array]:
