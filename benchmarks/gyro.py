@@ -6,7 +6,8 @@ Run: ``PYTHONPATH=. .venv/bin/python benchmarks/gyro.py [--seeds N] [--imucal-py
    records the turns plan (a 90° turn about each body axis and back, 0.1° pose errors) at
    100 Hz; S is fitted on it. A second recording of the same unit, other seed, other moves
    (the recommended plan's turns and tilt) is held out: each of its moves is integrated with
-   the nominal S and with the fitted one, and its attitude error compared with its σ.
+   the nominal S and with the fitted one, and the attitude errors compared with their joint
+   covariance (S's, and the errors the moves share through their positions): χ²/dof ≈ 1.
 2. **S against the truth and the bound** over ``--seeds`` units: the error of each entry in
    units of its σ, and the bound of ``plan --gyro moves`` for the same plan.
 3. **imucal's session.** canimucal's S from the three ``*_rot`` turns against imucal 2.6.0's
