@@ -250,7 +250,17 @@ class Procedure:
             label = f"position {self.index - 1} → {self.index}"
             gyro, accel, counter = rows
             self.pending_moves[node_id] = ConfirmedMove(
-                start, self.target, bias, np.full(3, np.nan), gyro, counter, label, accel
+                start,
+                self.target,
+                bias,
+                np.full(3, np.nan),
+                gyro,
+                counter,
+                label,
+                accel,
+                start_key=tracker.start_key,
+                end_key=None if tracker.start_key is None else self.index,
+                start_cov=tracker.start_bias_cov,
             )
 
     def _averaging(self, track: NodeTrack, block: SampleBlock, step: int) -> list[ev.Event]:
@@ -320,9 +330,15 @@ class Procedure:
             learn_from_average(track, average, pose, self.config.site.g)
             moved = self.pending_moves.pop(node_id, None)
             if moved is not None and average.mean_gyro is not None:
-                confirmed = replace(moved, end_gyro=np.asarray(average.mean_gyro, dtype=float))
+                confirmed = replace(
+                    moved,
+                    end_gyro=np.asarray(average.mean_gyro, dtype=float),
+                    end_cov=average.cov_gyro,
+                )
                 self.confirmed_moves[node_id].append(confirmed)
-            self.move_trackers[node_id].start(pose, average.mean_gyro)
+            self.move_trackers[node_id].start(
+                pose, average.mean_gyro, key=index, mean_cov=average.cov_gyro
+            )
         events: list[ev.Event] = [ev.PositionAccepted(index), *chosen]
         return events + self._next_position()
 
