@@ -9,7 +9,10 @@ step is exact to well below the noise). Then, for a candidate with ``q`` columns
 - ``Δχ² = χ²(base) − χ²(base + candidate)`` is χ²(q) under the null when the whitening is
   right (likelihood-ratio test with known noise), and
 - ``F = (Δχ²/q) / (χ²_ext/ν)`` is F(q, ν) when the noise level itself is in doubt (after
-  drift inside the positions was found, or when the whitening comes from the scatter).
+  drift inside the positions was found), and
+- with the pose-setting scatter estimated from the same residuals, ``F = Δχ²/q`` at the
+  larger model's REML scatter is referred to F(q, ν) with Satterthwaite's ν
+  (:func:`~canimucal.analysis.noise_model.scatter_f_test`).
 
 Holm's step-down procedure controls the family-wise error of the candidates; the forward
 selection adds, at step k, the smallest p-value if it beats ``α/(m − k)``, which is Holm's
@@ -26,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats
 
-from canimucal.analysis.noise_model import ScatterModel, profile_loglik
+from canimucal.analysis.noise_model import ScatterModel, scatter_f_test
 
 Array = NDArray[np.float64]
 
@@ -134,8 +137,8 @@ def nested_test(
 ) -> NestedTest:
     """Test ``smaller + [term]`` against ``smaller``: LR χ² (known noise) or F (noise unknown).
 
-    With ``problem.scatter`` (and no F test) the LR statistic is ``2 (ℓ_big − ℓ_small)`` of
-    the profile likelihoods, the pose-setting scatter maximised within each model.
+    With ``problem.scatter`` (and no F test) the pose-setting scatter is the larger model's
+    REML estimate and the test is Satterthwaite's F (:func:`.noise_model.scatter_f_test`).
     """
     q = effective_rank(problem, np.hstack([columns[t] for t in smaller] + [columns[term]]))
     q -= effective_rank(problem, np.hstack([columns[t] for t in smaller])) if smaller else 0
@@ -151,12 +154,10 @@ def nested_test(
         raw_r = problem.unwhiten @ problem.residual_w
         small_x = problem.unwhiten @ _design(problem, columns, smaller)
         big_x = problem.unwhiten @ _design(problem, columns, [*smaller, term])
-        lr = 2.0 * (
-            profile_loglik(problem.scatter, raw_r, big_x)[1]
-            - profile_loglik(problem.scatter, raw_r, small_x)[1]
-        )
-        lr = max(lr, 0.0)
-        return NestedTest(term, lr, q, float(stats.chi2.sf(lr, q)), "LR")
+        test = scatter_f_test(problem.scatter, raw_r, small_x, big_x)
+        if test is None:
+            return NestedTest(term, 0.0, 0, 1.0, "none")
+        return NestedTest(term, test.statistic, test.q, test.p_value, "F (Satterthwaite)")
     return NestedTest(term, delta, q, float(stats.chi2.sf(delta, q)), "LR")
 
 
