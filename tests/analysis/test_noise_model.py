@@ -178,7 +178,8 @@ def test_scatter_source_flag_then_header_then_estimated() -> None:
 def test_look_alike_is_named_right_or_reported_ambiguous() -> None:
     """Small tilts (≤ 15°, f_y near −g), exact poses, a y→z cross-axis term K[2][1] at ±8σ,
     seeds 0..7: never a wrong cause named; cross_axis named in >= 6 (measured 7, the other
-    reported ambiguous against temperature_bias, correlation −0.82)."""
+    reported ambiguous against temperature_bias; worst entry pair correlated −0.82, so the
+    canonical correlation is at least 0.82)."""
     small = Plan(
         "small",
         tuple(
