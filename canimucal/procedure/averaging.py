@@ -25,8 +25,8 @@ free of units, so it compares an accelerometer axis with a gyro axis without a c
 (the acceptance limits, which might rank the sensors, bound the accelerometer alone).
 
 The optima come from 120 s, where a white axis's fitted walk scatters: on pure white noise
-(40 seeds, 100 Hz) the time had median 113 s over the three accelerometer axes and 92 s over
-all six (5th percentile 60 s in both).
+(40 seeds, 100 Hz) the time had median 113 s over the three accelerometer axes and 85 s over
+all six (5th percentile 60 s in both; ``benchmarks/averaging.py``).
 """
 
 from __future__ import annotations
