@@ -209,6 +209,9 @@ def analysis_document(a: Analysis) -> dict[str, Any]:
     if terms:
         choice = choose_averaging(terms)
         noise["best_averaging_s_per_axis"] = {k: v.tolist() for k, v in choice.optima_s.items()}
+        # DESIGN §5: the largest of the axes' optima, on the same clipped scale as the
+        # per-axis values (a white axis has no minimum inside the data: the clip's top)
+        noise["best_averaging_s"] = max(float(np.max(v)) for v in choice.optima_s.values())
         noise["limiting_axis"] = choice.limiting_axis
         noise["averaging_s"] = choice.seconds
     noise["settling"] = {
