@@ -189,8 +189,11 @@ def _head_to_head(
     the term. A rival is a candidate of the same sensor, not chosen, that is significant
     (weighted Holm at the family's first step, ``p / w · W < alpha``) in place of the term.
     In the model holding both, the term must stay significant (``p / w · W < alpha``) and
-    the rival must not (``p > RIVAL_P``: none of its entries stands out, after the same
-    Bonferroni correction); otherwise the pair is ambiguous and the term is not named.
+    the rival must not: ``n · p > RIVAL_P`` with ``n`` the term's rivals (none of its entries
+    stands out, after the same Bonferroni correction over its entries and over the rivals,
+    so that "no rival stands in" is one statement at RIVAL_P: with a per-rival 5 % a true
+    cause with two look-alikes was reported ambiguous on ~10 % of data sets at any size).
+    Otherwise the pair is ambiguous and the term is not named.
     """
     weights, total = family
 
@@ -201,15 +204,17 @@ def _head_to_head(
     for term in chosen:
         sensor = term.split(".", 1)[0]
         others = [c for c in chosen if c != term]
-        for rival in columns:
-            if rival in chosen or not rival.startswith(sensor + "."):
-                continue
-            alone = entry_test(problem, columns, others, rival, use_f=use_f).p_value
-            if level(alone, rival) >= alpha:
-                continue
+        rivals = [
+            r
+            for r in columns
+            if r not in chosen
+            and r.startswith(sensor + ".")
+            and level(entry_test(problem, columns, others, r, use_f=use_f).p_value, r) < alpha
+        ]
+        for rival in rivals:
             p_term = entry_test(problem, columns, [*others, rival], term, use_f=use_f).p_value
             p_rival = entry_test(problem, columns, [*others, term], rival, use_f=use_f).p_value
-            if level(p_term, term) < alpha and p_rival > RIVAL_P:
+            if level(p_term, term) < alpha and p_rival * len(rivals) > RIVAL_P:
                 continue
             r = entry_correlation(problem, columns, [*others, term, rival], term, rival)
             pair = (term.split(".", 1)[1], rival.split(".", 1)[1])
