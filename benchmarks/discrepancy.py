@@ -24,8 +24,9 @@
    ``axis_sign`` the one-sided z test of the known axis's K against its nominal sign.
    Two analytic limits of the analysis, which does not know the entry, at the first step
    of its Holm procedure: ``group``, the effect's q-entry group test at α/family (the
-   previous selection test), and ``entry``, the per-entry test it uses at α/W (W the
-   family's total weight, every entry once). ``--workers`` processes, ``--effects`` picks
+   previous selection test), and ``entry``, the per-entry test it uses at 0.8 α/W (W the
+   family's total weight, every entry once; 0.2 of each candidate's α goes to its group
+   test). ``--workers`` processes, ``--effects`` picks
    the cells (``clean`` too).
 
 Run: ``.venv/bin/python benchmarks/discrepancy.py [--seeds N] [--sizes 2,3,4,5,6,8]``,
@@ -215,10 +216,15 @@ def _study_one(args: tuple[str, float, float, int, dict[str, np.ndarray]]) -> Ou
     tau = float(np.deg2rad(tolerance_deg))
     oracle, power, lam, q = oracle_test(session, effect, entry, size, tau)
     # the analysis's power limits at Holm's first step: the q-entry group test at α/family
-    # (the previous selection test) and the per-entry test at α/W, W = every entry once
+    # (the previous selection test) and the per-entry test at (1 − ε) α/W, W = every entry
+    # once, ε the group test's share (significance.entry_test)
+    from canimucal.analysis.significance import GROUP_SHARE
+
     group = float(stats.ncx2.sf(stats.chi2.isf(FAMILY_ALPHA / len(result.tests), q), q, lam))
-    total = sum(t.entries for t in result.tests)
-    each = float(stats.ncx2.sf(stats.chi2.isf(FAMILY_ALPHA / total, 1), 1, lam))
+    # W: the entries the plan determines, one per drift test (2) and the axis-sign test
+    total = sum(int(np.isfinite(v).sum()) for v in sigmas.values()) + 3
+    level = (1.0 - GROUP_SHARE) * FAMILY_ALPHA / total
+    each = float(stats.ncx2.sf(stats.chi2.isf(level, 1), 1, lam))
     return Outcome(*verdict, oracle, power, group, each)
 
 
