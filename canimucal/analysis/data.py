@@ -159,8 +159,10 @@ class ExtendedParams:
 class Ambiguity:
     """Two candidates the data cannot tell apart (analysis JSON ``ambiguous``).
 
-    ``correlation`` is that of their most correlated entries' estimates in the model holding
-    both; ``separating`` the position that would separate them best (known positions only).
+    ``correlation`` is that of their estimates in the model holding both: the largest
+    canonical correlation of the two coefficient blocks (0–1; for one entry each, the
+    magnitude of their correlation; :mod:`.separation` eq. 2); ``separating`` the position
+    that would separate them best (known positions only).
     """
 
     sensor: str
@@ -173,9 +175,10 @@ class Ambiguity:
 class SeparatingPosition:
     """The one added pose that would best tell an ambiguous pair apart (degrees).
 
-    ``noncentrality`` is the smaller of the two head-to-head tests' non-centralities with that
-    pose added (each at its candidate's size fitted without the rival), ``before`` the same
-    without it; ``correlation_after`` the pair's estimate correlation with it added.
+    The pose minimises ``correlation_after``, the pair's correlation as
+    :attr:`Ambiguity.correlation` (the same quantity) with that pose added. ``noncentrality``
+    is the smaller of the two head-to-head tests' non-centralities with the pose added (each at
+    its candidate's size fitted without the rival), ``before`` the same without it.
     """
 
     alpha_deg: float

@@ -71,12 +71,12 @@ from canimucal.analysis.significance import (
     TermFit,
     confirm_by_cv,
     effective_rank,
-    entry_correlation,
     entry_test,
     entry_weights,
     fit_terms,
     forward_select,
     holm_adjust,
+    pair_correlation,
     score_model,
     significant_columns,
     significant_masks,
@@ -216,7 +216,7 @@ def _head_to_head(
             p_rival = entry_test(problem, columns, [*others, term], rival, use_f=use_f).p_value
             if level(p_term, term) < alpha and p_rival * len(rivals) > RIVAL_P:
                 continue
-            r = entry_correlation(problem, columns, [*others, term, rival], term, rival)
+            r = pair_correlation(problem, columns, [*others, term, rival], term, rival)
             pair = (term.split(".", 1)[1], rival.split(".", 1)[1])
             out.append(Ambiguity(sensor, pair, r))
     return out

@@ -4,7 +4,9 @@ The moves are the plan's own: from each position to the next, a minimum-jerk int
 of the angles over ``transient_s`` (what the simulator and an operator do), seen by a
 nominal gyro (``S = I/lsb``) with white noise of ``noise_counts_per_rt_hz``. The bound is the
 covariance of :func:`canimucal.model.moves.solve_moves` on those noise-free moves (the
-Cramér–Rao bound, with each position's angle tolerance and the held columns' prior), and
+Cramér–Rao bound, with each position's angle tolerances and its averaged gyro's noise shared
+by the two moves that touch it, as the session's fit weighs them, and the held columns'
+prior), and
 its identifiability rules are the fit's: a column the moves do not turn about, or see only
 with a σ above ``max_relative_sigma`` of its scale, is reported as not identifiable.
 """
@@ -17,7 +19,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.model.frames import position_dcm
-from canimucal.model.moves import AXES, Move, path_turn, pose_move, solve_moves
+from canimucal.model.moves import (
+    AXES,
+    Move,
+    Shared,
+    attitude_covariance,
+    path_turn,
+    pose_move,
+    solve_moves,
+)
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_GYRO_LSB
 from canimucal.sim.imu import body_rate
@@ -60,10 +70,25 @@ def plan_moves(
         angles = a.angles + np.outer(s, delta)
         rates = np.outer(ds / transient_s, delta)
         counts = body_rate(angles, rates) / gyro_lsb
-        sigma = float(np.sqrt(a.tolerance**2 + b.tolerance**2))
         c_a, c_b = position_dcm(*a.angles), position_dcm(*b.angles)
-        out.append(pose_move(counts, 1.0 / sample_rate_hz, c_a, c_b, sigma, f"{i + 1}→{i + 2}"))
+        label = f"{i + 1}→{i + 2}"
+        out.append(pose_move(counts, 1.0 / sample_rate_hz, c_a, c_b, 0.0, label, None, (i, i + 1)))
     return out
+
+
+def plan_shared(plan: Plan, noise_counts: NDArray[np.float64], sample_rate_hz: float) -> Shared:
+    """Return the errors the plan's moves share through each position (keys: indices).
+
+    Each position's attitude is set to within its tolerances, and its mean gyro averages
+    ``seconds · sample_rate_hz`` samples of white noise ``noise_counts`` (counts per sample).
+    """
+    positions = plan.positions
+    attitude = {i: attitude_covariance(p.angles, p.tolerances) for i, p in enumerate(positions)}
+    mean_gyro = {
+        i: np.diag(noise_counts**2) / max(p.seconds * sample_rate_hz, 1.0)
+        for i, p in enumerate(plan.positions)
+    }
+    return Shared(attitude, mean_gyro)
 
 
 def gyro_move_bounds(
@@ -83,7 +108,9 @@ def gyro_move_bounds(
         nan = np.full((3, 3), np.nan)
         return GyroMoveBounds(plan.name, nan, np.zeros(3, bool), (), ((), (), ()), ("no moves",))
     noise = np.full(3, noise_counts_per_rt_hz * np.sqrt(sample_rate_hz))
-    fit = solve_moves(moves, np.zeros(3), s0, noise)
+    fit = solve_moves(
+        moves, np.zeros(3), s0, noise, shared=plan_shared(plan, noise, sample_rate_hz)
+    )
     turns = [np.rad2deg(path_turn(m, s0, np.zeros(3))) for m in moves]
     lines = tuple(
         f"{m.label}: turns " + ", ".join(f"{t[j]:.0f}° about {AXES[j]}" for j in range(3))

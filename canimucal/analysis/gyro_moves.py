@@ -4,8 +4,11 @@ Moves come from two sources:
 
 - **Between labelled positions**: the samples from the last row of one position to the
   first row of the next, both with known angles. The known change is ``C_next C_prevᵀ``
-  (``position_dcm``), uncertain by the plan's angle tolerance at both ends (1σ per axis
-  ``√2 · tolerance``; moves sharing a position are treated as independent). A move with
+  (``position_dcm``), uncertain by the angle tolerances of both ends: each position's
+  attitude error (:func:`~canimucal.model.moves.attitude_covariance`) and the error of its
+  mean gyro (half of each adjacent move's bias) are shared by the two moves that touch it,
+  and the fit weighs the moves with that full covariance (:class:`~canimucal.model.moves.
+  Shared`, eq. F1–F2 of :mod:`canimucal.model.moves`). A move with
   lost samples (counter jumps, else time steps beyond one sample interval, or NaN gyro
   rows) up to 1 % of its samples is filled by linear interpolation; one with more, or with
   a gap longer than :data:`MAX_GAP_S`, is dropped with a note.
@@ -34,7 +37,16 @@ from canimucal.errors import InputError
 from canimucal.io.calibration import AccelBlock, re_estimated
 from canimucal.io.recording import Recording
 from canimucal.model.frames import earth_rate_level, position_dcm, specific_force_level
-from canimucal.model.moves import AXES, Move, MovesFit, pose_move, solve_moves, turn_move
+from canimucal.model.moves import (
+    AXES,
+    Move,
+    MovesFit,
+    Shared,
+    attitude_covariance,
+    pose_move,
+    solve_moves,
+    turn_move,
+)
 
 Array = NDArray[np.float64]
 
@@ -46,12 +58,16 @@ MAX_GAP_S = 0.1
 
 @dataclass(frozen=True)
 class RecordingMoves:
-    """The moves found in a recording, the bias used for each, and notes on dropped ones."""
+    """The moves found in a recording, the bias used for each, and notes on dropped ones.
+
+    ``shared``: the errors the moves between positions share through their positions.
+    """
 
     moves: tuple[Move, ...]
     biases: tuple[Array, ...]
     rate_sigma_counts: Array
     notes: tuple[str, ...]
+    shared: Shared | None = None
 
 
 @dataclass(frozen=True)
@@ -94,14 +110,15 @@ def recording_moves(
     *,
     tolerance_deg: float = 0.1,
     pose_moves: bool = True,
-    pose_sigmas: Mapping[int, float] | None = None,
+    pose_sigmas: Mapping[int, float | Sequence[float]] | None = None,
     g_sensitivity: GSensitivity | None = None,
 ) -> RecordingMoves:
     """Collect the moves of ``rec`` (module doc); ``pose_moves`` false keeps known turns only.
 
-    ``pose_sigmas`` (label → 1σ in rad of that position's attitude) gives a move between
-    positions ``√(σ_a² + σ_b²)`` instead of ``√2 · tolerance``. ``g_sensitivity`` removes
-    ``G f`` from the moves between positions (:func:`move_between`).
+    ``pose_sigmas`` (label → 1σ in rad of that position's angles, one for all three or
+    ``(alpha, beta, psi)``) replaces ``tolerance_deg`` for the positions it names (a known
+    turn keeps ``√2 · tolerance``). ``g_sensitivity`` removes ``G f`` from the moves between
+    positions (:func:`move_between`).
     """
     runs = _position_runs(rec)
     if not runs:
@@ -115,6 +132,8 @@ def recording_moves(
     biases: list[Array] = []
     notes: list[str] = []
     sigma_pose = float(np.sqrt(2.0) * np.deg2rad(tolerance_deg))
+    attitude: dict[int, Array] = {}
+    mean_gyro: dict[int, Array] = {}
     for turn in rec.turns:
         start, stop = max(turn.start - 1, 0), min(turn.stop + 1, rec.n_rows)
         rows = uniform_rows(rec, start, stop, turn.label, notes)
@@ -127,16 +146,32 @@ def recording_moves(
     if pose_moves:
         for (la, _, a_end), (lb, b_start, _) in zip(runs, runs[1:], strict=False):
             label = f"position {la} → {lb}"
-            known = sigma_pose
-            if pose_sigmas is not None and la in pose_sigmas and lb in pose_sigmas:
-                known = float(np.hypot(pose_sigmas[la], pose_sigmas[lb]))
             pair = _pose_move(
-                rec, site, s0, (la, a_end), (lb, b_start), known, label, notes, g_sensitivity
+                rec, site, s0, (la, a_end), (lb, b_start), label, notes, g_sensitivity
             )
-            if pair is not None:
-                moves.append(pair[0])
-                biases.append(pair[1])
-    return RecordingMoves(tuple(moves), tuple(biases), sigma, tuple(notes))
+            if pair is None:
+                continue
+            moves.append(pair[0])
+            biases.append(pair[1])
+            for key, row in ((la, a_end), (lb, b_start)):
+                if key in attitude:
+                    continue
+                tol = np.deg2rad(tolerance_deg)
+                if pose_sigmas is not None and key in pose_sigmas:
+                    tol = np.asarray(pose_sigmas[key], dtype=float)
+                angles = np.deg2rad([rec.alpha_deg[row], rec.beta_deg[row], rec.psi_deg[row]])
+                attitude[key] = attitude_covariance(angles, tol)
+                mean_gyro[key] = mean_covariance(rec.gyro[rec.position == key])
+    shared = Shared(attitude, mean_gyro) if attitude else None
+    return RecordingMoves(tuple(moves), tuple(biases), sigma, tuple(notes), shared)
+
+
+def mean_covariance(rows: Array) -> Array:
+    """Covariance (counts²) of the mean of a still position's gyro rows (NaN rows dropped)."""
+    finite = rows[np.all(np.isfinite(rows), axis=1)]
+    if finite.shape[0] < 2:
+        return np.zeros((3, 3))
+    return np.asarray(np.cov(finite.T) / finite.shape[0], dtype=np.float64)
 
 
 def _position_runs(rec: Recording) -> list[tuple[int, int, int]]:
@@ -208,7 +243,6 @@ def _pose_move(
     s0: Array,
     start: tuple[int, int],
     end: tuple[int, int],
-    sigma_pose: float,
     label: str,
     notes: list[str],
     g_sensitivity: GSensitivity | None = None,
@@ -230,7 +264,7 @@ def _pose_move(
         if accel is not None and accel.shape == rows.shape:
             force = g_sensitivity.force(accel)
     return move_between(rows, rec.sample_rate_hz, site, s0, (pa, mean_a), (pb, mean_b),
-                        sigma_pose, label, g_sensitivity, force)  # fmt: skip
+                        0.0, label, g_sensitivity, force, (la, lb))  # fmt: skip
 
 
 def move_between(
@@ -244,8 +278,12 @@ def move_between(
     label: str,
     g_sensitivity: GSensitivity | None = None,
     force: Array | None = None,
+    positions: tuple[int, int] | None = None,
 ) -> tuple[Move, Array]:
     """Build the move from one still position to the next and its bias (counts).
+
+    ``sigma_pose`` is the move's own 1σ per axis (rad), 0 when the positions' errors are
+    given as shared (``positions``: their keys, :class:`~canimucal.model.moves.Shared`).
 
     ``start``/``end``: each position's angles ``(alpha, beta, psi)`` (rad) and mean gyro
     (counts). The bias is the mean of the two means, each less the Earth rate its pose sees
@@ -262,7 +300,7 @@ def move_between(
         mean_a = mean_a - s0 @ (ca @ w_level)
         mean_b = mean_b - s0 @ (cb @ w_level)
         earth = ca @ w_level
-    move = pose_move(rows, 1.0 / fs, ca, cb, sigma_pose, label, earth)
+    move = pose_move(rows, 1.0 / fs, ca, cb, sigma_pose, label, earth, positions)
     if g_sensitivity is not None and force is not None:
         f_level = specific_force_level(site.g)
         mean_a = mean_a - g_sensitivity.G @ (ca @ f_level)
@@ -282,7 +320,9 @@ def fit_recording_moves(
         for m, b in zip(found.moves, found.biases, strict=True)
     ]
     s0 = np.eye(3) / site.gyro_lsb
-    return solve_moves(shifted, found.biases[0], s0, found.rate_sigma_counts, G=G)
+    return solve_moves(
+        shifted, found.biases[0], s0, found.rate_sigma_counts, G=G, shared=found.shared
+    )
 
 
 def with_moves(solution: Solution, fit: MovesFit, notes: Sequence[str]) -> Solution:
@@ -327,7 +367,7 @@ def solve_gyro_moves(
     site: SiteConditions,
     *,
     pose_moves: bool = True,
-    pose_sigmas: Mapping[int, float] | None = None,
+    pose_sigmas: Mapping[int, float | Sequence[float]] | None = None,
 ) -> tuple[Solution, MovesFit]:
     """Estimate S from the recording's moves and put it in the solution's record."""
     gs = g_sensitivity_of(solution, site)

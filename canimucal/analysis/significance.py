@@ -9,7 +9,10 @@ step is exact to well below the noise). Then, for a candidate with ``q`` columns
 - ``Δχ² = χ²(base) − χ²(base + candidate)`` is χ²(q) under the null when the whitening is
   right (likelihood-ratio test with known noise), and
 - ``F = (Δχ²/q) / (χ²_ext/ν)`` is F(q, ν) when the noise level itself is in doubt (after
-  drift inside the positions was found, or when the whitening comes from the scatter).
+  drift inside the positions was found), and
+- with the pose-setting scatter estimated from the same residuals, ``F = Δχ²/q`` at the
+  larger model's REML scatter is referred to F(q, ν) with Satterthwaite's ν
+  (:func:`~canimucal.analysis.noise_model.scatter_f_test`).
 
 A candidate of ``q`` entries is tested entry by entry (:func:`entry_test`: the largest of
 its 1-dof tests, Bonferroni over the entries), because an effect usually sits in one entry
@@ -30,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import special
 
-from canimucal.analysis.noise_model import ScatterModel, profile_loglik
+from canimucal.analysis.noise_model import ScatterModel, scatter_f_test
 
 Array = NDArray[np.float64]
 
@@ -150,8 +153,9 @@ def nested_test(
     """Test ``smaller + [term]`` against ``smaller``: LR χ² (known noise) or F (noise unknown).
 
     The group test of all of ``term``'s entries at once, ``q`` dof. With ``problem.scatter``
-    (and no F test) the LR statistic is ``2 (ℓ_big − ℓ_small)`` of the profile likelihoods,
-    the pose-setting scatter maximised within each model.
+    estimated (and no F test) the pose-setting scatter is the larger model's REML estimate
+    and the test is Satterthwaite's F (:func:`.noise_model.scatter_f_test`); with it fixed,
+    the known-noise χ².
     """
     ref = _Smaller(problem, columns, smaller, use_f)
     q = ref.gain(columns[term])
@@ -229,22 +233,12 @@ class _Smaller:
         self.rank = _rank_off(self.q_base, self.stacked)
         self.design = _design(problem, columns, smaller)
         self.chi2 = _chi2_dof(self.design, problem.residual_w)[0]
-        self._loglik: float | None = None
+        self.raw_r = problem.unwhiten @ problem.residual_w
+        self.raw_design = problem.unwhiten @ self.design
 
     def gain(self, extra: Array) -> int:
         """Directions ``extra`` adds to the smaller model."""
         return _rank_off(self.q_base, np.hstack([self.stacked, extra])) - self.rank
-
-    def loglik(self) -> float:
-        """Return the smaller model's profile log-likelihood (computed once)."""
-        if self._loglik is None:
-            self._loglik = self._profile(self.problem.unwhiten @ self.design)
-        return self._loglik
-
-    def _profile(self, design_w: Array) -> float:
-        assert self.problem.scatter is not None
-        raw_r = self.problem.unwhiten @ self.problem.residual_w
-        return profile_loglik(self.problem.scatter, raw_r, design_w)[1]
 
     def test(self, term: str, extra: Array, q: int) -> NestedTest:
         """Test the smaller model plus ``extra`` (``q`` new directions) against it."""
@@ -256,8 +250,11 @@ class _Smaller:
             f = (delta / q) / max(chi2 / dof, 1e-300)
             return NestedTest(term, f, q, float(special.fdtrc(q, dof, f)), "F")
         if problem.scatter is not None and problem.scatter.fixed is None:
-            lr = max(2.0 * (self._profile(problem.unwhiten @ design) - self.loglik()), 0.0)
-            return NestedTest(term, lr, q, float(special.chdtrc(q, lr)), "LR")
+            raw_big = np.hstack([self.raw_design, problem.unwhiten @ extra])
+            test = scatter_f_test(problem.scatter, self.raw_r, self.raw_design, raw_big)
+            if test is None:
+                return NestedTest(term, 0.0, 0, 1.0, "none")
+            return NestedTest(term, test.statistic, test.q, test.p_value, "F (Satterthwaite)")
         return NestedTest(term, delta, q, float(special.chdtrc(q, delta)), "LR")
 
 
@@ -463,18 +460,45 @@ def confirm_by_cv(
     return kept
 
 
-def entry_correlation(
+def canonical_correlation(cov: Array, a: slice, b: slice) -> Array:
+    """Largest canonical correlation between the estimates of blocks ``a`` and ``b``.
+
+    ``cov`` is a stack ``(k, p, p)`` of estimate covariances. The canonical correlation
+    (Hotelling 1936) is the largest correlation between any linear combination of the ``a``
+    estimates and any of the ``b`` estimates: the largest singular value of
+    ``Σ_aa^(−1/2) Σ_ab Σ_bb^(−1/2)``. It is the correlation of two scalar estimates when each
+    block has one entry (its magnitude), does not change when a block's entries are rescaled
+    or mixed, and is at least the largest |correlation| of any entry pair. Entries with no
+    variance (columns zeroed, directions no data determine: below 1e-12 of the block's
+    largest eigenvalue) are left out; a block with none left gives 0.
+    """
+
+    def inverse_root(m: Array) -> Array:
+        w, v = np.linalg.eigh(m)
+        top = np.max(w, axis=1, keepdims=True)
+        kept = w > np.maximum(top, 0.0) * 1e-12
+        root = np.where(kept, 1.0 / np.sqrt(np.where(kept, w, 1.0)), 0.0)
+        return np.asarray(np.einsum("kij,kj,klj->kil", v, root, v))
+
+    whitened = inverse_root(cov[:, a, a]) @ cov[:, a, b] @ inverse_root(cov[:, b, b])
+    if whitened.shape[1] == 0 or whitened.shape[2] == 0:
+        return np.zeros(cov.shape[0])
+    rho = np.linalg.svd(whitened, compute_uv=False)[:, 0]
+    return np.asarray(np.minimum(rho, 1.0))
+
+
+def pair_correlation(
     problem: LinearProblem, columns: Mapping[str, Array], terms: Sequence[str], a: str, b: str
 ) -> float:
-    """Largest |correlation| (signed) between an entry of ``a`` and one of ``b``, both in."""
+    """Correlation of the estimates of ``a`` and ``b`` in the model holding ``terms`` (both in).
+
+    The largest canonical correlation (:func:`canonical_correlation`) of the two candidates'
+    coefficient blocks under the least-squares covariance ``(DᵀD)⁺`` of the whitened design.
+    """
     design = _design(problem, columns, terms)
-    cov = np.linalg.pinv(design.T @ design)
+    cov = np.asarray(np.linalg.pinv(design.T @ design, hermitian=True), dtype=float)
     start, k = {}, problem.base_w.shape[1]
     for t in terms:
-        start[t] = (k, k + columns[t].shape[1])
+        start[t] = slice(k, k + columns[t].shape[1])
         k += columns[t].shape[1]
-    sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
-    corr = cov / np.outer(sd, sd)
-    block = corr[start[a][0] : start[a][1], start[b][0] : start[b][1]]
-    i, j = np.unravel_index(int(np.argmax(np.abs(block))), block.shape)
-    return float(block[i, j])
+    return float(canonical_correlation(cov[None], start[a], start[b])[0])

@@ -142,8 +142,10 @@ def solve_recording(
     )
 
 
-def _pose_sigmas(rec: Recording, averages: Sequence[PositionAverage]) -> dict[int, float] | None:
-    """Return label → 1σ (rad) of each position's attitude: its largest tolerance.
+def _pose_sigmas(
+    rec: Recording, averages: Sequence[PositionAverage]
+) -> dict[int, tuple[float, ...]] | None:
+    """Return label → 1σ (rad) of each position's angles ``(alpha, beta, psi)``.
 
     The procedure weighs its moves so (:mod:`canimucal.procedure.gyro_fit`); None when the
     averages are not one per label.
@@ -151,7 +153,9 @@ def _pose_sigmas(rec: Recording, averages: Sequence[PositionAverage]) -> dict[in
     labels = [int(k) for k in position_labels(rec)]
     if len(labels) != len(averages):
         return None
-    return {k: float(np.max(a.pose.tolerances)) for k, a in zip(labels, averages, strict=True)}
+    return {
+        k: tuple(float(t) for t in a.pose.tolerances) for k, a in zip(labels, averages, strict=True)
+    }
 
 
 MIN_DOF = 10

@@ -188,15 +188,15 @@ def report_text(a: Analysis, reference: Reference | None, replayed: list[ReplayR
     for x in r.ambiguous:
         lines.append(
             f"  ambiguous ({x.sensor}): {x.candidates[0]} or {x.candidates[1]} (estimates "
-            f"correlated {x.correlation:+.2f} in the model holding both; neither is named)"
+            f"correlated {x.correlation:.3f} in the model holding both; neither is named)"
         )
         sep = x.separating
         if sep is not None:
             lines.append(
                 f"    to separate them add one position: alpha {sep.alpha_deg:g}°, beta "
                 f"{sep.beta_deg:g}°, psi {sep.psi_deg:g}° (tilts within ±{sep.tilt_limit_deg:g}°; "
-                f"head-to-head non-centrality {sep.before:.1f} → {sep.noncentrality:.1f}, "
-                f"correlation after {sep.correlation_after:+.2f})"
+                f"correlation {x.correlation:.3f} → {sep.correlation_after:.3f}, head-to-head "
+                f"non-centrality {sep.before:.1f} → {sep.noncentrality:.1f})"
             )
     lines += [f"  untestable {k}: {v}" for k, v in r.untestable.items()]
     lines += [

@@ -54,6 +54,8 @@ PLAN_TRUTH_LIMITS: dict[str, dict[str, float]] = {
 """A random truth for these plans leaves out what they cannot determine (see spec_for_plan).
 
 The vehicle plan's scale errors are uniform in ±1.73 %: σ 1 %, its stated prior."""
+DEMO_GYRO_G_MAX = 0.5
+"""With ``--gyro-g`` a random truth's G entries are uniform in ±this (counts per m/s²)."""
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -73,6 +75,13 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("--seconds", type=float, help="averaging seconds of every position")
     p.add_argument("--nodes", type=int, default=1, help="simulated nodes on one rigid body")
     p.add_argument("--gyro", choices=("mems", "nav"), default="mems", help="gyro grade")
+    p.add_argument(
+        "--gyro-g",
+        action="store_true",
+        help="also estimate the gyro's g-sensitivity G from the static positions (where the "
+        "plan's positions determine it, e.g. five or recommended) and write it; a random "
+        "truth then has G within ±0.5 counts per m/s² to find",
+    )
     p.add_argument(
         "--time-scale",
         type=float,
@@ -101,7 +110,9 @@ def _truths(args: argparse.Namespace) -> list[Truth]:
         base = load_truth(args.truth).to_dict()
         return [Truth.from_dict({**base, "serial": base["serial"] + i}) for i in range(args.nodes)]
     rng = np.random.default_rng(args.seed)
-    limits = PLAN_TRUTH_LIMITS.get(args.plan, {})
+    limits: dict[str, float] = dict(PLAN_TRUTH_LIMITS.get(args.plan, {}))
+    if args.gyro_g:
+        limits.setdefault("gyro_g_max", DEMO_GYRO_G_MAX)
     if limits:
         print(
             f"note: random truth drawn within what plan '{args.plan}' can determine ({limits})",
@@ -143,6 +154,7 @@ def run(args: argparse.Namespace) -> int:
             out,
             plan_name=plan_name,
             gyro=args.gyro,
+            gyro_g=args.gyro_g,
             averaging=policy,
             warmup=False,
             verify_seconds=verify_s,
@@ -192,6 +204,7 @@ def _run_tui(
     source.verify_seconds = min(seconds, 10.0) if seconds else 10.0
     source.resume = bool(args.resume)
     source.operator, source.site_name = args.operator, args.site
+    source.gyro_g = args.gyro_g
     custom = plan if plan_name == "custom" else None
     app = make_app(source, plan_name=plan_name, gyro=args.gyro, custom_plan=custom)
     try:

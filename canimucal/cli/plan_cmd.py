@@ -21,8 +21,8 @@ from canimucal.model.plan import BoundTable, builtin_plan, cramer_rao, plan_prio
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, STANDARD_GRAVITY
 from canimucal.procedure.averaging import (
-    LIMITING_SENSOR,
     AveragingPolicy,
+    averaged_sensors,
     choose_time,
     describe_rule,
 )
@@ -70,7 +70,8 @@ def add_subparser(subparsers: Any) -> None:
         "--noise",
         metavar="RECORDING",
         help="a still recording of the unit (any format analyze reads): print the averaging "
-        "time the procedure would choose from it, per axis",
+        "time the procedure would choose from it, per axis (accelerometer and, unless "
+        "--gyro none, gyro: the procedure's default gyro model is mems)",
     )
     add_json_option(p)
     p.set_defaults(run=run)
@@ -96,17 +97,20 @@ def run(args: argparse.Namespace) -> int:
         moves = gyro_move_bounds(plan)
         document["gyro_moves"] = moves_document(moves)
         report += moves_report(moves)
-    averaging, text = _averaging(args.noise)
+    averaging, text = _averaging(args.noise, averaged_sensors(args.gyro or "mems"))
     document["averaging"] = averaging
     report += text
     emit(args, document, report)
     return 0
 
 
-def _averaging(noise: str | None) -> tuple[dict[str, Any], str]:
-    """Describe the procedure's averaging rule, and its per-axis result on a still recording."""
+def _averaging(noise: str | None, sensors: tuple[str, ...]) -> tuple[dict[str, Any], str]:
+    """Describe the procedure's averaging rule, and its per-axis result on a still recording.
+
+    ``sensors``: those whose axes decide (the procedure's gyro model, ``mems`` by default).
+    """
     policy = AveragingPolicy()
-    rule = describe_rule(policy)
+    rule = describe_rule(policy, sensors)
     doc: dict[str, Any] = {"rule": rule}
     text = textwrap.fill(f"averaging: {rule}", 80, subsequent_indent="  ") + "\n"
     if noise is None:
@@ -115,12 +119,14 @@ def _averaging(noise: str | None) -> tuple[dict[str, Any], str]:
     rows = static_rows(rec)
     if rows is None:
         rows = max(position_rows(rec)[0], key=len, default=np.arange(0))
-    event = choose_time(policy, [rec.accel[rows]], rec.sample_rate_hz)
+    samples = {"accel": [rec.accel[rows]], "gyro": [rec.gyro[rows]]}
+    event = choose_time(policy, samples, rec.sample_rate_hz, sensors)
     if event.source != "noise":
         raise InputError(f"--noise: {noise} has too few still samples for an Allan deviation")
     doc.update(
         seconds=event.seconds,
-        optima_s={LIMITING_SENSOR: list(event.optima_s)},
+        optima_s={name: list(values) for name, values in event.sensor_optima},
+        loss={name: list(values) for name, values in event.sensor_loss},
         limiting_axis=event.limiting_axis,
     )
     later = f"from {noise}: later positions {event.describe()}"

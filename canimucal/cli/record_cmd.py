@@ -60,6 +60,12 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("--append", action="store_true", help="add the position to OUT.csv")
     p.add_argument("--overwrite", action="store_true", help="replace OUT.csv if it exists")
     p.add_argument(
+        "--gyro-g",
+        action="store_true",
+        help="name the gyro's g-sensitivity G in the header (gyro_g), so that solve estimates "
+        "it where the positions determine it",
+    )
+    p.add_argument(
         "--follow-schedule",
         action="store_true",
         help="the unit follows the plan by itself from NMT start (sim --poses): no prompts",
@@ -181,6 +187,8 @@ def run(args: argparse.Namespace) -> int:
                 if nid in priors:
                     lsb = float(header["accel_lsb"])
                     header.update(k_prior_header(priors[nid], plan, lsb))
+            if args.gyro_g:  # solve then estimates G, as after a session asked to (DESIGN §9)
+                header["gyro_g"] = True
             path = per_node_path(args.output, nid, several)
             writer = RecordingWriter.open(
                 path, header, overwrite=args.overwrite, append=args.append

@@ -45,6 +45,12 @@ def add_subparser(subparsers: Any) -> None:
         "--plan", default="recommended", help="two, five, recommended, vehicle or a plan file"
     )
     p.add_argument("--gyro", choices=("mems", "nav"), default="mems", help="gyro grade")
+    p.add_argument(
+        "--gyro-g",
+        action="store_true",
+        help="also estimate the gyro's g-sensitivity G from the static positions (where the "
+        "plan's positions determine it, e.g. five or recommended) and write it",
+    )
     p.add_argument("--out", default="canimucal-out", help="directory for records and recordings")
     p.add_argument("--backup-dir", help="where device backups go (default: XDG state dir)")
     p.add_argument("--g", type=float, help="local gravity, m/s² (else from latitude and height)")
@@ -149,6 +155,7 @@ def device_source(args: argparse.Namespace) -> DeviceSource:
         replace_mount=args.replace_mount,
         prior_k=args.prior_k,
         prior_k_sigma=args.prior_k_sigma,
+        gyro_g=bool(args.gyro_g),
     )
 
 

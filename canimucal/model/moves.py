@@ -18,11 +18,27 @@ the Earth at ``w_E`` (start body frame), so the known ``M`` corresponds to
 Earth rate; ``T`` the move's duration).
 
 **Fit.** The residual of move ``k`` is the rotation vector ``e_k = log(M_pred(S) M_kᵀ)``
-(rad), whitened by ``σ_k² = σ_pose,k² + σ_arw,k²`` per axis: the known attitude's own
-uncertainty and the angle random walk of the gyro's white noise over the move,
-``σ_arw² = σ_rate² Δt² (n − 1.5)`` for the trapezoid weights. ``S`` (3×3, counts per rad/s)
-minimises ``Σ |e_k / σ_k|²`` (Gauss–Newton, Jacobian in :func:`move_residual`); its
-covariance is ``(Jᵀ W J)⁻¹`` at the solution.
+(rad). Its errors are of three kinds, and the fit is generalised least squares over their
+full covariance ``R`` (``3m × 3m``):
+
+- the angle random walk of the gyro's white noise over the move, independent per move,
+  ``σ_arw² = σ_rate² Δt² (n − 1.5)`` per axis for the trapezoid weights;
+- the known attitude change's own error, independent per move, ``sigma_rad`` per axis
+  (a known turn's angle; zero for a move between positions whose errors are shared);
+- errors shared between moves that touch the same still position ``p`` (:class:`Shared`):
+  the attitude the unit really had there, ``C_p' = exp([ε_p]×) C_p`` with ``ε_p`` of
+  covariance ``Σ_p`` (:func:`attitude_covariance`), and the error ``δm_p`` of that position's
+  mean gyro (covariance ``Π_p``, counts²). The move from ``a`` to ``b`` really makes
+  ``M' = exp([ε_b]×) M exp(−[ε_a]×)``, and its bias is ``(m_a + m_b)/2``, so to first order
+
+      ``e_k = ε_b − M_k ε_a + ½ J_B,k (δm_a + δm_b)``, ``J_B,k = ∂e_k/∂B``       (F1)
+
+  and ``R_kl = Σ_p D_kp Σ_p D_lpᵀ + ¼ Σ_p J_B,k Π_p J_B,lᵀ`` over the positions ``p`` both
+  moves touch (``D_kp = I`` at the end, ``−M_k`` at the start).                    (F2)
+
+``S`` (3×3, counts per rad/s) minimises ``r(S)ᵀ R⁻¹ r(S)`` (Gauss–Newton on the residuals
+whitened by the Cholesky factor ``R = L Lᵀ``; Jacobian in :func:`move_residual`); its
+covariance is ``(Jᵀ R⁻¹ J)⁻¹`` at the solution (Aitken's GLS).
 
 **Identifiability.** Column ``j`` of ``S`` is the response to a rate about body axis ``j``:
 only moves that turn about axis ``j`` see it. A column is not identifiable when the moves
@@ -35,13 +51,14 @@ fitted beside it.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from canimucal.errors import InputError
+from canimucal.model.frames import position_dcm
 
 Array = NDArray[np.float64]
 
@@ -201,7 +218,10 @@ class Move:
     frame (rad/s), ``None`` when it stays in the bias; ``specific_force`` ``(n, 3)`` m/s² for
     the G term, ``None`` to skip it. ``fixed_axis``: the body turns about one fixed axis
     throughout, so the integral of the rate vector itself is known (``turn_rad``); the
-    residual is then that integral's error (see :func:`move_residual`).
+    residual is then that integral's error (see :func:`move_residual`). ``positions``: the
+    keys of the still positions the move starts and ends at, when their attitude errors and
+    mean gyro errors are shared with other moves (:class:`Shared`); the move's bias is then
+    the mean of those two positions' means.
     """
 
     gyro: Array
@@ -213,6 +233,7 @@ class Move:
     earth_rate_body: Array | None = None
     specific_force: Array | None = None
     fixed_axis: bool = False
+    positions: tuple[int, int] | None = None
 
     @property
     def duration_s(self) -> float:
@@ -228,11 +249,12 @@ def pose_move(
     sigma_rad: float,
     label: str = "",
     earth_rate_body: ArrayLike | None = None,
+    positions: tuple[int, int] | None = None,
 ) -> Move:
     """Build the move between two positions with direction cosine matrices body ← L.
 
     ``M = C_end C_startᵀ``; the turn is ``log(M)`` (a move between positions is shorter than
-    180°, so the rotation vector is the turn made).
+    180°, so the rotation vector is the turn made). ``positions``: see :class:`Move`.
     """
     m = np.asarray(c_end, float) @ np.asarray(c_start, float).T
     turn = -matrix_to_rotvec(m)  # the body turns by the inverse of the frame change
@@ -244,7 +266,42 @@ def pose_move(
         sigma_rad=float(sigma_rad),
         label=label,
         earth_rate_body=None if earth_rate_body is None else np.asarray(earth_rate_body, float),
+        positions=positions,
     )
+
+
+@dataclass(frozen=True)
+class Shared:
+    """Errors shared by the moves that touch one still position (module doc, F1–F2).
+
+    ``attitude`` maps a position's key to the covariance (rad², 3×3, in that position's body
+    axes) of the error ``ε_p`` of the attitude the unit really had there; ``mean_gyro`` to
+    the covariance (counts²) of that position's mean gyro, half of each adjacent move's bias.
+    A key missing from either map contributes nothing.
+    """
+
+    attitude: Mapping[int, Array]
+    mean_gyro: Mapping[int, Array]
+
+
+def attitude_covariance(angles: ArrayLike, tolerances: ArrayLike) -> Array:
+    """Covariance (rad²) of the attitude error ``ε`` of a pose set to within ``tolerances``.
+
+    The pose ``(alpha, beta, psi)`` (rad) is set with independent 1σ errors ``tolerances``
+    (rad); ``C' = exp([ε]×) C`` with ``ε = Σ_i a_i δ_i``, ``a_i = log(∂C/∂angle_i Cᵀ)`` the
+    axis (body frame) each angle turns about (``position_dcm``, DESIGN §2), so
+    ``Σ = A diag(tolerance²) Aᵀ``. At ``beta = ±90°`` the axes of alpha and psi coincide
+    and ``Σ`` is singular in the unturned direction: the pose's errors are not isotropic.
+    """
+    a0 = np.asarray(angles, dtype=float).reshape(3)
+    tol = np.broadcast_to(np.asarray(tolerances, dtype=float), (3,))
+    c = position_dcm(*a0)
+    h = 1e-6
+    steps = np.concatenate([np.eye(3), -np.eye(3)]) * h
+    turned = np.stack([position_dcm(*(a0 + step)) @ c.T for step in steps])
+    eps = matrix_to_rotvec(turned)  # central differences of ε over each angle
+    a = ((eps[:3] - eps[3:]) / (2 * h)).T
+    return np.asarray(a @ np.diag(tol**2) @ a.T, dtype=np.float64)
 
 
 def turn_move(
@@ -328,8 +385,9 @@ class MovesFit:
     (``identifiable[j]`` false; ``prior`` holds the value used for them while fitting).
     ``covariance`` is over :attr:`names` (the free entries, row-major), and includes the
     error the held columns' prior (:data:`PRIOR_SCALE_SIGMA`) can leave in them;
-    ``residuals_rad`` the ``(m, 3)`` rotation-vector residuals; ``chi2`` and ``dof`` of the
-    whitened fit.
+    ``residuals_rad`` the ``(m, 3)`` rotation-vector residuals, ``sigmas_rad`` each move's
+    own (unshared) 1σ per axis and ``residual_covariance`` the full ``3m × 3m`` covariance
+    ``R`` of the residuals (F2); ``chi2`` (``rᵀ R⁻¹ r``) and ``dof`` of the fit.
     """
 
     S: Array
@@ -344,6 +402,7 @@ class MovesFit:
     dof: int
     turned_deg: Array
     notes: tuple[str, ...] = field(default=())
+    residual_covariance: Array = field(default_factory=lambda: np.zeros((0, 0)))
 
     def S_used(self) -> Array:
         """S with the prior in the columns the moves did not determine."""
@@ -351,11 +410,19 @@ class MovesFit:
 
 
 def move_sigma(move: Move, rate_sigma_counts: Array, S: Array) -> float:
-    """1σ per axis (rad) of the move's residual: the pose's own and the angle random walk."""
+    """1σ per axis (rad) of the move's own residual error: its ``sigma_rad`` and the ARW."""
     rate_sigma = float(np.mean(np.abs(rate_sigma_counts) / np.abs(np.diag(S))))
     n = move.gyro.shape[0]
     arw2 = rate_sigma**2 * move.dt_s**2 * max(n - 1.5, 0.5)
     return float(np.sqrt(move.sigma_rad**2 + arw2))
+
+
+@dataclass(frozen=True)
+class _Weights:
+    """What the whitening needs besides the moves: their own σ and the shared errors."""
+
+    sigmas: Array
+    shared: Shared | None
 
 
 def solve_moves(
@@ -365,14 +432,16 @@ def solve_moves(
     rate_sigma_counts: ArrayLike,
     *,
     G: ArrayLike | None = None,
+    shared: Shared | None = None,
     min_turn_deg: float = DEFAULT_MIN_TURN_DEG,
     max_relative_sigma: float = DEFAULT_MAX_RELATIVE_SIGMA,
     max_iterations: int = 20,
 ) -> MovesFit:
-    """Fit S (counts per rad/s) to the moves by Gauss–Newton (module doc).
+    """Fit S (counts per rad/s) to the moves by Gauss–Newton on the GLS residuals (module doc).
 
     ``bias`` (counts) and ``G`` are held; ``S0`` is the start and the prior of columns the
-    moves cannot see; ``rate_sigma_counts`` the per-sample white noise σ of each gyro axis.
+    moves cannot see; ``rate_sigma_counts`` the per-sample white noise σ of each gyro axis;
+    ``shared`` the errors moves share through their positions (F1–F2), None for none.
     """
     if not moves:
         raise InputError("gyro from moves: no moves")
@@ -388,23 +457,23 @@ def solve_moves(
         for j in range(3)
         if not free_cols[j]
     ]
-    sigmas = np.array([move_sigma(m, noise, s0) for m in moves])
-    free_cols = _precise_columns(moves, s0, b, g, sigmas, free_cols, max_relative_sigma, notes)
+    weights = _Weights(np.array([move_sigma(m, noise, s0) for m in moves]), shared)
+    r, jac, chol = _whitened(moves, s0, b, g, weights)
+    free_cols = _precise_columns(jac, s0, free_cols, max_relative_sigma, notes)
     if not free_cols.any():
         return _unidentified(s0, turned, notes)
     free = np.repeat(free_cols[None, :], 3, axis=0).reshape(9)
     s = s0.reshape(9).copy()
     for _ in range(max_iterations):  # Gauss–Newton on the whitened residuals
-        r, jac = _whitened(moves, s.reshape(3, 3), b, g, sigmas)
         step = np.linalg.lstsq(jac[:, free], -r, rcond=None)[0]
         s[free] += step
         info = jac[:, free].T @ jac[:, free]
         sigma = np.sqrt(np.abs(np.diag(np.linalg.pinv(info))))
-        if np.all(np.abs(step) <= 1e-6 * sigma):  # converged far below the noise
+        r, jac, chol = _whitened(moves, s.reshape(3, 3), b, g, weights)
+        if np.all(np.abs(step) <= 1e-4 * sigma):  # converged far below the noise
             break
     else:
         notes.append(f"gyro from moves: Gauss–Newton stopped after {max_iterations} steps")
-    r, jac = _whitened(moves, s.reshape(3, 3), b, g, sigmas)
     try:
         cov = _free_covariance(jac, free, s0)
     except np.linalg.LinAlgError:
@@ -419,12 +488,13 @@ def solve_moves(
         prior=s0,
         names=tuple(n for n, f in zip(S_NAMES, free, strict=True) if f),
         covariance=cov,
-        residuals_rad=r.reshape(-1, 3) * sigmas[:, None],
-        sigmas_rad=sigmas,
+        residuals_rad=(chol @ r).reshape(-1, 3),
+        sigmas_rad=weights.sigmas,
         chi2=float(r @ r),
         dof=3 * len(moves) - int(free.sum()),
         turned_deg=turned,
         notes=tuple(notes),
+        residual_covariance=chol @ chol.T,
     )
 
 
@@ -439,9 +509,10 @@ def _prior_covariance(s0: Array, held: NDArray[np.bool_]) -> Array:
 def _free_covariance(jac: Array, free: NDArray[np.bool_], s0: Array) -> Array:
     """Covariance of the free entries: noise, plus the held entries' prior through the fit.
 
-    ``Σ = A⁻¹ + K Σ_h Kᵀ`` with ``A = J_fᵀ J_f`` and ``K = A⁻¹ J_fᵀ J_h``: the error a
-    held column's prior leaves in the free ones (a tilt move that also turns about z
-    carries S's z column into the estimate of its x column).
+    ``Σ = A⁻¹ + K Σ_h Kᵀ`` with ``A = J_fᵀ J_f`` and ``K = A⁻¹ J_fᵀ J_h`` (``J`` whitened,
+    so ``A = J_fᵀ R⁻¹ J_f``): the error a held column's prior leaves in the free ones (a
+    tilt move that also turns about z carries S's z column into the estimate of its x
+    column).
     """
     jf, jh = jac[:, free], jac[:, ~free]
     a_inv = np.linalg.inv(jf.T @ jf)
@@ -452,24 +523,20 @@ def _free_covariance(jac: Array, free: NDArray[np.bool_], s0: Array) -> Array:
 
 
 def _precise_columns(
-    moves: Sequence[Move],
+    jac: Array,
     s0: Array,
-    bias: Array,
-    G: Array | None,
-    sigmas: Array,
     cols: NDArray[np.bool_],
     max_relative_sigma: float,
     notes: list[str],
 ) -> NDArray[np.bool_]:
     """Drop, worst first, columns whose predicted σ exceeds ``max_relative_sigma`` · scale.
 
-    The σ are those of the linearised fit at ``s0`` over the columns still free, with the
-    held columns' prior (:func:`_free_covariance`); a column
-    the moves see only through a cancelling path (a turn about y during a tilt about x)
-    has a σ too large to be a calibration.
+    The σ are those of the linearised fit at ``s0`` (whitened Jacobian ``jac`` there) over
+    the columns still free, with the held columns' prior (:func:`_free_covariance`); a
+    column the moves see only through a cancelling path (a turn about y during a tilt
+    about x) has a σ too large to be a calibration.
     """
     cols = cols.copy()
-    _, jac = _whitened(moves, s0, bias, G, sigmas)
     scale = np.abs(np.diag(s0))
     while cols.any():
         free = np.repeat(cols[None, :], 3, axis=0).reshape(9)
@@ -530,12 +597,29 @@ def move_residual(move: Move, S: Array, bias: Array, G: Array | None = None) -> 
     A fixed-axis move's residual is ``e = ∫ w dt − turn`` (trapezoid), linear in ``S⁻¹``:
     ``∂e/∂S_ij = −(S⁻¹)_ai (∫ w dt)_j`` (imucal's eq. 13–15 in rotation-vector form).
     """
+    e, jac, _ = _residual_parts(move, S, bias, G)
+    return e, jac
+
+
+def _residual_parts(
+    move: Move, S: Array, bias: Array, G: Array | None
+) -> tuple[Array, Array, Array]:
+    """:func:`move_residual` and the Jacobian ``(3, 3)`` of ``e`` over the bias (counts).
+
+    A bias change ``δB`` changes every rate by ``δw_k = −S⁻¹ δB``, so
+    ``∂e/∂B = Σ_k c_k Δt ΔRᵀ P_k S⁻¹`` (``−S⁻¹ T`` for a fixed-axis move).
+    """
     w = corrected_rates(move, S, bias, G)
     dt = move.dt_s
+    s_inv = np.linalg.inv(S)
     if move.fixed_axis:
         integral = _rate_integral(w, dt)
-        jac_axis = -np.einsum("ai,j->aij", np.linalg.inv(S), integral).reshape(3, 9)
-        return integral - move.turn_rad, np.asarray(jac_axis, dtype=np.float64)
+        jac_axis = -np.einsum("ai,j->aij", s_inv, integral).reshape(3, 9)
+        return (
+            integral - move.turn_rad,
+            np.asarray(jac_axis, dtype=np.float64),
+            np.asarray(-s_inv * move.duration_s, dtype=np.float64),
+        )
     a, b = w[:-1], w[1:]
     phi = 0.5 * (a + b) * dt + cross(a, b) * (dt * dt / 12.0)
     prefix = quat_to_matrix(_prefix_products(rotvec_to_quat(phi)))
@@ -547,26 +631,103 @@ def move_residual(move: Move, S: Array, bias: Array, G: Array | None = None) -> 
     p = np.concatenate([np.eye(3)[None], prefix], axis=0)  # P_0 = I, …, P_{n-1} = ΔR
     weights = np.full(w.shape[0], dt)
     weights[[0, -1]] = 0.5 * dt
-    a_k = delta_r.T @ p @ np.linalg.inv(S)  # (n, 3, 3): ΔRᵀ P_k S⁻¹
+    a_k = delta_r.T @ p @ s_inv  # (n, 3, 3): ΔRᵀ P_k S⁻¹
     jac = np.einsum("k,kai,kj->aij", weights, a_k, w).reshape(3, 9)
-    return np.asarray(e, dtype=np.float64), np.asarray(jac, dtype=np.float64)
+    jac_bias = np.einsum("k,kai->ai", weights, a_k)
+    return (
+        np.asarray(e, dtype=np.float64),
+        np.asarray(jac, dtype=np.float64),
+        np.asarray(jac_bias, dtype=np.float64),
+    )
+
+
+def residual_covariance(
+    moves: Sequence[Move], bias_jacobians: Sequence[Array], sigmas: Array, shared: Shared | None
+) -> Array:
+    """Covariance ``R`` (``3m × 3m``, rad²) of the moves' residuals: eq. (F2) of the module doc.
+
+    ``bias_jacobians`` are the ``∂e_k/∂B`` of :func:`_residual_parts`; ``sigmas`` each move's
+    own 1σ per axis (:func:`move_sigma`).
+    """
+    m = len(moves)
+    cov = np.asarray(np.kron(np.diag(np.asarray(sigmas, dtype=float) ** 2), np.eye(3)), float)
+    if shared is None:
+        return cov
+    touches: dict[int, list[tuple[int, Array, Array]]] = {}
+    for k, (move, jb) in enumerate(zip(moves, bias_jacobians, strict=True)):
+        if move.positions is None:
+            continue
+        start, end = move.positions
+        touches.setdefault(start, []).append((k, -move.rotation, 0.5 * jb))
+        touches.setdefault(end, []).append((k, np.eye(3), 0.5 * jb))
+    for key, rows in touches.items():
+        att = shared.attitude.get(key)
+        mean = shared.mean_gyro.get(key)
+        d = np.zeros((3 * m, 3))
+        h = np.zeros((3 * m, 3))
+        for k, dk, hk in rows:
+            d[3 * k : 3 * k + 3] += dk
+            h[3 * k : 3 * k + 3] += hk
+        if att is not None:
+            cov += d @ np.asarray(att, dtype=float) @ d.T
+        if mean is not None:
+            cov += h @ np.asarray(mean, dtype=float) @ h.T
+    return np.asarray(cov, dtype=np.float64)
+
+
+def moves_covariance(
+    moves: Sequence[Move],
+    biases: Sequence[Array],
+    S: Array,
+    rate_sigma_counts: ArrayLike,
+    shared: Shared | None = None,
+) -> Array:
+    """Covariance ``R`` (F2) of the residuals of ``moves``, each with its own bias, at ``S``.
+
+    For moves not used in a fit (held out): with the fit's covariance ``C`` of S and the
+    residuals' Jacobian ``J``, the residuals of calibrated moves have ``J C Jᵀ + R``.
+    """
+    noise = np.asarray(rate_sigma_counts, dtype=float).reshape(3)
+    jb = [_residual_parts(m, S, b, None)[2] for m, b in zip(moves, biases, strict=True)]
+    sigmas = np.array([move_sigma(m, noise, S) for m in moves])
+    return residual_covariance(moves, jb, sigmas, shared)
 
 
 def _whitened(
-    moves: Sequence[Move], S: Array, bias: Array, G: Array | None, sigmas: Array
-) -> tuple[Array, Array]:
-    """Stacked whitened residuals ``(3m,)`` and Jacobian ``(3m, 9)`` of all moves."""
-    rows = [move_residual(move, S, bias, G) for move in moves]
-    r = np.concatenate([e / s for (e, _), s in zip(rows, sigmas, strict=True)])
-    jac = np.concatenate([j / s for (_, j), s in zip(rows, sigmas, strict=True)])
-    return r, jac
+    moves: Sequence[Move], S: Array, bias: Array, G: Array | None, weights: _Weights
+) -> tuple[Array, Array, Array]:
+    """Whitened residuals ``L⁻¹ r`` ``(3m,)``, Jacobian ``L⁻¹ J`` ``(3m, 9)`` and ``L``.
+
+    ``R = L Lᵀ`` is the residuals' covariance (:func:`residual_covariance`) at ``S``.
+    """
+    parts = [_residual_parts(move, S, bias, G) for move in moves]
+    r = np.concatenate([e for e, _, _ in parts])
+    jac = np.concatenate([j for _, j, _ in parts])
+    cov = residual_covariance(moves, [jb for _, _, jb in parts], weights.sigmas, weights.shared)
+    try:
+        chol = np.asarray(np.linalg.cholesky(cov), dtype=np.float64)
+    except np.linalg.LinAlgError:
+        raise InputError(
+            "gyro from moves: the moves' errors have a singular covariance (a gyro without "
+            "noise and poses set exactly?)"
+        ) from None
+    white = np.asarray(np.linalg.solve(chol, np.column_stack([r, jac])), dtype=np.float64)
+    return white[:, 0], white[:, 1:], chol  # L is small: 3m ≤ a few hundred rows
 
 
-def crlb(moves: Sequence[Move], bias: ArrayLike, S: ArrayLike, sigmas_rad: ArrayLike) -> Array:
+def crlb(
+    moves: Sequence[Move],
+    bias: ArrayLike,
+    S: ArrayLike,
+    sigmas_rad: ArrayLike,
+    shared: Shared | None = None,
+) -> Array:
     """Cramér–Rao bound (covariance, 9×9 over :data:`S_NAMES`) of S at ``S`` for the moves.
 
-    The inverse Fisher information ``(Jᵀ J)⁻¹`` of the whitened residuals at ``S``.
+    The inverse Fisher information ``(Jᵀ R⁻¹ J)⁻¹`` of the residuals at ``S``, with ``R``
+    from the moves' own ``sigmas_rad`` and the ``shared`` errors (F2).
     """
     s = np.asarray(S, dtype=float).reshape(3, 3)
-    _, jac = _whitened(moves, s, np.asarray(bias, float), None, np.asarray(sigmas_rad, float))
+    weights = _Weights(np.asarray(sigmas_rad, dtype=float), shared)
+    _, jac, _ = _whitened(moves, s, np.asarray(bias, float), None, weights)
     return np.asarray(np.linalg.inv(jac.T @ jac), dtype=np.float64)

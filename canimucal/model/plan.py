@@ -192,23 +192,31 @@ FIVE = _plan("five", [(0, 0, 0), (22.5, 0, 0), (22.5, 2.5, 0), (45, 2.5, 0), (45
 
 RECOMMENDED = _plan(
     "recommended",
-    [(0, 0, 0), (0, 0, 90), (0, 0, 180), (0, 0, 270)]
-    + [(45, 45, 0), (45, 45, 90), (45, 45, 180), (45, 45, 270)],
+    [(0, 0, 0), (45, 45, 0), (45, 45, 90), (0, 0, 90)]
+    + [(0, 0, 180), (45, 45, 180), (45, 45, 270), (0, 0, 270)],
 )
 """Ours: two stands (level, and alpha = beta = 45°), the unit turned by psi 0/90/180/270° on each.
 
 Eight positions, 30 s each; the second stand is a double wedge (45° about z, then 45° about
-the new x: gravity 60° off the unit's y axis). The level turns separate the x/z biases from
-the base tilt (the tilt reverses under a 180° turn, the biases do not); the tilted turns put
-±0.5 g on x and z and -0.5 g on y, so bias, FULL K and the rigid tilt are identifiable and
-separable (smallest normalised eigenvalue ratio 0.014, largest |correlation| 0.96). Found
-with ``benchmarks/plan_search.py`` (exchange search over round poses; its best, 0.327
-counts, needs mixed poses). At equal total averaging time (150 s, white noise 1 count/√Hz,
-k = 2048/g) the worst-case bound for bias + diagonal K + rigid tilt is 0.383 counts
-(K[1][1]) against FIVE's 4.21 counts (bias z, correlated -0.9996 with beta0): a ratio of
-11.0; with the 0.1° angle tolerances included, 3.99 against 63.7 counts (16×). With the
-tolerances included, bias y and K[1][1] correlate at +0.9996 (every plan with tilts ≤ 45°
-sees f_y only in [-g, -g/2]); repeating the poses is what reduces that.
+the new x: gravity 60° off the unit's y axis). The stands alternate: level, tilted, tilted,
+level, level, tilted, tilted, level (psi 0, 0, 90, 90, 180, 180, 270, 270), so that the
+moves turn about every body axis: the four stand changes, made at four different psi, turn
+about x and z, the turns on a stand about y. The gyro's full S is then identifiable from the
+moves (``plan --gyro moves``: σ 0.10–0.20 % of the scale on every entry at 1 count/√Hz and
+100 Hz); visiting each stand's four poses in a row turns about y only and leaves S's columns
+x and z not identifiable.
+
+The accelerometer's bounds depend on the poses, not their order. The level turns separate
+the x/z biases from the base tilt (the tilt reverses under a 180° turn, the biases do not);
+the tilted turns put ±0.5 g on x and z and -0.5 g on y, so bias, FULL K and the rigid tilt
+are identifiable and separable (smallest normalised eigenvalue ratio 0.014, largest
+|correlation| 0.96). Found with ``benchmarks/plan_search.py`` (exchange search over round
+poses; its best, 0.327 counts, needs mixed poses). At equal total averaging time (150 s,
+white noise 1 count/√Hz, k = 2048/g) the worst-case bound for bias + diagonal K + rigid tilt
+is 0.383 counts (K[1][1]) against FIVE's 4.21 counts (bias z, correlated -0.9996 with
+beta0): a ratio of 11.0; with the 0.1° angle tolerances included, 3.99 against 63.7 counts
+(16×). With the tolerances included, bias y and K[1][1] correlate at +0.9996 (every plan
+with tilts ≤ 45° sees f_y only in [-g, -g/2]); repeating the poses is what reduces that.
 """
 
 

@@ -33,7 +33,10 @@ class ResumeState:
     """The prior on K each node's recording says the session held (none: not recorded)."""
     first_accel: NDArray[np.float64] | None = None
     """Accelerometer samples ``(n, 3)`` of the first position (first node): the resumed
-    procedure chooses the later averaging time from them as the session did."""
+    procedure chooses the later averaging time from them (and ``first_gyro``) as the session
+    did."""
+    first_gyro: NDArray[np.float64] | None = None
+    """Gyro samples ``(n, 3)`` of the same rows (None: none recorded)."""
 
 
 @dataclass(frozen=True)

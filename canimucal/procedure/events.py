@@ -187,8 +187,10 @@ class PositionAccepted(Event):
 class AveragingTimeChosen(Event):
     """The averaging time of the remaining positions and why (``noise``/``user``/``fixed``).
 
-    From the noise: the limiting sensor's per-axis ``optima_s`` (clipped) and the
-    ``limiting_axis`` (``"accel.z"``) that set the time.
+    From the noise: the ``limiting_axis`` (``"gyro.z"``) that set the time, its sensor's
+    white noise density, random walk and per-axis ``optima_s`` (clipped); ``sensor_optima``
+    and ``sensor_loss`` the same optima and each axis's ADEV at ``seconds`` over its ADEV at
+    its optimum, for every sensor that took part (``(("accel", (x, y, z)), ...)``).
     """
 
     seconds: float
@@ -197,13 +199,31 @@ class AveragingTimeChosen(Event):
     random_walk: tuple[float, ...] = ()
     optima_s: tuple[float, ...] = ()
     limiting_axis: str = ""
+    sensor_optima: tuple[tuple[str, tuple[float, ...]], ...] = ()
+    sensor_loss: tuple[tuple[str, tuple[float, ...]], ...] = ()
+
+    @property
+    def limiting_loss(self) -> float:
+        """The limiting axis's ADEV at ``seconds`` over its own best (nan when not from noise)."""
+        sensor, _, axis = self.limiting_axis.partition(".")
+        for name, values in self.sensor_loss:
+            if name == sensor and axis in ("x", "y", "z"):
+                return values["xyz".index(axis)]
+        return float("nan")
 
     def describe(self) -> str:
         """One line: the time, its source and, from the noise, the per-axis optima."""
         text = f"{self.seconds:.0f} s ({self.source})"
+        optima = self.sensor_optima or ((self.limiting_axis.partition(".")[0], self.optima_s),)
         if self.optima_s:
-            axes = ", ".join(f"{'xyz'[i]} {v:.0f} s" for i, v in enumerate(self.optima_s))
-            text += f"; per-axis optima {axes}; limiting axis {self.limiting_axis}"
+            parts = [
+                f"{name} " + ", ".join(f"{'xyz'[i]} {v:.0f} s" for i, v in enumerate(values))
+                for name, values in optima
+            ]
+            text += f"; per-axis optima {'; '.join(parts)}; limiting axis {self.limiting_axis}"
+            loss = self.limiting_loss
+            if np.isfinite(loss):
+                text += f" ({loss:.2f}× its best)"
         return text
 
 

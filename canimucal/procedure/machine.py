@@ -25,7 +25,7 @@ from canimucal.model.plan import KPrior
 from canimucal.model.positions import PlannedPosition, Pose, PositionAverage, average_position
 from canimucal.model.samples import SampleBlock
 from canimucal.procedure import events as ev
-from canimucal.procedure.averaging import choose_time
+from canimucal.procedure.averaging import averaged_sensors, choose_time
 from canimucal.procedure.config import LEVEL, ProcedureConfig, ResumeState
 from canimucal.procedure.events import Phase
 from canimucal.procedure.gyro_fit import ConfirmedMove, fit_confirmed_moves
@@ -250,7 +250,17 @@ class Procedure:
             label = f"position {self.index - 1} → {self.index}"
             gyro, accel, counter = rows
             self.pending_moves[node_id] = ConfirmedMove(
-                start, self.target, bias, np.full(3, np.nan), gyro, counter, label, accel
+                start,
+                self.target,
+                bias,
+                np.full(3, np.nan),
+                gyro,
+                counter,
+                label,
+                accel,
+                start_key=tracker.start_key,
+                end_key=None if tracker.start_key is None else self.index,
+                start_cov=tracker.start_bias_cov,
             )
 
     def _averaging(self, track: NodeTrack, block: SampleBlock, step: int) -> list[ev.Event]:
@@ -320,9 +330,15 @@ class Procedure:
             learn_from_average(track, average, pose, self.config.site.g)
             moved = self.pending_moves.pop(node_id, None)
             if moved is not None and average.mean_gyro is not None:
-                confirmed = replace(moved, end_gyro=np.asarray(average.mean_gyro, dtype=float))
+                confirmed = replace(
+                    moved,
+                    end_gyro=np.asarray(average.mean_gyro, dtype=float),
+                    end_cov=average.cov_gyro,
+                )
                 self.confirmed_moves[node_id].append(confirmed)
-            self.move_trackers[node_id].start(pose, average.mean_gyro)
+            self.move_trackers[node_id].start(
+                pose, average.mean_gyro, key=index, mean_cov=average.cov_gyro
+            )
         events: list[ev.Event] = [ev.PositionAccepted(index), *chosen]
         return events + self._next_position()
 
@@ -443,15 +459,29 @@ class Procedure:
         """Choose the later time from the recorded first position, as :meth:`_choose_time`."""
         if state.next_index == 0 or state.first_accel is None:
             return None
-        event = choose_time(self.config.averaging, [state.first_accel], self.config.sample_rate_hz)
+        samples = {"accel": [state.first_accel]}
+        if state.first_gyro is not None:
+            samples["gyro"] = [state.first_gyro]
+        event = choose_time(
+            self.config.averaging,
+            samples,
+            self.config.sample_rate_hz,
+            averaged_sensors(self.config.spec.gyro),
+        )
         if event.source == "noise":
             self.seconds_later = event.seconds
         return event
 
     def _choose_time(self) -> list[ev.Event]:
         track = next(iter(self.tracks.values()))
-        accel = track.attempt.accel if track.attempt is not None else []
-        event = choose_time(self.config.averaging, accel, self.config.sample_rate_hz)
+        attempt = track.attempt
+        samples = {"accel": attempt.accel, "gyro": attempt.gyro} if attempt is not None else {}
+        event = choose_time(
+            self.config.averaging,
+            samples,
+            self.config.sample_rate_hz,
+            averaged_sensors(self.config.spec.gyro),
+        )
         if event.source == "noise":
             self.seconds_later = event.seconds
         return [event]

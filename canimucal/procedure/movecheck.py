@@ -88,6 +88,8 @@ class MoveTracker:
         self._lsb = float(gyro_lsb)
         self._max_rows = int(MAX_KEPT_MOVE_S * float(sample_rate_hz))
         self._bias: Array | None = None
+        self._bias_cov: Array | None = None
+        self._key: int | None = None
         self._start: Pose | None = None
         self._q = np.array([1.0, 0.0, 0.0, 0.0])
         self._last: Array | None = None
@@ -106,6 +108,16 @@ class MoveTracker:
         """That position's mean gyro (counts)."""
         return self._bias
 
+    @property
+    def start_key(self) -> int | None:
+        """That position's index in the plan (None when not given)."""
+        return self._key
+
+    @property
+    def start_bias_cov(self) -> Array | None:
+        """The covariance (counts²) of that position's mean gyro (None when not given)."""
+        return self._bias_cov
+
     def raw_rows(self) -> tuple[Array, Array, Array] | None:
         """Raw gyro rows, accelerometer rows (NaN when not given) and counters since the start.
 
@@ -122,12 +134,25 @@ class MoveTracker:
         """Whether a reference position is set (none before the first acceptance)."""
         return self._start is not None
 
-    def start(self, pose: Pose, mean_gyro_counts: Array | None) -> None:
-        """Integrate from now on, from ``pose`` with its mean gyro as the bias."""
+    def start(
+        self,
+        pose: Pose,
+        mean_gyro_counts: Array | None,
+        *,
+        key: int | None = None,
+        mean_cov: Array | None = None,
+    ) -> None:
+        """Integrate from now on, from ``pose`` with its mean gyro as the bias.
+
+        ``key`` (the position's index) and ``mean_cov`` (the covariance of its mean gyro)
+        are kept for the fit of S (:attr:`start_key`, :attr:`start_bias_cov`).
+        """
         if mean_gyro_counts is None or not np.all(np.isfinite(mean_gyro_counts)):
             self.clear()
             return
         self._bias = np.asarray(mean_gyro_counts, dtype=float)
+        self._key = key
+        self._bias_cov = None if mean_cov is None else np.asarray(mean_cov, dtype=float)
         self._start = pose
         self._q = np.array([1.0, 0.0, 0.0, 0.0])
         self._last = None
@@ -136,6 +161,7 @@ class MoveTracker:
     def clear(self) -> None:
         """Forget the reference (a skipped position: the next move is not checked)."""
         self._bias, self._start, self._last = None, None, None
+        self._key, self._bias_cov = None, None
         self._rows, self._accel, self._counters, self._kept = [], [], [], 0
 
     def add(

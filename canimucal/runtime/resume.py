@@ -55,8 +55,8 @@ def load_resume_state(
     the nodes disagree about which positions were accepted; :class:`DeviceError` when
     ``serials`` (node id → the serial the node answers with now) names another unit than the
     recording's ``device_serial``: averages of two units must never make one calibration.
-    The first node's recorded first position goes along (``first_accel``), so the resumed
-    procedure averages the later positions as long as the interrupted one did.
+    The first node's recorded first position goes along (``first_accel``, ``first_gyro``), so
+    the resumed procedure averages the later positions as long as the interrupted one did.
     """
     out = Path(out_dir)
     if not out.is_dir():
@@ -67,6 +67,7 @@ def load_resume_state(
     files: dict[int, Path] = {}
     priors: dict[int, KPrior] = {}
     first_accel: np.ndarray | None = None
+    first_gyro: np.ndarray | None = None
     for node_id in ids:
         path = recording_path(out, node_id, several)
         source = partial_path(path) if os.path.lexists(partial_path(path)) else path
@@ -82,6 +83,7 @@ def load_resume_state(
             priors[node_id] = held
         if first_accel is None and np.any(recording.position == 0):
             first_accel = recording.accel[recording.position == 0]
+            first_gyro = recording.gyro[recording.position == 0]
     done = {frozenset(a) for a in averages.values()}
     if len(done) > 1:
         raise InputError(f"cannot resume: the recordings in {out} hold different positions")
@@ -90,7 +92,7 @@ def load_resume_state(
         raise InputError(f"cannot resume: positions {indices} are not the plan's first ones")
     if len(indices) >= len(plan.positions):
         raise InputError(f"cannot resume: every position of the plan is already in {out}")
-    return ResumeState(averages, len(indices), files, priors, first_accel)
+    return ResumeState(averages, len(indices), files, priors, first_accel, first_gyro)
 
 
 def _found_nodes(out: Path) -> list[int]:

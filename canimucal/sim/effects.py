@@ -57,11 +57,18 @@ class HiddenEffect:
 
 
 def warm_up_profile(
-    start_c: float = 25.0, rise_c: float = 15.0, time_constant_s: float = 120.0
+    start_c: float = 25.0,
+    rise_c: float = 15.0,
+    time_constant_s: float = 120.0,
+    after_s: float = 0.0,
 ) -> list[list[float]]:
-    """Tabulate a warm-up ``T = start + rise (1 − e^(−t/τ))`` as (s, °C) pairs to 1 h."""
+    """Tabulate a warm-up ``T = start + rise (1 − e^(−t/τ))`` as (s, °C) pairs to 1 h.
+
+    ``after_s``: the same warm-up seen from ``t = after_s`` on (time 0 of the table), as by a
+    session that waited that long before its first position.
+    """
     times = np.concatenate([np.arange(0.0, 600.0, 5.0), np.arange(600.0, 3601.0, 60.0)])
-    temps = start_c + rise_c * (1.0 - np.exp(-times / time_constant_s))
+    temps = start_c + rise_c * (1.0 - np.exp(-(times + after_s) / time_constant_s))
     return [[float(t), float(c)] for t, c in zip(times, temps, strict=True)]
 
 

@@ -24,7 +24,7 @@ from textual.binding import Binding
 from canimucal.io.plans import BUILTIN_PLANS
 from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
-from canimucal.procedure.averaging import AveragingPolicy, describe_rule
+from canimucal.procedure.averaging import AveragingPolicy, averaged_sensors, describe_rule
 from canimucal.procedure.machine import Phase
 from canimucal.tui.connection import ConnectionScreen
 from canimucal.tui.messages import PlanWanted, ProcedureEnded, ResultsReady, StartWanted
@@ -91,7 +91,9 @@ class CalibrationApp(App[int]):
             plan_name=self.plan_name,
             gyro=self.gyro,
             mount=self.source.mount,
-            averaging=describe_rule(policy if policy is not None else AveragingPolicy()),
+            averaging=describe_rule(
+                policy if policy is not None else AveragingPolicy(), averaged_sensors(self.gyro)
+            ),
         )
         self.push_screen(plan_screen)
 

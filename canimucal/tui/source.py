@@ -130,6 +130,8 @@ class DeviceSource:
     prior_k_sigma: float | None = None
     """The prior on K of a plan that holds one: ``prior_k`` a file (else the K each node
     applies, read live) and its relative σ (else the plan's default)."""
+    gyro_g: bool = False
+    """Estimate the gyro's g-sensitivity G (where the plan's positions determine it)."""
     devices: Devices | None = field(default=None, init=False)
     statuses: dict[int, NodeStatus] = field(default_factory=dict, init=False)
 
@@ -163,6 +165,7 @@ class DeviceSource:
             self.out_dir,
             plan_name=plan_name,
             gyro=gyro,
+            gyro_g=self.gyro_g,
             site=self.site,
             backup_dir=self.backup_dir,
             overwrite=self.overwrite,

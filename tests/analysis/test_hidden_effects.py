@@ -14,7 +14,8 @@ Seeds (fixed, listed): unit and noise ``SEEDS`` = 0..99; the effect draw ``10_00
 A session counts as a hit when the effect is named exactly, or when nothing is named and the
 effect is reported ``ambiguous`` against a look-alike (DESIGN §9's head-to-head rule: under
 this 8-position plan with 0.1° poses, cross_axis stays ambiguous against temperature_bias
-or scale_nonlinearity on 10 of the 100 seeds, their estimates correlated near −0.9).
+or scale_nonlinearity on 10 of the 100 seeds, their worst entry pair correlated near −0.9;
+the canonical correlation reported in ``ambiguous`` is at least its magnitude).
 Naming a different cause counts as confidently wrong (at most ``MAX_WRONG``).
 
 Thresholds as binomial statements. The outcomes are deterministic for these seeds; the

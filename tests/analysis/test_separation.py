@@ -12,11 +12,13 @@ import dataclasses
 from typing import Any
 
 import numpy as np
+import pytest
 
 from canimucal.analysis.data import Ambiguity, SeparatingPosition
 from canimucal.analysis.discrepancy import analyse_discrepancy
 from canimucal.analysis.report import _ambiguity
 from canimucal.analysis.separation import plan_tilt_limit_deg, pose_grid
+from canimucal.analysis.significance import canonical_correlation
 from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.sim.truth import Truth
 from tests.support.sessions import simulate_session
@@ -47,9 +49,10 @@ def _unit(seed: int) -> dict[str, Any]:
 
 def test_suggested_position_resolves_the_look_alike() -> None:
     """Seeds 0..5: the pair is reported ambiguous in >= 5 (measured 8 of 8 on seeds 0..7,
-    correlation −0.996); each comes with a pose on the 5° grid within the default ±90°,
-    and once that pose is added to the recording (simulated, same seed) cross_axis is named
-    exactly, nothing else, in >= 5 of 6 (measured 8 of 8)."""
+    correlation 0.996); each comes with a pose on the 5° grid within the default ±90° that
+    lowers the correlation (measured 0.69), and once that pose is added to the recording
+    (simulated, same seed) cross_axis is named exactly, nothing else, in >= 5 of 6 (measured
+    8 of 8)."""
     ambiguous, resolved = 0, 0
     for seed in range(6):
         truth = Truth.from_dict(_unit(seed))
@@ -66,6 +69,7 @@ def test_suggested_position_resolves_the_look_alike() -> None:
         assert np.all(np.abs(pose[:2]) <= 90.0) and 0.0 <= pose[2] < 360.0
         assert np.allclose(pose / 5.0, np.round(pose / 5.0))
         assert sep.noncentrality > sep.before
+        assert 0.0 <= sep.correlation_after < pairs[0].correlation - 0.1
         added = simulate_session(
             truth, _plan(((sep.alpha_deg, sep.beta_deg, sep.psi_deg),)), seed=seed,
             estimate_scatter=True,
@@ -96,6 +100,33 @@ def test_plan_limits_and_grid() -> None:
     assert grid.shape == (5 * 5 * 72, 3)
     assert set(np.unique(grid[:, 0])) == {-10.0, -5.0, 0.0, 5.0, 10.0}
     assert grid[:, 2].max() == 355.0
+
+
+def test_the_pair_correlation_is_one_scalar_of_the_two_blocks() -> None:
+    """Canonical correlation: |r| for one entry each, blind to rescaling and mixing a
+    block's entries, at least every entry pair's |r|, 0 for a block no data determine."""
+    rng = np.random.default_rng(3)
+    m = rng.normal(size=(40, 5))
+    cov = np.linalg.inv(m.T @ m)
+    a, b = slice(0, 2), slice(2, 5)
+    rho = float(canonical_correlation(cov[None], a, b)[0])
+    sd = np.sqrt(np.diag(cov))
+    corr = cov / np.outer(sd, sd)
+    assert np.max(np.abs(corr[a, b])) <= rho + 1e-12 and rho < 1.0
+    one = float(canonical_correlation(cov[None], slice(0, 1), slice(3, 4))[0])
+    assert one == pytest.approx(abs(corr[0, 3]), rel=1e-9)
+    mix = np.eye(5)
+    mix[:2, :2] = [[3.0, 1.0], [0.5, -2.0]]
+    mix[2:, 2:] = rng.normal(size=(3, 3))
+    mixed = mix @ cov @ mix.T
+    assert float(canonical_correlation(mixed[None], a, b)[0]) == pytest.approx(rho, rel=1e-9)
+    # the leading pair of canonical variates is that correlated (an independent check)
+    product = np.linalg.inv(cov[a, a]) @ cov[a, b] @ np.linalg.inv(cov[b, b]) @ cov[b, a]
+    assert np.sqrt(np.max(np.linalg.eigvals(product).real)) == pytest.approx(rho, rel=1e-6)
+    dead = cov.copy()
+    dead[a, :] = 0.0
+    dead[:, a] = 0.0
+    assert float(canonical_correlation(dead[None], a, b)[0]) == 0.0
 
 
 def test_ambiguity_json_carries_the_position() -> None:

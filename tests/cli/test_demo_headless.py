@@ -172,3 +172,22 @@ def _solve_agrees_with_the_session(
         np.testing.assert_allclose(
             np.array(solved[block][f"{key}_sigma"], dtype=float), sigma, rtol=1e-6
         )
+
+
+def test_headless_demo_with_gyro_g_estimates_g_and_writes_it(
+    cli: Callable[[Sequence[str]], Any], tmp_path: Path
+) -> None:
+    """``--gyro-g``: the five plan's positions determine G; the node holds it, within 4σ."""
+    out = tmp_path / "demo-out"
+    argv = ["demo", "--headless", "--seconds", "3", "--time-scale", "30", "--plan", "five"]
+    result = cli([*argv, "--gyro-g", "--seed", 7, "--out", out, "--json", tmp_path / "cal.json"])
+    assert result.code == 0, result.err
+    record = json.loads((tmp_path / "cal.json").read_text())
+    truth = Truth.from_dict(json.loads((out / "truth.json").read_text()))
+    assert np.max(np.abs(truth.gyro.G)) > 0.2  # the random truth has a G to find
+    G, sigma = np.array(record["gyro"]["G"], float), np.array(record["gyro"]["G_sigma"], float)
+    assert np.all(np.abs(G - truth.gyro.G) < 4.0 * sigma), (G - truth.gyro.G) / sigma
+    deviations = {d.name: d for d in readback_deviations(record, truth)}
+    read_back = [deviations[f"gyro.G[{i}][{j}]"] for i in range(3) for j in range(3)]
+    assert max(abs(d.dev_sigma) for d in read_back) < 4.0
+    assert read_recording(out / "recording.csv").header["gyro_g"] is True  # solve reuses it

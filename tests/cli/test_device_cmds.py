@@ -179,6 +179,18 @@ def test_record_single_position_and_append(cli: Cli, tmp_path: Path, truth_file:
     assert cli(["record", out, "--position", "2", *pos, *flags]).code == 2
 
 
+def test_record_gyro_g_names_g_in_the_header_for_solve(
+    cli: Cli, tmp_path: Path, truth_file: Path
+) -> None:
+    flags = sim_flags(truth_file, tmp_path / "state.json", scale=10.0)
+    pos = ["--position", "0", "--alpha-deg", "0", "--beta-deg", "0", "--seconds", "1"]
+    for name, extra in (("g.csv", ["--gyro-g"]), ("plain.csv", [])):
+        run = cli(["record", tmp_path / name, *pos, *extra, *flags])
+        assert run.code == 0, run.err
+    assert read_recording(tmp_path / "g.csv").header["gyro_g"] is True
+    assert "gyro_g" not in read_recording(tmp_path / "plain.csv").header
+
+
 @pytest.mark.parametrize("skew_ppm", [5000.0, -5000.0])
 def test_record_reports_the_timer_skew_per_node(cli: Cli, tmp_path: Path, skew_ppm: float) -> None:
     # an event timer 0.5 % off the sample clock, in real time (a scaled clock has no skew to

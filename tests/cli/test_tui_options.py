@@ -73,3 +73,13 @@ def test_the_prior_on_k_flags_go_to_the_source_and_bad_ones_exit_2(tmp_path: Pat
     partial.write_text(json.dumps({**head, "accel": {"bias": [0.0] * 3, "K": [[None] * 3] * 3}}))
     with pytest.raises(InputError, match="partial.json"):
         device_source(parse("--sim", "--g", "9.81", "--prior-k", str(partial)))
+
+
+def test_gyro_g_reaches_the_session_the_source_opens(tmp_path: Path) -> None:
+    source = device_source(parse("--sim", "--g", "9.81", "--gyro-g", "--out", str(tmp_path)))
+    assert source.gyro_g and not device_source(parse("--sim", "--g", "9.81")).gyro_g
+    try:
+        session = source.open(builtin_plan("five"), "five", "mems")
+        assert session.procedure.config.spec.gyro_g
+    finally:
+        source.close()

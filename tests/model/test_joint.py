@@ -18,7 +18,6 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scipy.stats import chi2 as chi2_dist
 
 from canimucal.errors import ModelError
 from canimucal.model.dcm_stack import dcm_derivatives
@@ -36,6 +35,7 @@ from canimucal.model.plan import FIVE, RECOMMENDED, cramer_rao
 from canimucal.model.positions import Plan, PlannedPosition, PositionAverage
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, AccelParams, GyroParams
 from canimucal.sim.averages import simulate_averages
+from tests.support.chi2_band import chi2_ratio_band
 
 G = 9.80665
 K_NOM = 1.0 / DEFAULT_ACCEL_LSB
@@ -205,19 +205,15 @@ class MonteCarlo:
             assert not bad, f"empirical std vs {label} outside [{low:.3f}, {high:.3f}]: {bad}"
 
 
-def _std_ratio_band(n: int, comparisons: int, family_alpha: float = 1e-3) -> tuple[float, float]:
-    """Where s/σ of ``n`` Gaussian errors lies, two-sided, Bonferroni over ``comparisons``.
+def _std_ratio_band(n: int, comparisons: int) -> tuple[float, float]:
+    """Where s/σ of ``n`` Gaussian errors lies: (n − 1)·s²/σ² ~ χ²(n − 1), Bonferroni.
 
-    (n − 1)·s²/σ² ~ χ²(n − 1); for n = 200 and 28 comparisons the band is [0.80, 1.21]: a
-    σ wrong by 25 % still fails, and a right one fails once in a thousand runs (a fixed ±15 %
-    band failed about one seed in ten).
+    For n = 200 and 28 comparisons the band is [0.80, 1.21]: a σ wrong by 25 % still fails,
+    and a right one fails once in a thousand runs (a fixed ±15 % band failed about one seed
+    in ten).
     """
-    a = family_alpha / comparisons / 2
-    dof = n - 1
-    return (
-        float(np.sqrt(chi2_dist.ppf(a, dof) / dof)),
-        float(np.sqrt(chi2_dist.ppf(1 - a, dof) / dof)),
-    )
+    low, high = chi2_ratio_band(n - 1, comparisons)
+    return float(np.sqrt(low)), float(np.sqrt(high))
 
 
 @dataclass(frozen=True)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -11,6 +13,8 @@ from canimucal.model.sensor import DEFAULT_GYRO_LSB
 from canimucal.sim.imu import ImuSimulator
 from canimucal.sim.schedule import min_jerk
 from canimucal.sim.truth import SAMPLE_RATES_HZ, Truth
+from tests.support.chi2_band import chi2_ratio_band, mahalanobis
+from tests.support.moves import TURN_POSES_DEG
 
 NOMINAL_S = np.eye(3) / DEFAULT_GYRO_LSB
 TURNS = [
@@ -48,6 +52,44 @@ def _synthetic_moves(
         rot = mv.rotvec_to_matrix(angle * u).T
         out.append(mv.Move(counts, 1.0 / fs_hz, rot, angle * u, sigma_rad=0.0))
     return out
+
+
+def _position_chain(
+    rng: np.random.Generator,
+    S: np.ndarray,
+    bias: np.ndarray,
+    sigma_counts: float,
+    tolerance_rad: float,
+    n_mean: int,
+    fs_hz: float = 50.0,
+    seconds: float = 1.0,
+    n_positions: int = len(TURN_POSES_DEG),
+) -> tuple[list[mv.Move], np.ndarray, mv.Shared]:
+    """Moves from one still position to the next, as a session makes them.
+
+    Every pose of :data:`TURN_POSES_DEG` is really set off by a draw from its tolerance, and
+    each position's mean gyro (``n_mean`` samples) is off by its own noise; each move's
+    bias is the mean of its two positions' means, as the procedure forms it. The moves are
+    returned on one common bias (the first), as :func:`fit_recording_moves` passes them.
+    """
+    poses = np.deg2rad(np.array(TURN_POSES_DEG[:n_positions], dtype=float))
+    real = poses + rng.normal(0.0, tolerance_rad, poses.shape)
+    means = bias + rng.normal(0.0, sigma_counts / np.sqrt(n_mean), poses.shape)
+    n = int(round(seconds * fs_hz)) + 1
+    _, ds = min_jerk(np.linspace(0.0, 1.0, n))
+    moves = []
+    for a in range(len(poses) - 1):
+        turn = mv.matrix_to_rotvec(position_dcm(*real[a]) @ position_dcm(*real[a + 1]).T)
+        counts = bias + np.outer(ds / seconds, turn) @ S.T + rng.normal(0, sigma_counts, (n, 3))
+        own_bias = 0.5 * (means[a] + means[a + 1])
+        c_a, c_b = position_dcm(*poses[a]), position_dcm(*poses[a + 1])
+        common = counts - own_bias + 0.5 * (means[0] + means[1])
+        moves.append(mv.pose_move(common, 1 / fs_hz, c_a, c_b, 0.0, positions=(a, a + 1)))
+    shared = mv.Shared(
+        {p: mv.attitude_covariance(poses[p], tolerance_rad) for p in range(len(poses))},
+        {p: np.eye(3) * sigma_counts**2 / n_mean for p in range(len(poses))},
+    )
+    return moves, 0.5 * (means[0] + means[1]), shared
 
 
 def _noise_free_truth(fs_hz: float, seed: int) -> Truth:
@@ -133,6 +175,55 @@ def test_reported_sigma_matches_the_scatter() -> None:
         z.append(((fit.S - S) / fit.S_sigma).reshape(9))
     assert 0.7 < np.std(z) < 1.3
     assert np.all(np.abs(np.asarray(z)) < 5.0)
+
+
+def test_sigma_counts_the_errors_moves_share_through_their_positions() -> None:
+    """Monte Carlo over sessions of moves between positions set to within their tolerance.
+
+    The errors of S against the truth, normalised by the fit's covariance, spread as χ²(9)
+    per session (GLS over eq. F2). Weighing the same moves as if each pose's error were the
+    move's own (``√2 · tolerance`` per move, no shared mean gyro) gives a σ that the same
+    check refuses: this check can tell an honest σ from an optimistic one.
+    """
+    S, bias = _true_s(np.random.default_rng(22)), np.array([12.0, -30.0, 5.0])
+    sigma, tolerance, trials = 3.0, np.deg2rad(0.05), 120
+    gls, independent = [], []
+    for trial in range(trials):
+        moves, b0, shared = _position_chain(
+            np.random.default_rng(9000 + trial), S, bias, sigma, tolerance, n_mean=100
+        )
+        fit = mv.solve_moves(moves, b0, NOMINAL_S, [sigma] * 3, shared=shared)
+        gls.append(mahalanobis(fit.S - S, fit.covariance))
+        alone = [
+            dataclasses.replace(m, sigma_rad=np.sqrt(2.0) * tolerance, positions=None)
+            for m in moves
+        ]
+        naive = mv.solve_moves(alone, b0, NOMINAL_S, [sigma] * 3)
+        independent.append(mahalanobis(naive.S - S, naive.covariance))
+    low, high = chi2_ratio_band(9 * trials, comparisons=2)
+    assert low <= np.mean(gls) / 9 <= high, (np.mean(gls) / 9, low, high)
+    assert np.mean(independent) / 9 > high, (np.mean(independent) / 9, high)
+
+
+def test_moves_through_one_position_correlate_as_predicted() -> None:
+    """Residuals of two moves through one position, at the true S, over many draws (F1–F2).
+
+    Whitened by the predicted covariance ``R`` (which has the −½ correlation of the shared
+    pose and its bias term) they must be uncorrelated with unit variance.
+    """
+    S, bias, draws = _true_s(np.random.default_rng(4)), np.array([5.0, -2.0, 9.0]), 400
+    white = []
+    for draw in range(draws):
+        moves, b0, shared = _position_chain(
+            np.random.default_rng(700 + draw), S, bias, 3.0, np.deg2rad(0.05), 20, n_positions=3
+        )
+        parts = [mv._residual_parts(m, S, b0, None) for m in moves]
+        sigmas = [mv.move_sigma(m, np.full(3, 3.0), S) for m in moves]
+        cov = mv.residual_covariance(moves, [p[2] for p in parts], np.array(sigmas), shared)
+        r = np.concatenate([p[0] for p in parts])
+        white.append(np.linalg.solve(np.linalg.cholesky(cov), r))
+    emp = np.cov(np.array(white).T)
+    assert np.max(np.abs(emp - np.eye(6))) < 5.0 / np.sqrt(draws), np.round(emp, 2)
 
 
 def test_column_without_a_turn_is_not_identifiable() -> None:

@@ -230,6 +230,7 @@ def _short_plan(seconds: float = 30.0) -> Plan:
 def test_averaging_time_follows_the_noise_of_the_first_position(
     random_walk: float, low: float, high: float
 ) -> None:
+    from canimucal.model.layout import JointSpec
     from canimucal.procedure.averaging import AveragingPolicy
 
     truth = Truth.random(
@@ -237,7 +238,9 @@ def test_averaging_time_follows_the_noise_of_the_first_position(
         cross_axis_max=0.0,
         accel={"random_walk": [random_walk] * 3},
     )
-    bench = Bench([truth], _short_plan(), averaging=AveragingPolicy())
+    # no gyro model: the accelerometer's axes alone decide (test_averaging_rule has the gyro)
+    spec = JointSpec(accel_k="diag", tilt="rigid", gyro="none")
+    bench = Bench([truth], _short_plan(), averaging=AveragingPolicy(), spec=spec)
     assert bench.proc.seconds_for(0) == 120.0
     assert bench.proc.seconds_for(1) == 30.0  # until the noise is known
     bench.position()

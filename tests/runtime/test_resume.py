@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from canimucal.cli.main import main
@@ -34,6 +35,10 @@ def test_an_interrupted_demo_resumes_and_uses_every_position(
     plan = builtin_plan("five")
     first = load_resume_state(out, plan, (0x10,))
     assert first.next_index == 2 and sorted(first.averages[0x10]) == [0, 1]
+    # the first position's rows of both sensors go along: the averaging rule reads both
+    assert first.first_accel is not None and first.first_gyro is not None
+    assert first.first_gyro.shape == first.first_accel.shape
+    assert np.all(np.isfinite(first.first_gyro))
     rows_before = read_recording(out / "recording.csv").n_rows
 
     code = main([*FAST, *SEED, "--resume", str(out), "--json", str(tmp_path / "cal.json")])

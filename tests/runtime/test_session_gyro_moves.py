@@ -27,7 +27,7 @@ def test_the_session_recovers_an_off_nominal_s_from_its_moves_and_reads_it_back(
     tmp_path: Path,
 ) -> None:
     truth = Truth.random(
-        np.random.default_rng(31),
+        np.random.default_rng(5),
         scale_error_max=0.03,
         cross_axis_max=0.01,
         tilt_max_deg=0.0,
@@ -38,7 +38,7 @@ def test_the_session_recovers_an_off_nominal_s_from_its_moves_and_reads_it_back(
     assert (
         np.max(np.abs(np.diag(rel))) > 0.01 and np.max(np.abs(rel - np.diag(np.diag(rel)))) > 0.002
     )
-    with open_devices(demo_settings([truth], time_scale=30.0, seed=31)) as rig:
+    with open_devices(demo_settings([truth], time_scale=30.0, seed=5)) as rig:
         session = rig.session(
             turns_plan(seconds=3.0),
             tmp_path,

@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import signal
 import threading
+import time
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -64,11 +65,13 @@ class RequestCounter:
         self.actions: dict[int, Any] = {}
         self.senders: list[int] = []
         """The hub connection number of each request since :meth:`arm`, in bus order."""
+        self.times: list[float] = []
+        """The hub's ``time.monotonic()`` at each of those requests."""
         self.lock = threading.Lock()
 
     def arm(self, actions: dict[int, Any]) -> None:
         with self.lock:
-            self.count, self.actions, self.senders = 0, dict(actions), []
+            self.count, self.actions, self.senders, self.times = 0, dict(actions), [], []
 
     def __call__(self, number: int, msg: can.Message) -> None:
         if msg.arbitration_id != SDO_REQUEST:
@@ -76,6 +79,7 @@ class RequestCounter:
         with self.lock:
             self.count += 1
             self.senders.append(number)
+            self.times.append(time.monotonic())
             action = self.actions.pop(self.count, None)
         if action is not None:
             action()

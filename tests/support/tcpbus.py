@@ -10,7 +10,10 @@ request on the bus. :class:`TcpBus` is the :class:`can.BusABC` of one client;
 leaves the machine.
 
 Wire format: one 14-byte record per frame, ``!IBB8s`` = arbitration id, flags (bit 0
-extended id, bit 1 remote, bit 2 error frame), data length, data (zero-padded).
+extended id, bit 1 remote, bit 2 error frame), data length, data (zero-padded). On joining, the
+hub first sends one byte, ``JOINED``, once it relays to the new client; :class:`TcpBus` waits
+for it, so a bus that exists has joined (without it a frame sent right after the connection
+could be relayed before the hub accepted the new client, which then never saw it).
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import can
 INTERFACE = "canimucal-tcp"
 _RECORD = struct.Struct("!IBB8s")
 _EXTENDED, _REMOTE, _ERROR = 1, 2, 4
+JOINED = b"\x06"
 
 Tap = Callable[[int, can.Message], None]
 
@@ -104,6 +108,10 @@ class TcpHub:
         self._numbers += 1
         self._clients[sock] = (self._numbers, bytearray())
         self._selector.register(sock, selectors.EVENT_READ, None)
+        try:
+            sock.sendall(JOINED)  # relayed to from now on
+        except OSError:
+            self._drop(sock)
 
     def _drop(self, sock: socket.socket) -> None:
         self._clients.pop(sock, None)
@@ -162,6 +170,14 @@ class TcpBus(can.BusABC):
         except (OSError, ValueError) as exc:
             raise can.CanInitializationError(f"no CAN hub at {channel}: {exc}") from exc
         self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        try:
+            joined = self._sock.recv(1)  # within the connect timeout above
+        except OSError as exc:
+            self._sock.close()
+            raise can.CanInitializationError(f"CAN hub at {channel} did not answer: {exc}") from exc
+        if joined != JOINED:
+            self._sock.close()
+            raise can.CanInitializationError(f"no canimucal-tcp hub at {channel}")
         self._sock.settimeout(None)
         self._send_lock = threading.Lock()
         self._buffer = bytearray()
