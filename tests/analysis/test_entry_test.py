@@ -7,9 +7,12 @@ weight 17 (every entry once). Seeds fixed; bounds are binomial statements given 
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from scipy import stats
 
+from canimucal.analysis.noise_model import ScatterModel, scatter_f_test
 from canimucal.analysis.significance import (
     GROUP_SHARE,
     LinearProblem,
@@ -113,3 +116,48 @@ def test_one_planted_entry_beats_the_group_test() -> None:
         group_hits += nested_test(problem, cols, [], "a.six").statistic > crit_group
     assert entry_hits >= 270, entry_hits
     assert entry_hits > group_hits, (entry_hits, group_hits)
+
+
+def test_entries_with_estimated_scatter_are_satterthwaite_f_tests() -> None:
+    # 8 positions × 3 rows ruled by a 0.1° pose scatter (τ estimated), 9 base columns and a
+    # 3-entry candidate, one entry planted: every single-entry test is scatter_f_test on that
+    # one column (F(1, ν) with the entry's own ν), the group test is scatter_f_test on the
+    # three; entry_test combines them by the weighted Bonferroni. With τ held, the same
+    # problem gets the known-noise χ² ("LR").
+    rng = np.random.default_rng(11)
+    n, m = 8, 3
+    size = n * m
+    unit = np.zeros((size, size))
+    for k in range(n):
+        j = rng.normal(0.0, 1500.0, (m, 3))
+        unit[k * m : (k + 1) * m, k * m : (k + 1) * m] = j @ j.T
+    model = ScatterModel(np.eye(size) * 3e-3, unit, "estimated")
+    chol = np.linalg.cholesky(model.covariance(float(np.deg2rad(0.1))))
+    base, cand = rng.normal(size=(size, 9)), rng.normal(size=(size, 3))
+    raw = base @ rng.normal(size=9) + 4.0 * cand[:, 1] + chol @ rng.normal(size=size)
+    inv = np.linalg.inv(chol)
+    problem = LinearProblem(
+        residual_w=inv @ raw,
+        base_w=inv @ base,
+        block=np.repeat(np.arange(n), m),
+        unwhiten=chol,
+        si_scale=np.ones(size),
+        sensor=np.array(["accel"] * size),
+        scatter=model,
+    )
+    cols = {"a.three": inv @ cand}
+    singles = [
+        scatter_f_test(model, raw, base, np.column_stack([base, cand[:, k]])) for k in range(3)
+    ]
+    group = scatter_f_test(model, raw, base, np.hstack([base, cand]))
+    assert group is not None and all(s is not None and s.q == 1 for s in singles)
+    nus = [s.nu for s in singles if s is not None]
+    assert all(2.0 <= nu < 1e7 for nu in nus) and len(set(np.round(nus, 6))) > 1
+    p_min = min(s.p_value for s in singles if s is not None)
+    expected = min(1.0, 3 * p_min / (1 - GROUP_SHARE), group.p_value / GROUP_SHARE)
+    test = entry_test(problem, cols, [], "a.three")
+    assert test.kind == "F (Satterthwaite)"
+    assert 1e-9 < test.p_value < 0.5 and np.isclose(test.p_value, expected)
+    assert np.isclose(nested_test(problem, cols, [], "a.three").p_value, group.p_value)
+    held = entry_test(dataclasses.replace(problem, scatter=None), cols, [], "a.three")
+    assert held.kind == "LR"
