@@ -50,7 +50,8 @@ class LinearProblem:
     ``unwhiten`` ``(N, N)`` maps whitened rows back to raw residuals; ``si_scale`` ``(N,)``
     turns a raw residual into SI units (nominal LSB); ``sensor`` ``(N,)`` ``accel``/``gyro``.
     ``scatter``, when given, is the noise family whose pose-setting scatter each nested test
-    re-estimates within each of its two models (:mod:`.noise_model`).
+    estimates by REML in its larger model, the test then Satterthwaite's F
+    (:func:`.noise_model.scatter_f_test`); None: the whitening is the known noise (χ²).
     """
 
     residual_w: Array
