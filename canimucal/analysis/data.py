@@ -90,7 +90,11 @@ class Finding:
 
 @dataclass(frozen=True)
 class TestRecord:
-    """One candidate test: raw and Holm-adjusted p-value, statistic, chosen or not."""
+    """One candidate test: raw and Holm-adjusted p-value, statistic, chosen or not.
+
+    ``entries`` > 1: a per-entry test, ``statistic`` (on ``df`` dof) that of the largest of
+    that many single-entry tests and ``p_value`` already Bonferroni-corrected for them.
+    """
 
     effect: str
     sensor: str
@@ -100,6 +104,7 @@ class TestRecord:
     p_value: float
     p_adjusted: float
     chosen: bool
+    entries: int = 1
 
 
 @dataclass(frozen=True)

@@ -14,9 +14,13 @@ step is exact to well below the noise). Then, for a candidate with ``q`` columns
   larger model's REML scatter is referred to F(q, ν) with Satterthwaite's ν
   (:func:`~canimucal.analysis.noise_model.scatter_f_test`).
 
-Holm's step-down procedure controls the family-wise error of the candidates; the forward
-selection adds, at step k, the smallest p-value if it beats ``α/(m − k)``, which is Holm's
-procedure applied to the terms in the order they enter. Leave-one-position-out
+A candidate of ``q`` entries is tested entry by entry (:func:`entry_test`: the largest of
+its 1-dof tests, Bonferroni over the entries), because an effect usually sits in one entry
+and a ``q``-dof group test dilutes it. Holm's step-down procedure, weighted by each
+candidate's number of entries (:func:`holm_adjust`), controls the family-wise error of the
+candidates: every entry of every candidate gets the same share of α. The forward selection
+adds, at step k, the term of smallest ``p/w`` if it beats ``α/(W − Σ w_chosen)``, which is
+weighted Holm applied to the terms in the order they enter. Leave-one-position-out
 cross-validation uses the block form of the PRESS residual, ``e_P = (I − H_PP)⁻¹ r_P``.
 """
 
@@ -27,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats
+from scipy import special
 
 from canimucal.analysis.noise_model import ScatterModel, scatter_f_test
 
@@ -46,7 +50,8 @@ class LinearProblem:
     ``unwhiten`` ``(N, N)`` maps whitened rows back to raw residuals; ``si_scale`` ``(N,)``
     turns a raw residual into SI units (nominal LSB); ``sensor`` ``(N,)`` ``accel``/``gyro``.
     ``scatter``, when given, is the noise family whose pose-setting scatter each nested test
-    re-estimates within each of its two models (:mod:`.noise_model`).
+    estimates by REML in its larger model, the test then Satterthwaite's F
+    (:func:`.noise_model.scatter_f_test`); None: the whitening is the known noise (χ²).
     """
 
     residual_w: Array
@@ -80,7 +85,13 @@ def effective_rank(problem: LinearProblem, columns: Array) -> int:
     """Count the directions ``columns`` add to the base model's column space."""
     if columns.shape[1] == 0:
         return 0
-    q, _ = np.linalg.qr(problem.base_w)
+    return _rank_off(np.linalg.qr(problem.base_w)[0], columns)
+
+
+def _rank_off(q: Array, columns: Array) -> int:
+    """Directions ``columns`` add to the span of the orthonormal ``q``."""
+    if columns.shape[1] == 0:
+        return 0
     rest = columns - q @ (q.T @ columns)
     sv = np.linalg.svd(rest, compute_uv=False)
     scale = max(float(np.max(np.linalg.norm(columns, axis=0))), 1e-300)
@@ -118,13 +129,18 @@ def fit_terms(
 
 @dataclass(frozen=True)
 class NestedTest:
-    """One nested-model test: statistic, its degrees of freedom and the raw p-value."""
+    """One nested-model test: statistic, its degrees of freedom and the raw p-value.
+
+    ``entries`` is the number of single-entry tests a per-entry test took the largest of
+    (its p-value is already corrected for them); 1 for a group test.
+    """
 
     term: str
     statistic: float
     df: int
     p_value: float
     kind: str
+    entries: int = 1
 
 
 def nested_test(
@@ -137,41 +153,156 @@ def nested_test(
 ) -> NestedTest:
     """Test ``smaller + [term]`` against ``smaller``: LR χ² (known noise) or F (noise unknown).
 
-    With ``problem.scatter`` (and no F test) the pose-setting scatter is the larger model's
-    REML estimate and the test is Satterthwaite's F (:func:`.noise_model.scatter_f_test`).
+    The group test of all of ``term``'s entries at once, ``q`` dof. With ``problem.scatter``
+    estimated (and no F test) the pose-setting scatter is the larger model's REML estimate
+    and the test is Satterthwaite's F (:func:`.noise_model.scatter_f_test`); with it fixed,
+    the known-noise χ².
     """
-    q = effective_rank(problem, np.hstack([columns[t] for t in smaller] + [columns[term]]))
-    q -= effective_rank(problem, np.hstack([columns[t] for t in smaller])) if smaller else 0
+    ref = _Smaller(problem, columns, smaller, use_f)
+    q = ref.gain(columns[term])
     if q <= 0:
         return NestedTest(term, 0.0, 0, 1.0, "none")
-    small = fit_terms(problem, columns, smaller)
-    big = fit_terms(problem, columns, [*smaller, term])
-    delta = max(small.chi2 - big.chi2, 0.0)
-    if use_f and big.dof > 0:
-        f = (delta / q) / max(big.chi2 / big.dof, 1e-300)
-        return NestedTest(term, f, q, float(stats.f.sf(f, q, big.dof)), "F")
-    if problem.scatter is not None and problem.scatter.fixed is None:
-        raw_r = problem.unwhiten @ problem.residual_w
-        small_x = problem.unwhiten @ _design(problem, columns, smaller)
-        big_x = problem.unwhiten @ _design(problem, columns, [*smaller, term])
-        test = scatter_f_test(problem.scatter, raw_r, small_x, big_x)
-        if test is None:
-            return NestedTest(term, 0.0, 0, 1.0, "none")
-        return NestedTest(term, test.statistic, test.q, test.p_value, "F (Satterthwaite)")
-    return NestedTest(term, delta, q, float(stats.chi2.sf(delta, q)), "LR")
+    return ref.test(term, columns[term], q)
 
 
-def holm_adjust(p_values: Sequence[float]) -> Array:
-    """Holm step-down adjusted p-values (monotone, capped at 1)."""
+def entry_test(
+    problem: LinearProblem,
+    columns: Mapping[str, Array],
+    smaller: Sequence[str],
+    term: str,
+    *,
+    use_f: bool = False,
+) -> NestedTest:
+    """Test ``term`` entry by entry beside ``smaller``, and as a group; Bonferroni over both.
+
+    Every entry (column) of ``term`` that adds a direction to ``smaller`` gets the 1-dof
+    test of :func:`nested_test`, and the whole term its ``q``-dof group test. With ``m``
+    such entries, ``p_min`` the smallest entry p-value, ``p_group`` the group test's and
+    ``ε = GROUP_SHARE``, the test of the whole term (null: every entry zero) has
+
+        p = min(1, m · p_min / (1 − ε), p_group / ε)              (weighted Bonferroni)
+
+    so its size stays at most the nominal level whatever the correlation of the entries.
+    Against a term whose effect sits in one entry the entry tests are far more powerful
+    than the group test, whose statistic spreads that entry's non-centrality over ``q``
+    dof: at non-centrality 25 and α = 1 %/9, the 6-entry group test has power 0.79, the
+    per-entry test 0.90 (critical z = √χ²₁ at ``α/(9·6)``: 3.74 against a mean of 5).
+    Against an effect spread over many entries (a real misalignment, a tilt) the group
+    test is the stronger one, the more so when the pose scatter is estimated: one entry
+    alone leaves most of the misfit to be absorbed by a larger scatter. The statistic
+    reported is that of the test giving ``p`` (``entries`` 1 for the group test).
+    """
+    ref = _Smaller(problem, columns, smaller, use_f)
+    block = columns[term]
+    tests = []
+    for k in range(block.shape[1]):
+        col = block[:, k : k + 1]
+        if ref.gain(col) == 1:
+            tests.append(ref.test(term, col, 1))
+    if not tests:
+        return NestedTest(term, 0.0, 0, 1.0, "none")
+    best = min(tests, key=lambda t: (t.p_value, -t.statistic))
+    m = len(tests)
+    q = ref.gain(block)
+    entry_p = m * best.p_value / (1.0 - GROUP_SHARE if q > 1 else 1.0)
+    if q > 1:
+        group = ref.test(term, block, q)
+        if group.p_value / GROUP_SHARE < entry_p:
+            return NestedTest(term, group.statistic, q, min(1.0, group.p_value / GROUP_SHARE),
+                              group.kind)  # fmt: skip
+    return NestedTest(term, best.statistic, 1, min(1.0, entry_p), best.kind, m)
+
+
+GROUP_SHARE = 0.2
+"""Share of a candidate's α given to its group test in :func:`entry_test` (the rest: entries)."""
+
+
+class _Smaller:
+    """The smaller model of a nested comparison, fitted once for several larger ones."""
+
+    def __init__(
+        self,
+        problem: LinearProblem,
+        columns: Mapping[str, Array],
+        smaller: Sequence[str],
+        use_f: bool,
+    ) -> None:
+        self.problem, self.columns, self.smaller, self.use_f = problem, columns, smaller, use_f
+        stacked = [columns[t] for t in smaller]
+        self.stacked = np.hstack(stacked) if stacked else np.zeros((problem.base_w.shape[0], 0))
+        self.q_base = np.linalg.qr(problem.base_w)[0]
+        self.rank = _rank_off(self.q_base, self.stacked)
+        self.design = _design(problem, columns, smaller)
+        self.chi2 = _chi2_dof(self.design, problem.residual_w)[0]
+        self.raw_r = problem.unwhiten @ problem.residual_w
+        self.raw_design = problem.unwhiten @ self.design
+
+    def gain(self, extra: Array) -> int:
+        """Directions ``extra`` adds to the smaller model."""
+        return _rank_off(self.q_base, np.hstack([self.stacked, extra])) - self.rank
+
+    def test(self, term: str, extra: Array, q: int) -> NestedTest:
+        """Test the smaller model plus ``extra`` (``q`` new directions) against it."""
+        problem = self.problem
+        design = np.hstack([self.design, extra])
+        chi2, dof = _chi2_dof(design, problem.residual_w)
+        delta = max(self.chi2 - chi2, 0.0)
+        if self.use_f and dof > 0:
+            f = (delta / q) / max(chi2 / dof, 1e-300)
+            return NestedTest(term, f, q, float(special.fdtrc(q, dof, f)), "F")
+        if problem.scatter is not None and problem.scatter.fixed is None:
+            raw_big = np.hstack([self.raw_design, problem.unwhiten @ extra])
+            test = scatter_f_test(problem.scatter, self.raw_r, self.raw_design, raw_big)
+            if test is None:
+                return NestedTest(term, 0.0, 0, 1.0, "none")
+            return NestedTest(term, test.statistic, test.q, test.p_value, "F (Satterthwaite)")
+        return NestedTest(term, delta, q, float(special.chdtrc(q, delta)), "LR")
+
+
+def _chi2_dof(design: Array, residual: Array) -> tuple[float, int]:
+    """χ² and residual dof of the least-squares fit of ``residual`` on ``design``."""
+    if design.shape[1] == 0:
+        return float(residual @ residual), residual.size
+    u, sv, _ = np.linalg.svd(design, full_matrices=False)
+    tol = float(sv[0]) * max(design.shape) * np.finfo(float).eps if sv.size else 0.0
+    u = u[:, sv > tol]
+    resid = residual - u @ (u.T @ residual)
+    return float(resid @ resid), residual.size - u.shape[1]
+
+
+def holm_adjust(p_values: Sequence[float], weights: Sequence[float] | None = None) -> Array:
+    """Holm step-down adjusted p-values (monotone, capped at 1), weighted when asked.
+
+    Weighted Holm (Holm 1979, §5): hypotheses are taken in increasing ``p_i / w_i``; at step
+    ``j`` the adjusted value is ``max_{i ≤ j} min(1, (p_(i) / w_(i)) · Σ_{k ≥ i} w_(k))``, so
+    that ``H_i`` is rejected at level α when ``p_i / w_i ≤ α / (weight still untested)``.
+    Equal weights give the usual ``(m − rank) · p``.
+    """
     p = np.asarray(p_values, dtype=float)
-    m = p.size
-    order = np.argsort(p)
-    adjusted = np.empty(m)
+    w = np.ones(p.size) if weights is None else np.asarray(weights, dtype=float)
+    ratio = p / w
+    order = np.argsort(ratio, kind="stable")
+    left = float(np.sum(w))
+    adjusted = np.empty(p.size)
     running = 0.0
-    for rank, idx in enumerate(order):
-        running = max(running, min(1.0, (m - rank) * p[idx]))
+    for idx in order:
+        running = max(running, min(1.0, ratio[idx] * left))
         adjusted[idx] = running
+        left -= float(w[idx])
     return adjusted
+
+
+def entry_weights(problem: LinearProblem, columns: Mapping[str, Array]) -> dict[str, int]:
+    """Count the entries of each term that add a direction to the base model on their own.
+
+    A term's weight in the weighted Holm procedure of :func:`forward_select`: the family is
+    then, in effect, every single entry of every candidate (the per-entry tests of
+    :func:`entry_test`), each with the same share of α.
+    """
+    return {
+        key: sum(effective_rank(problem, col[:, k : k + 1]) for k in range(col.shape[1]))
+        for key, col in columns.items()
+    }
 
 
 def forward_select(
@@ -179,28 +310,42 @@ def forward_select(
     columns: Mapping[str, Array],
     *,
     alpha: float,
-    family_size: int,
+    family_size: float,
     use_f: bool = False,
+    weights: Mapping[str, float] | None = None,
 ) -> list[str]:
-    """Add terms in order of significance while the smallest p beats Holm's ``α/(m − k)``.
+    """Add terms in order of significance while weighted Holm's step-down test passes.
 
-    Then drop any chosen term whose test against all the others chosen no longer passes
-    ``α/m`` (a term that only stood in for one chosen later).
+    Each term is tested by :func:`entry_test` beside the terms already chosen. With
+    weights ``w`` (default 1 each) and ``family_size`` the family's total weight ``W``
+    (terms, and the other tests of the family that share α), step ``k`` adds the term of
+    smallest ``p / w`` if ``p / w < α / (W − Σ w_chosen)`` (weighted Holm, see
+    :func:`holm_adjust`). Then any chosen term whose test against all the others chosen no
+    longer passes ``p / w < α / W`` is dropped (a term that only stood in for one chosen
+    later).
     """
+    w = {t: 1.0 for t in columns} if weights is None else weights
     chosen: list[str] = []
     remaining = list(columns)
+    left = float(family_size)
     while remaining:
-        tests = [nested_test(problem, columns, chosen, t, use_f=use_f) for t in remaining]
-        best = min(tests, key=lambda s: s.p_value)
-        if best.p_value >= alpha / (family_size - len(chosen)):
+        tests = [entry_test(problem, columns, chosen, t, use_f=use_f) for t in remaining]
+        best = min(tests, key=lambda s: _per_weight(s.p_value, w[s.term]))
+        if left <= 0.0 or _per_weight(best.p_value, w[best.term]) >= alpha / left:
             break
         chosen.append(best.term)
         remaining.remove(best.term)
+        left -= w[best.term]
     for term in list(chosen):
         others = [t for t in chosen if t != term]
-        if nested_test(problem, columns, others, term, use_f=use_f).p_value >= alpha / family_size:
+        test = entry_test(problem, columns, others, term, use_f=use_f)
+        if _per_weight(test.p_value, w[term]) >= alpha / family_size:
             chosen.remove(term)
     return chosen
+
+
+def _per_weight(p: float, w: float) -> float:
+    return p / w if w > 0 else float("inf")
 
 
 MIN_HOLDOUT = 0.05
