@@ -26,8 +26,13 @@
    of its Holm procedure: ``group``, the effect's q-entry group test at α/family (the
    previous selection test), and ``entry``, the per-entry test it uses at 0.8 α/W (W the
    family's total weight, every entry once; 0.2 of each candidate's α goes to its group
-   test). ``--workers`` processes, ``--effects`` picks
-   the cells (``clean`` too).
+   test). Beside the oracle that knows the noise, ``same``: the oracle that knows the
+   effect and its entry but estimates τ as the analysis does (REML of the base fit plus
+   that column, Satterthwaite's F(1, ν) at 1 %), and ``entryF``, the per-entry limit at
+   0.8 α/W with that ν: what a search over W entries can reach without knowing τ.
+   ``--declared`` runs the same sessions with the poses' tolerance in the header (τ
+   known, the χ² path). ``--workers`` processes, ``--effects`` picks the cells
+   (``clean`` too).
 
 Run: ``.venv/bin/python benchmarks/discrepancy.py [--seeds N] [--sizes 2,3,4,5,6,8]``,
 ``.venv/bin/python benchmarks/discrepancy.py --paper-tables``, or
@@ -138,6 +143,9 @@ class Outcome:
     oracle_power: float
     group_power: float = float("nan")
     entry_power: float = float("nan")
+    same_oracle: bool = False
+    same_power: float = float("nan")
+    entry_f_power: float = float("nan")
 
 
 def _twelve(tolerance_deg: float) -> Any:
@@ -187,8 +195,52 @@ def oracle_test(
     return delta > crit, power, lam, int(cand.columns.shape[1])
 
 
-def _study_one(args: tuple[str, float, float, int, dict[str, np.ndarray]]) -> Outcome:
-    effect, k, tolerance_deg, seed, sigmas = args
+def same_information_oracle(
+    session: Any, effect: str, entry: str, lam: float
+) -> tuple[bool, float, float]:
+    """The oracle that knows the effect and its entry but, like `analyze`, not the scatter.
+
+    τ is the REML estimate of the base fit plus that one column, and the column is tested
+    by Satterthwaite's F(1, ν) (:func:`canimucal.analysis.noise_model.scatter_f_test`) at
+    ``FAMILY_ALPHA``. Returns its verdict, its analytic power at non-centrality ``lam``
+    (the non-central F tail beyond the critical value) and ``ν``.
+    """
+    from scipy import stats
+
+    from canimucal.analysis.base_fit import fit_known
+    from canimucal.analysis.data import FAMILY_ALPHA
+    from canimucal.analysis.noise_model import ScatterModel, scatter_f_test
+
+    prepared = fit_known(session)[0]
+    assert prepared.within_covariance is not None
+    assert prepared.angle_unit_covariance is not None
+    cand = next(c for c in prepared.candidates if c.effect == effect)
+    col = cand.columns[:, [cand.labels.index(entry)]]
+    model = ScatterModel(prepared.within_covariance, prepared.angle_unit_covariance, "estimated")
+    test = scatter_f_test(
+        model, prepared.residual, prepared.jacobian, np.hstack([prepared.jacobian, col])
+    )
+    if test is None:
+        return False, 0.0, float("inf")
+    nu = test.nu
+    if not np.isfinite(nu) or nu > 1e7:
+        power = float(stats.ncx2.sf(stats.chi2.isf(FAMILY_ALPHA, 1), 1, lam))
+    else:
+        power = float(stats.ncf.sf(stats.f.isf(FAMILY_ALPHA, 1, nu), 1, nu, lam))
+    return test.p_value < FAMILY_ALPHA, power, nu
+
+
+def _tail_power(level: float, lam: float, nu: float) -> float:
+    """Power of a 1-dof test at ``level``: χ²(1) when ``nu`` is infinite, else F(1, ν)."""
+    from scipy import stats
+
+    if not np.isfinite(nu) or nu > 1e7:
+        return float(stats.ncx2.sf(stats.chi2.isf(level, 1), 1, lam))
+    return float(stats.ncf.sf(stats.f.isf(level, 1, nu), 1, nu, lam))
+
+
+def _study_one(args: tuple[str, float, float, int, dict[str, np.ndarray], bool]) -> Outcome:
+    effect, k, tolerance_deg, seed, sigmas, declared = args
     truth = clean_truth(seed)
     if effect == "clean":
         doc, entry, size = truth, "", 0.0
@@ -197,7 +249,7 @@ def _study_one(args: tuple[str, float, float, int, dict[str, np.ndarray]]) -> Ou
         doc, hidden = hide_effect(truth, effect, rng, sigmas, low=k, high=k)
         entry, size = hidden.entry, hidden.size
     session = simulate_session(
-        Truth.from_dict(doc), _twelve(tolerance_deg), seed=seed, estimate_scatter=True
+        Truth.from_dict(doc), _twelve(tolerance_deg), seed=seed, estimate_scatter=not declared
     )
     result = analyse_discrepancy(session)
     found = {f.effect for f in result.findings}
@@ -217,15 +269,21 @@ def _study_one(args: tuple[str, float, float, int, dict[str, np.ndarray]]) -> Ou
     oracle, power, lam, q = oracle_test(session, effect, entry, size, tau)
     # the analysis's power limits at Holm's first step: the q-entry group test at α/family
     # (the previous selection test) and the per-entry test at (1 − ε) α/W, W = every entry
-    # once, ε the group test's share (significance.entry_test)
+    # once, ε the group test's share (significance.entry_test); the latter with the noise
+    # known (χ²) and with τ estimated (F(1, ν) at the same-information oracle's ν)
     from canimucal.analysis.significance import GROUP_SHARE
 
     group = float(stats.ncx2.sf(stats.chi2.isf(FAMILY_ALPHA / len(result.tests), q), q, lam))
     # W: the entries the plan determines, one per drift test (2) and the axis-sign test
     total = sum(int(np.isfinite(v).sum()) for v in sigmas.values()) + 3
     level = (1.0 - GROUP_SHARE) * FAMILY_ALPHA / total
-    each = float(stats.ncx2.sf(stats.chi2.isf(level, 1), 1, lam))
-    return Outcome(*verdict, oracle, power, group, each)
+    each = _tail_power(level, lam, float("inf"))
+    if declared:
+        same, same_power, each_f = oracle, power, each
+    else:
+        same, same_power, nu = same_information_oracle(session, effect, entry, lam)
+        each_f = _tail_power(level, lam, nu)
+    return Outcome(*verdict, oracle, power, group, each, same, same_power, each_f)
 
 
 def drift_oracle(session: Any, entry: str, q: float) -> tuple[bool, float]:
@@ -296,6 +354,7 @@ def oracle_study(
     tolerances: list[float],
     workers: int,
     effects: tuple[str, ...] = ORACLE_EFFECTS,
+    declared: bool = False,
 ) -> None:
     """Print named-exactly rates against the oracle LR test's power (issue 14's criteria)."""
     from multiprocessing import Pool
@@ -305,21 +364,25 @@ def oracle_study(
             sigmas = study_sigmas(tol)
             start = time.perf_counter()
             runs = seeds if "clean" in effects else 0
-            clean = pool.map(_study_one, [("clean", 0.0, tol, s, sigmas) for s in range(runs)])
+            clean = pool.map(
+                _study_one, [("clean", 0.0, tol, s, sigmas, declared) for s in range(runs)]
+            )
             alarms = sum(o.wrong for o in clean)
             print(
-                f"\nposes {'exact' if tol == 0 else f'{tol}°'} (twelve positions, τ estimated), "
+                f"\nposes {'exact' if tol == 0 else f'{tol}°'} (twelve positions, "
+                f"{'τ declared' if declared else 'τ estimated'}), "
                 f"{seeds} seeds per cell; clean false alarms {alarms}/{runs} "
                 f"(≤ 2 %: P(Bin({runs}, 0.02) ≥ {alarms}) = "
                 f"{_binom_high(alarms, runs, 0.02):.3f})"
             )
             print(
                 f"{'effect':<20}{'k':>4}{'named':>7}{'ambig':>7}{'wrong':>7}{'oracle':>8}"
-                f"{'power':>7}{'ratio':>7}{'group':>7}{'entry':>7}  one-sided binomial checks"
+                f"{'power':>7}{'ratio':>7}{'same':>6}{'power':>7}{'ratio':>7}{'group':>7}{'entry':>7}"
+                f"{'entryF':>7}  one-sided binomial checks"
             )
             for effect in (e for e in effects if e != "clean"):
                 for k in sizes:
-                    jobs = [(effect, k, tol, s, sigmas) for s in range(seeds)]
+                    jobs = [(effect, k, tol, s, sigmas, declared) for s in range(seeds)]
                     out = pool.map(_study_one, jobs)
                     named = sum(o.named for o in out)
                     amb = sum(o.ambiguous for o in out)
@@ -328,7 +391,11 @@ def oracle_study(
                     power = float(np.mean([o.oracle_power for o in out]))
                     group = float(np.mean([o.group_power for o in out]))
                     each = float(np.mean([o.entry_power for o in out]))
+                    same = sum(o.same_oracle for o in out)
+                    same_power = float(np.mean([o.same_power for o in out]))
+                    each_f = float(np.mean([o.entry_f_power for o in out]))
                     ratio = named / seeds / power
+                    same_ratio = named / seeds / same_power
                     checks = [
                         f"wrong ≤ 1 %: p = {_binom_high(wrong, seeds, 0.01):.3f}",
                         f"named ≥ 0.9·power: p = {_binom_low(named, seeds, 0.9 * power):.3f}",
@@ -337,8 +404,8 @@ def oracle_study(
                         checks.append(f"named ≥ 95 %: p = {_binom_low(named, seeds, 0.95):.3f}")
                     print(
                         f"{effect:<20}{k:>4.0f}{named:>7}{amb:>7}{wrong:>7}{oracle:>8}"
-                        f"{power:>7.3f}{ratio:>7.3f}{group:>7.3f}{each:>7.3f}  "
-                        + "; ".join(checks),
+                        f"{power:>7.3f}{ratio:>7.3f}{same:>6}{same_power:>7.3f}{same_ratio:>7.3f}"
+                        f"{group:>7.3f}{each:>7.3f}{each_f:>7.3f}  " + "; ".join(checks),
                         flush=True,
                     )
             print(f"({time.perf_counter() - start:.0f} s wall for these poses)", flush=True)
@@ -664,6 +731,11 @@ def main() -> None:
     parser.add_argument("--tolerances", default="0,0.1", help="pose scatter(s), degrees")
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument(
+        "--declared",
+        action="store_true",
+        help="oracle study: the poses' tolerance declared (header), not estimated",
+    )
+    parser.add_argument(
         "--effects", default="clean," + ",".join(ORACLE_EFFECTS), help="oracle study: which cells"
     )
     args = parser.parse_args()
@@ -674,7 +746,7 @@ def main() -> None:
         sizes = [float(x) for x in args.sizes.split(",")]
         tolerances = [float(x) for x in args.tolerances.split(",")]
         effects = tuple(args.effects.split(","))
-        oracle_study(args.seeds, sizes, tolerances, args.workers, effects)
+        oracle_study(args.seeds, sizes, tolerances, args.workers, effects, args.declared)
         return
     hour_timing()
     false_alarms(max(args.seeds, 100))
