@@ -257,10 +257,15 @@ def _study_one(args: tuple[str, float, float, int, dict[str, np.ndarray], bool])
     verdict = (found == {effect}, not found and effect in stated, bool(found - {effect}))
     if effect == "clean":
         return Outcome(False, False, bool(found), False, 0.0)
-    if effect == "bias_drift":
-        return Outcome(*verdict, *drift_oracle(session, entry, size))
-    if effect == "axis_sign":
-        return Outcome(*verdict, *sign_oracle(session, entry))
+    # the drift and sign oracles read the within-position noise, which τ does not touch:
+    # they are their own same-information oracles
+    if effect in ("bias_drift", "axis_sign"):
+        own = (
+            drift_oracle(session, entry, size)
+            if effect == "bias_drift"
+            else sign_oracle(session, entry)
+        )
+        return Outcome(*verdict, *own, same_oracle=own[0], same_power=own[1])
     from scipy import stats
 
     from canimucal.analysis.data import FAMILY_ALPHA
