@@ -95,19 +95,30 @@ def test_cold_recording_is_ambiguous_not_wrong(tmp_path: Path, capsys: Any) -> N
     assert named or ["cross_axis", "temperature_bias"] in ambiguous, ambiguous
 
 
+CLEAN_SEEDS = tuple(range(10))
+"""Clean recordings analysed end to end; at a family-wise 1 % a clean recording names a cause
+about once in a hundred, so a single seed states nothing: at most one of the ten may
+(P(Bin(10, 0.01) ≥ 2) = 0.004 when the level holds)."""
+
+
 def test_clean_recording_names_nothing(tmp_path: Path, capsys: Any) -> None:
-    path = _recording(tmp_path, 4, 0.0)
-    assert main(["analyze", str(path), "--json", "-"]) == 0
-    doc = json.loads(capsys.readouterr().out)
-    assert doc["findings"] == []
-    replayed = doc["noise"]["replay"]  # the extended (here: base) model reproduces the data
-    low, high = replayed["rms_ratio_ci95"]
-    assert low <= 1.0 <= high, replayed
-    gain = doc["sensors"]["accel"]["gain"]
-    assert (gain["rms_ratio"], gain["cv_rms_ratio"], gain["claimed"]) == (1.0, 1.0, False)
-    assert len(doc["noise"]["accel_white"]) == 3
-    # default noise density 1.5e-3 m/s²/√Hz (truth default), read from Allan at short τ
-    assert doc["noise"]["accel_white"][0] == pytest.approx(1.5e-3, rel=0.2)
+    alarms = []
+    for seed in CLEAN_SEEDS:
+        path = _recording(tmp_path, seed, 0.0)
+        assert main(["analyze", str(path), "--json", "-"]) == 0
+        doc = json.loads(capsys.readouterr().out)
+        if doc["findings"]:
+            alarms.append((seed, [f["evidence"] for f in doc["findings"]]))
+            continue
+        replayed = doc["noise"]["replay"]  # the extended (here: base) model reproduces the data
+        low, high = replayed["rms_ratio_ci95"]
+        assert low <= 1.0 <= high, (seed, replayed)
+        gain = doc["sensors"]["accel"]["gain"]
+        assert (gain["rms_ratio"], gain["cv_rms_ratio"], gain["claimed"]) == (1.0, 1.0, False)
+        assert len(doc["noise"]["accel_white"]) == 3
+        # default noise density 1.5e-3 m/s²/√Hz (truth default), read from Allan at short τ
+        assert doc["noise"]["accel_white"][0] == pytest.approx(1.5e-3, rel=0.2)
+    assert len(alarms) <= 1, alarms
 
 
 def test_existing_output_is_refused(tmp_path: Path) -> None:
