@@ -131,6 +131,8 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
         problem.linear, columns, chosen, use_f, weights, drifts, drifting, prepared, data
     )
     fit = fit_terms(problem.linear, columns, chosen)
+    if use_f:
+        fit = _on_residual_scale(fit)
     findings = _findings(tests, fit, {c.key: c for c in candidates}, drifts, prepared, data, alpha)
     duel = _head_to_head(problem.linear, columns, chosen, alpha, (weights, family), use_f)
     if joint is not None:
@@ -512,6 +514,19 @@ def _findings(
     return out
 
 
+def _on_residual_scale(fit: TermFit) -> TermFit:
+    """Put the fit's σ on the residual scale its F tests use, ``χ²/dof`` of the extended fit.
+
+    When trends inside the positions put the tests on F (``F = (Δχ²/q)/(χ²/ν)``,
+    :mod:`.significance`), the noise level is the fit's own; a finding's σ then comes from
+    the same noise model as its p-value.
+    """
+    if fit.dof <= 0:
+        return fit
+    scale = float(np.sqrt(fit.chi2 / fit.dof))
+    return dataclasses.replace(fit, sigmas={k: v * scale for k, v in fit.sigmas.items()})
+
+
 def _column_finding(
     t: TestRecord, fit: TermFit, cand: Candidate, units: Mapping[str, str]
 ) -> Finding:
@@ -522,8 +537,12 @@ def _column_finding(
     test = f"{t.kind} {t.statistic:.1f} on {t.df} dof"
     if t.entries > 1:
         test = f"largest entry's {test}, of {t.entries} entries tested"
+    # the value and σ come from the extended fit, which holds every entry of the candidate;
+    # an entry test holds one entry beside the other chosen terms, so the two can differ
+    held = f" with all {coef.size} entries fitted" if coef.size > 1 else ""
     evidence = (
-        f"{cand.labels[k]} = {coef[k]:.4g} ± {sig[k]:.2g} {units[t.effect]} ({z[k]:.1f}σ); " + test
+        f"{cand.labels[k]} = {coef[k]:.4g} ± {sig[k]:.2g} {units[t.effect]} ({z[k]:.1f}σ{held}); "
+        + test
     )
     return Finding(t.effect, t.sensor, float(coef[k]), units[t.effect], t.p_adjusted, evidence)
 

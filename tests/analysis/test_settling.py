@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 from typing import Any
 
@@ -145,3 +146,10 @@ def test_hand_held_poses_give_no_bias_drift() -> None:
     assert "bias_drift" not in [f.effect for f in a.result.findings]
     assert not np.any(a.result.params.accel_random_walk)
     assert not np.any(a.result.params.gyro_random_walk)
+    # the trends put the tests on the fit's own residual scale (F); a finding's σ must be on
+    # it too: one entry's Wald z² never exceeds its group's Wald q·F in the same model
+    cross = next(f for f in a.result.findings if f.effect == "cross_axis")
+    z = float(re.search(r"\(([0-9.]+)σ", cross.evidence).group(1))
+    group = re.search(r"; F ([0-9.]+) on (\d+) dof$", cross.evidence)
+    assert group, cross.evidence  # the group test carries this finding (docs/real-data.md)
+    assert z * z <= 1.001 * float(group.group(1)) * int(group.group(2)), cross.evidence
