@@ -205,8 +205,6 @@ def same_information_oracle(
     ``FAMILY_ALPHA``. Returns its verdict, its analytic power at non-centrality ``lam``
     (the non-central F tail beyond the critical value) and ``ν``.
     """
-    from scipy import stats
-
     from canimucal.analysis.base_fit import fit_known
     from canimucal.analysis.data import FAMILY_ALPHA
     from canimucal.analysis.noise_model import ScatterModel, scatter_f_test
@@ -222,12 +220,7 @@ def same_information_oracle(
     )
     if test is None:
         return False, 0.0, float("inf")
-    nu = test.nu
-    if not np.isfinite(nu) or nu > 1e7:
-        power = float(stats.ncx2.sf(stats.chi2.isf(FAMILY_ALPHA, 1), 1, lam))
-    else:
-        power = float(stats.ncf.sf(stats.f.isf(FAMILY_ALPHA, 1, nu), 1, nu, lam))
-    return test.p_value < FAMILY_ALPHA, power, nu
+    return test.p_value < FAMILY_ALPHA, _tail_power(FAMILY_ALPHA, lam, test.nu), test.nu
 
 
 def _tail_power(level: float, lam: float, nu: float) -> float:

@@ -146,7 +146,8 @@ def _rotate(model: ScatterModel, residual: Array, design: Array) -> _Rotated:
     return _Rotated(w @ residual, u[:, keep], float(np.sum(np.log(s[keep]))), lam, logdet)
 
 
-def _loglik(rot: _Rotated, tau: float, restricted: bool) -> float:
+def _loglik(rot: _Rotated, tau: float) -> float:
+    """``ℓ_R(τ)`` of the module doc (constants dropped; the same for every τ)."""
     d = 1.0 + tau * tau * rot.lam
     scale = 1.0 / np.sqrt(d)
     rw = rot.residual * scale
@@ -157,28 +158,18 @@ def _loglik(rot: _Rotated, tau: float, restricted: bool) -> float:
     gram = su.T @ su
     b = su.T @ rw
     proj = max(float(rw @ rw) - float(b @ np.linalg.solve(gram, b)), 0.0)
-    out = -0.5 * (logdet + proj)
-    if restricted:
-        out -= rot.log_sv + 0.5 * float(np.linalg.slogdet(gram)[1])
-    return out
-
-
-def log_likelihood(
-    model: ScatterModel, residual: Array, design: Array, tau: float, *, restricted: bool
-) -> float:
-    """``ℓ(τ)`` or ``ℓ_R(τ)`` of the module doc (constants dropped; same for every τ)."""
-    return _loglik(_rotate(model, residual, design), tau, restricted)
+    return -0.5 * (logdet + proj) - rot.log_sv - 0.5 * float(np.linalg.slogdet(gram)[1])
 
 
 def _solve_lower(chol: Array, b: Array) -> Array:
     return np.asarray(solve_triangular(chol, b, lower=True), dtype=float)
 
 
-def _maximise(rot: _Rotated, restricted: bool) -> tuple[float, float]:
-    """``(τ̂, ℓ(τ̂))`` over ``[0, TAU_MAX_RAD]``: grid, then a bounded search around its best."""
+def _maximise(rot: _Rotated) -> tuple[float, float]:
+    """``(τ̂, ℓ_R(τ̂))`` over ``[0, TAU_MAX_RAD]``: grid, then a bounded search around its best."""
 
     def f(t: float) -> float:
-        return _loglik(rot, t, restricted)
+        return _loglik(rot, t)
 
     values = np.array([f(t) for t in _GRID])
     k = int(np.argmax(values))
@@ -193,19 +184,11 @@ def _maximise(rot: _Rotated, restricted: bool) -> tuple[float, float]:
     return best_t, best_v
 
 
-def profile_loglik(model: ScatterModel, residual: Array, design: Array) -> tuple[float, float]:
-    """Profile likelihood maximised over τ (or at the fixed τ): ``(τ, ℓ)``."""
-    rot = _rotate(model, residual, design)
-    if model.fixed is not None:
-        return model.fixed, _loglik(rot, model.fixed, False)
-    return _maximise(rot, restricted=False)
-
-
 def reml_scatter(model: ScatterModel, residual: Array, design: Array) -> float:
     """REML estimate of τ alone (no interval); a fixed τ as given."""
     if model.fixed is not None:
         return model.fixed
-    return _maximise(_rotate(model, residual, design), restricted=True)[0]
+    return _maximise(_rotate(model, residual, design))[0]
 
 
 @dataclass(frozen=True)
@@ -247,7 +230,7 @@ def scatter_f_test(
     direction.
     """
     rot = _rotate(model, residual, big)
-    tau = _maximise(rot, restricted=True)[0]
+    tau = _maximise(rot)[0]
     scale = 1.0 / np.sqrt(1.0 + tau * tau * rot.lam)
     w = model.basis[0]
     rw = rot.residual * scale
@@ -299,13 +282,13 @@ def estimate_scatter(model: ScatterModel, residual: Array, design: Array) -> Sca
     """
     rot = _rotate(model, residual, design)
     if model.fixed is not None:
-        ll = _loglik(rot, model.fixed, True)
+        ll = _loglik(rot, model.fixed)
         return ScatterEstimate(model.fixed, (model.fixed, model.fixed), model.source, ll)
-    tau, best = _maximise(rot, restricted=True)
+    tau, best = _maximise(rot)
     cut = best - 0.5 * _CHI2_95_1
 
     def g(t: float) -> float:
-        return _loglik(rot, t, True) - cut
+        return _loglik(rot, t) - cut
 
     low = 0.0 if g(0.0) >= 0.0 else float(optimize.brentq(g, 0.0, tau, xtol=1e-9))
     high = TAU_MAX_RAD

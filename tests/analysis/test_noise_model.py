@@ -15,7 +15,6 @@ from canimucal.analysis.discrepancy import analyse_discrepancy, effect_sigmas
 from canimucal.analysis.noise_model import (
     ScatterModel,
     estimate_scatter,
-    profile_loglik,
     scatter_f_test,
 )
 from canimucal.analysis.session import session_from_recording
@@ -66,12 +65,18 @@ def test_reml_interval_covers_the_true_scatter() -> None:
     assert abs(mean - tau) < 3 * se + 0.02 * tau
 
 
-def test_profile_likelihood_is_maximal_at_its_estimate() -> None:
+def test_restricted_likelihood_is_maximal_at_its_estimate() -> None:
     model, residual, design = _synthetic(3, float(np.deg2rad(0.1)))
-    tau, best = profile_loglik(model, residual, design)
-    for other in (0.5 * tau, 2.0 * tau, 0.0):
+    est = estimate_scatter(model, residual, design)
+    for other in (0.5 * est.value, 2.0 * est.value, 0.0, *est.ci95):
         fixed = ScatterModel(model.base, model.unit, "flag", other)
-        assert profile_loglik(fixed, residual, design)[1] <= best + 1e-9
+        assert estimate_scatter(fixed, residual, design).loglik <= est.loglik + 1e-9
+    # the interval's ends lie on the χ²₁(95 %) cut below the maximum
+    for end in est.ci95:
+        if end > 0.0:
+            fixed = ScatterModel(model.base, model.unit, "flag", end)
+            drop = est.loglik - estimate_scatter(fixed, residual, design).loglik
+            assert drop == pytest.approx(0.5 * 3.841, abs=1e-3)
 
 
 def _few_dof(seed: int) -> tuple[ScatterModel, np.ndarray, np.ndarray, np.ndarray]:
