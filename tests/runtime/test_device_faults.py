@@ -150,7 +150,8 @@ def test_error_reset_and_communication_emergencies_do_not_interrupt_the_pose(
         "0x8110",
         "0x8210",
     }
-    assert not any(isinstance(e, ev.PositionRejected) for e in history)
+    rejected = [e.reason for e in history if isinstance(e, ev.PositionRejected)]
+    assert not rejected, rejected
     assert session.procedure.phase is Phase.DONE and set(session.procedure.accepted[NODE]) == {
         0,
         1,
