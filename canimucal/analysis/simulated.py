@@ -10,8 +10,9 @@ from __future__ import annotations
 import numpy as np
 
 from canimucal.io.recording import Recording, recording_from_columns
-from canimucal.model.positions import Plan, PlannedPosition
+from canimucal.model.positions import Plan
 from canimucal.sim.imu import ImuSimulator
+from canimucal.sim.schedule import set_by_operator
 from canimucal.sim.truth import Truth
 
 BLOCK_SAMPLES = 1000
@@ -33,7 +34,7 @@ def simulate_plan_recording(
     with the nominal angles, as in the field.
     """
     sim = ImuSimulator(truth, seed=seed)
-    actual = _as_set_by_operator(plan, np.random.default_rng(seed)) if angle_errors else plan
+    actual = set_by_operator(plan, np.random.default_rng(seed)) if angle_errors else plan
     first = actual.positions[0]
     sim.set_pose(first.alpha, first.beta, first.psi, transient_s=0.0)
     sim.set_schedule(actual, transient_s=transient_s)
@@ -69,12 +70,3 @@ def simulate_plan_recording(
         psi_deg=angles[:, 2],
         temp_c=np.concatenate([b.temp_c for b in blocks]),
     )
-
-
-def _as_set_by_operator(plan: Plan, rng: np.random.Generator) -> Plan:
-    """Return the plan's poses, each angle off by a draw from its 1σ ``tolerance``."""
-    positions = []
-    for p in plan.positions:
-        alpha, beta, psi = p.angles + rng.normal(0.0, p.tolerance, 3)
-        positions.append(PlannedPosition(alpha, beta, psi, p.tolerance, p.seconds))
-    return Plan(plan.name, tuple(positions))

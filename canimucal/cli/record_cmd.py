@@ -28,6 +28,7 @@ from canimucal.io.recording import HeaderValue
 from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import DEFAULT_SECONDS, Plan, PlannedPosition
+from canimucal.sim.schedule import set_by_operator
 from canimucal.sim.truth import Truth
 
 if TYPE_CHECKING:
@@ -213,11 +214,13 @@ def run(args: argparse.Namespace) -> int:
 
 def _record(args: argparse.Namespace, session: Devices, recorder: Recorder, plan: Plan) -> None:
     scheduled = args.position is None and (args.sim or args.follow_schedule)
-    for node in session.sim_nodes.values():  # the operator's hands, in-process
+    if session.sim_nodes:  # the operator's hands, in-process: each pose set within its 1σ
+        placed = set_by_operator(plan, np.random.default_rng(getattr(args, "seed", None)))
+    for node in session.sim_nodes.values():  # one rigid body: the same pose errors for all
         if scheduled:
-            node.set_schedule(plan)
+            node.set_schedule(placed)
         elif args.position is not None:
-            first = plan.positions[0]
+            first = placed.positions[0]
             node.set_pose(first.alpha, first.beta, first.psi)
     recorder.start()
     if args.position is not None:

@@ -14,6 +14,8 @@ import threading
 from types import FrameType
 from typing import Any
 
+import numpy as np
+
 from canimucal.cli.bus_options import (
     add_bus_options,
     add_sim_node_options,
@@ -24,6 +26,7 @@ from canimucal.cli.bus_options import (
 from canimucal.io.atomic import per_node_path
 from canimucal.io.plans import read_plan
 from canimucal.model.positions import Plan
+from canimucal.sim.schedule import set_by_operator
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -62,13 +65,15 @@ def run(args: argparse.Namespace) -> int:
     try:
         network.connect()
         ids = node_ids(args)
+        # the fixture sets each pose within its 1σ; one rigid body: the same errors for all
+        placed = None if plan is None else set_by_operator(plan, np.random.default_rng(args.seed))
         for nid in ids:
             state = per_node_path(args.state, nid, len(ids) > 1) if args.state else None
             node = SimulatedImuNode(
                 network, nid, truth, state_file=state, time_scale=args.time_scale, seed=args.seed
             )
-            if plan is not None:
-                node.set_schedule(plan)
+            if placed is not None:
+                node.set_schedule(placed)
             nodes.append(node.start())
         schedule = f", following {len(plan.positions)} poses from NMT start" if plan else ""
         where = describe(settings.resolve())

@@ -9,13 +9,17 @@ plan position (the start, the end after the last position), carry ``-1``.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from canimucal.errors import InputError
-from canimucal.model.positions import Plan
+from canimucal.model.positions import Plan, PlannedPosition
+
+ALREADY_THERE_SIGMAS = 5.0
+"""A unit within this many 1σ of the first position is there already (no move first)."""
 
 _EPS_S = 1e-9
 """Boundary slack: a sample within 1 ns of a boundary belongs to the later segment."""
@@ -71,8 +75,11 @@ class PoseTrajectory:
     def follow(self, now_s: float, plan: Plan, transient_s: float) -> None:
         """From ``now_s``, visit the plan's positions in order, each held for its seconds.
 
-        The unit moves between positions over ``transient_s`` (not before the first if it
-        is already there) and holds the last pose at the end, with index -1.
+        The unit moves between positions over ``transient_s`` and holds the last pose at
+        the end, with index -1. It does not move before the first position when it is
+        already there within that position's setting accuracy (:data:`ALREADY_THERE_SIGMAS`
+        × its 1σ per angle): the operator set it there, and the schedule starts with the
+        first hold, as a recorder that knows only the nominal plan expects.
         """
         if not plan.positions:
             raise InputError("schedule: the plan has no positions")
@@ -84,7 +91,11 @@ class PoseTrajectory:
             if not (np.isfinite(position.seconds) and position.seconds > 0.0):
                 raise InputError(f"schedule: position {i} seconds must be positive")
             target = _angles(position.angles, f"position {i}")
-            t = _add_move(segments, t, current, target, transient)
+            there = i == 0 and np.all(
+                np.abs(target - current) <= ALREADY_THERE_SIGMAS * position.tolerances
+            )
+            if not there:
+                t = _add_move(segments, t, current, target, transient)
             segments.append((t, position.seconds, target, target, i))
             t += position.seconds
             current = target
@@ -154,3 +165,20 @@ def _transient(transient_s: float) -> float:
     if not (np.isfinite(t) and t >= 0.0):
         raise InputError(f"schedule: transient_s must be a non-negative number, got {t!r}")
     return t
+
+
+def set_by_operator(plan: Plan, rng: np.random.Generator) -> Plan:
+    """Return the poses an operator really sets: each angle off by a draw from its 1σ.
+
+    The draw is each position's ``tolerances`` (``psi_tolerance`` for the turn when the plan
+    gives one), one rigid body for every unit that follows the result. The recording keeps
+    the plan's nominal angles as labels, as in the field; only the simulated unit moves to
+    the drawn ones.
+    """
+    positions = []
+    for p in plan.positions:
+        alpha, beta, psi = p.angles + rng.normal(0.0, p.tolerances)
+        positions.append(
+            PlannedPosition(alpha, beta, psi, p.tolerance, p.seconds, psi_tolerance=p.psi_tolerance)
+        )
+    return dataclasses.replace(plan, positions=tuple(positions))

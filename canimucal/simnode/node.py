@@ -105,6 +105,7 @@ class SimulatedImuNode:
             on_time=lambda t_s: self._fault_actions.on_sim_time(t_s),
             backlog=VirtualBusBacklog(self._network.bus),
             timer_skew_ppm=self.truth.timer_skew_ppm,
+            before_sending=self._start_pending_plan,
         )
         self._fault_actions = FaultActions(
             self.node_id,
@@ -334,9 +335,18 @@ class SimulatedImuNode:
             self._boot(reload=od.STORE_COMM_SUB)
         elif command == NMT_START:
             with self._lock:
-                if self._pending_plan is not None:
-                    self._simulator.set_schedule(self._pending_plan, transient_s=POSE_TRANSIENT_S)
-                    self._pending_plan = None
+                self._start_pending_plan()
+
+    def _start_pending_plan(self) -> None:
+        """Start a plan waiting for OPERATIONAL at the next sample (lock held).
+
+        Called from the NMT start and by the producer before each block it sends: the NMT
+        state turns before this node's NMT callback runs, and a block sent in between would
+        start the recorder's schedule clock (its first sample) before the unit's schedule.
+        """
+        if self._pending_plan is not None:
+            self._simulator.set_schedule(self._pending_plan, transient_s=POSE_TRANSIENT_S)
+            self._pending_plan = None
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if not self._operational():

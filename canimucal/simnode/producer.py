@@ -83,8 +83,10 @@ class SampleProducer:
         on_time: Callable[[float], None] | None = None,
         backlog: Callable[[], int] | None = None,
         timer_skew_ppm: float = 0.0,
+        before_sending: Callable[[], None] | None = None,
     ) -> None:
         self.simulator = simulator
+        self._before_sending = before_sending
         self.lock = lock
         self.time_scale = float(time_scale)
         self._layouts = layouts
@@ -189,10 +191,15 @@ class SampleProducer:
                     return [], MIN_SLEEP_S
                 due -= slip
             n = min(due, MAX_BATCH)
+            # decided once per block: a state change mid-block never sends samples made
+            # before it, and what must start with the first sample sent starts here
+            sending = self._operational()
+            if sending and self._before_sending is not None:
+                self._before_sending()
             block = self.simulator.next_block(n)
             first_due_wall = self._anchor_wall + (self._anchor_count + 1) / rate
             self._anchor_count += n
-            frames, ticks = self._consume(block)
+            frames, ticks = self._consume(block, sending)
             if ticks:
                 self._schedule(ticks, first_due_wall, rate)
         return frames, (MIN_SLEEP_S if due <= MAX_BATCH else 0.0)
@@ -220,13 +227,13 @@ class SampleProducer:
             if self._operational():
                 self._send(cob_id, data)
 
-    def _consume(self, block: SimBlock) -> tuple[list[Frame], list[TimedFrame]]:
+    def _consume(self, block: SimBlock, sending: bool) -> tuple[list[Frame], list[TimedFrame]]:
         """Update live values sample by sample and collect the event-driven frames.
 
-        Returns the frames to send now and, with a skewed timer, the ticks to send later.
+        Returns the frames to send now (none unless ``sending``) and, with a skewed timer,
+        the ticks to send later.
         """
         self.last_block = block
-        sending = self._operational()
         layouts = (
             [lay for lay in self._layouts() if lay.enabled and lay.on_event] if sending else []
         )
