@@ -132,7 +132,9 @@ class NestedTest:
     """One nested-model test: statistic, its degrees of freedom and the raw p-value.
 
     ``entries`` is the number of single-entry tests a per-entry test took the largest of
-    (its p-value is already corrected for them); 1 for a group test.
+    (its p-value is already corrected for them); 1 for a group test. ``column`` is the
+    index, within the term's columns, of the entry whose test gave the p-value (None for a
+    group test).
     """
 
     term: str
@@ -141,6 +143,7 @@ class NestedTest:
     p_value: float
     kind: str
     entries: int = 1
+    column: int | None = None
 
 
 def nested_test(
@@ -194,14 +197,15 @@ def entry_test(
     """
     ref = _Smaller(problem, columns, smaller, use_f)
     block = columns[term]
-    tests = []
+    tests = {}
     for k in range(block.shape[1]):
         col = block[:, k : k + 1]
         if ref.gain(col) == 1:
-            tests.append(ref.test(term, col, 1))
+            tests[k] = ref.test(term, col, 1)
     if not tests:
         return NestedTest(term, 0.0, 0, 1.0, "none")
-    best = min(tests, key=lambda t: (t.p_value, -t.statistic))
+    column = min(tests, key=lambda k: (tests[k].p_value, -tests[k].statistic))
+    best = tests[column]
     m = len(tests)
     q = ref.gain(block)
     entry_p = m * best.p_value / (1.0 - GROUP_SHARE if q > 1 else 1.0)
@@ -210,7 +214,7 @@ def entry_test(
         if group.p_value / GROUP_SHARE < entry_p:
             return NestedTest(term, group.statistic, q, min(1.0, group.p_value / GROUP_SHARE),
                               group.kind)  # fmt: skip
-    return NestedTest(term, best.statistic, 1, min(1.0, entry_p), best.kind, m)
+    return NestedTest(term, best.statistic, 1, min(1.0, entry_p), best.kind, m, column)
 
 
 GROUP_SHARE = 0.2
