@@ -207,9 +207,10 @@ def _head_to_head(
     The term is tested beside the rival as the rival stood in for it: the one entry whose
     test made it significant, or all its entries when its group test did. A rival's other
     entries explain nothing the term leaves (they did not stand out in its place) and only
-    take power from the term's test. A z quadratic at 5σ, exact poses, seeds 0–199 of
-    benchmarks/discrepancy.py's study: named 172, ambiguous 27 with cross_axis's six entries
-    held beside it; named 180, ambiguous 19 with its one standing-in entry; wrong 1 both.
+    take power from the term's test. A z quadratic at 5σ, exact poses, τ estimated
+    (``benchmarks/discrepancy.py --oracle --seeds 100 --sizes 5 --tolerances 0``): named 84,
+    ambiguous 15 with cross_axis's six entries held beside it (commit f2f4f56); named 87,
+    ambiguous 12 with its one standing-in entry; wrong 1 both.
     """
     weights, total = family
 

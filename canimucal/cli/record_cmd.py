@@ -215,7 +215,7 @@ def run(args: argparse.Namespace) -> int:
 def _record(args: argparse.Namespace, session: Devices, recorder: Recorder, plan: Plan) -> None:
     scheduled = args.position is None and (args.sim or args.follow_schedule)
     if session.sim_nodes:  # the operator's hands, in-process: each pose set within its 1σ
-        placed = set_by_operator(plan, np.random.default_rng(getattr(args, "seed", None)))
+        placed = set_by_operator(plan, np.random.default_rng(args.seed))
     for node in session.sim_nodes.values():  # one rigid body: the same pose errors for all
         if scheduled:
             node.set_schedule(placed)

@@ -64,6 +64,7 @@ from canimucal.runtime.certificate import (
     verification_of,
 )
 from canimucal.runtime.resume import partial_path
+from canimucal.sim.schedule import operator_angles
 from canimucal.simnode.node import SimulatedImuNode
 
 logger = logging.getLogger(__name__)
@@ -291,7 +292,7 @@ class Session:
         """
         angles = target.angles
         if self.operator_rng is not None:
-            angles = angles + self.operator_rng.normal(0.0, target.tolerances)
+            angles = operator_angles(target, self.operator_rng)
         return float(angles[0]), float(angles[1]), float(angles[2])
 
     def _drain(self) -> list[ev.Event]:

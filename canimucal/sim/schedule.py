@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from canimucal.errors import InputError
-from canimucal.model.positions import Plan, PlannedPosition
+from canimucal.model.positions import Plan, PlannedPosition, Pose
 
 ALREADY_THERE_SIGMAS = 5.0
 """A unit within this many 1σ of the first position is there already (no move first)."""
@@ -177,8 +177,13 @@ def set_by_operator(plan: Plan, rng: np.random.Generator) -> Plan:
     """
     positions = []
     for p in plan.positions:
-        alpha, beta, psi = p.angles + rng.normal(0.0, p.tolerances)
+        alpha, beta, psi = operator_angles(p, rng)
         positions.append(
             PlannedPosition(alpha, beta, psi, p.tolerance, p.seconds, psi_tolerance=p.psi_tolerance)
         )
     return dataclasses.replace(plan, positions=tuple(positions))
+
+
+def operator_angles(pose: Pose, rng: np.random.Generator) -> Array:
+    """Return the angles (rad) an operator really sets for ``pose``: each off by its 1σ."""
+    return np.asarray(pose.angles + rng.normal(0.0, pose.tolerances), dtype=float)
