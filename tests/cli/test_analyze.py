@@ -236,7 +236,10 @@ def test_imucal_session_replays_through_canopen(tmp_path: Path, capsys: Any) -> 
     measured = json.loads(capsys.readouterr().out)
     assert [p["alpha_deg"] for p in json.loads(poses.read_text())["positions"]].count(180.0) == 1
     record_argv = ["record", str(replayed), "--sim", "--truth", str(truth), "--plan", str(poses)]
-    assert main([*record_argv, "--time-scale", "20"]) == 0
+    # the node sets each pose off by a draw from the header's 0.145°: on six poses that
+    # draw moves which entry stands out (K[0][1] or K[2][0]) and left cross_axis ambiguous
+    # with base_tilt in 1 of --seed 1..6, so the draw is seeded (seed 1: K[0][1], 8.4σ)
+    assert main([*record_argv, "--time-scale", "20", "--seed", "1"]) == 0
     capsys.readouterr()
     assert main(["analyze", str(replayed), "--json", "-"]) == 0
     replay = json.loads(capsys.readouterr().out)
