@@ -5,15 +5,34 @@ Earth rate through the nominal S (DESIGN §6). Unknown positions: the scalar ``|
 model "6" (bias + diagonal K), and the gyro bias. Each gives the raw residuals, the raw
 Jacobian of the prediction, the covariance of the residual vector (within-position scatter,
 angle tolerances, and a random-walk term when drift was found) and the candidates' columns.
+
+The Earth rate is part of the gyro's base model even when the site is unknown, because
+leaving it out fakes g-sensitivity (DESIGN §6: its part along gravity *is* an isotropic G,
+``ω_up = Ω sin φ · f/|f|``, and a consumer MEMS gyro sees it at 1-2σ of a 10-30 s mean).
+Where the gyro cannot see it (:func:`earth_rate_visible`: its whole non-centrality over the
+positions below 1 at a known gyro scale) it is left out, as before; else
+
+- known positions without a latitude: the Earth rate in the level frame ``w_L`` is three
+  nuisance parameters, seen through S in each pose, ``S C_i w_L`` (:func:`_free_earth_rate`);
+  the combinations the poses cannot tell from the gyro bias are left to the bias;
+- unknown positions (no orientation): its vertical part ``Ω sin φ`` is one nuisance
+  parameter along the measured ``f/|f|``; its horizontal part, of magnitude ``Ω cos φ``
+  (``Ω`` when the latitude is unknown) in a direction set by each pose's unknown heading,
+  enters each gyro mean's covariance as ``(Ω_h²/2) S (I − u uᵀ) Sᵀ``, the covariance of a
+  horizontal vector of that length in a uniformly random direction. When the gyro's scale
+  is unknown (no LSB in the file), so is that length in counts: it is then estimated from
+  the data by REML, as the pose scatter is (:mod:`.noise_model`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import linalg
 
 from canimucal.analysis.candidates import (
     Candidate,
@@ -23,6 +42,8 @@ from canimucal.analysis.candidates import (
     scalar_jacobian,
 )
 from canimucal.analysis.data import SessionData
+from canimucal.model.dcm_stack import dcm_stack
+from canimucal.model.frames import EARTH_RATE_RAD_S
 from canimucal.model.joint import JointResult, solve_joint
 from canimucal.model.layout import (
     GyroSpec,
@@ -60,10 +81,20 @@ class PreparedBase:
     within_covariance: Array | None = None
     angle_unit_covariance: Array | None = None
     pose_tolerance: float = 0.0
+    earth_unit_covariance: Array | None = None
+    """Scalar fits of a gyro of unknown scale: the covariance one count of horizontal Earth
+    rate adds (in a random direction); its size is then a variance component estimated by
+    REML like the pose scatter (``covariance`` is ``within_covariance`` plus none of it)."""
 
 
 UNIT_PROBE_RAD = 1e-4
 """Angle scatter at which the per-radian angle covariance is probed (second order negligible)."""
+
+EARTH_RATE_NAMES = tuple(f"gyro.earth_rate_level[{i}]" for i in range(3))
+"""Nuisance parameters of a known-position fit without a latitude: the Earth rate in the level
+frame (x East, y Down, z North at the start heading), rad/s."""
+EARTH_RATE_VERTICAL = "gyro.earth_rate_vertical"
+"""Nuisance parameter of a scalar fit: the Earth rate along the measured ``f/|f|``, rad/s."""
 
 
 def _rows_meta(
@@ -120,7 +151,80 @@ def fit_known(data: SessionData) -> tuple[PreparedBase, JointResult]:
         _block_covariance(data, _unit_angle_covariance(layout, res.values, angles, ctx), False),
         float(np.max(tol)),
     )  # fmt: skip
+    if m == 6 and data.latitude is None and earth_rate_visible(data):
+        prepared = with_nuisance(prepared, _free_earth_rate(angles, s, m), EARTH_RATE_NAMES)
     return prepared, res
+
+
+def earth_rate_visible(data: SessionData) -> bool:
+    """Whether the Earth rate can bias the gyro tests: ``Σ_k Ω² / (σ_k² lsb²) ≥ 1``.
+
+    ``σ_k²`` is the mean variance of position k's gyro mean (counts²); ``Ω/lsb`` the Earth
+    rate in counts at the nominal scale. Below 1 the Earth rate adds less than one unit of
+    non-centrality to any test, and fitting it would only cost degrees of freedom (imu_tk's
+    Xsens file: 0.15 with the default LSB).
+    """
+    if not data.has_gyro:
+        return False
+    if not data.gyro_lsb_known:
+        return True  # its size in counts is unknown: it cannot be ruled out
+    counts = EARTH_RATE_RAD_S / abs(data.gyro_lsb)
+    variances = np.array([np.trace(np.asarray(a.cov_gyro)) / 3.0 for a in data.averages])
+    return bool(np.sum(counts * counts / variances) >= 1.0)
+
+
+def _free_earth_rate(angles: Array, s_matrix: Array, m: int) -> Array:
+    """``∂V_i/∂w_L = S C_i`` on each pose's gyro rows ``(n·m, 3)``: the unknown Earth rate."""
+    c, _, _ = dcm_stack(angles, 0.0, 0.0, "rigid")
+    n = angles.shape[0]
+    cols = np.zeros((n, m, 3))
+    cols[:, 3:] = s_matrix @ c
+    return cols.reshape(n * m, 3)
+
+
+def with_nuisance(prepared: PreparedBase, columns: Array, names: tuple[str, ...]) -> PreparedBase:
+    """Return the known-position ``prepared`` with the nuisance ``columns`` in its base model.
+
+    The columns the base model already spans (in the whitened metric) are dropped, so the
+    base Jacobian keeps full column rank; the kept ones are fitted with the base parameters
+    by one generalised least-squares step, and the residuals, χ² and dof follow.
+    """
+    chol = np.asarray(
+        np.linalg.cholesky(0.5 * (prepared.covariance + prepared.covariance.T)), dtype=float
+    )
+    jac_w = _solve_lower(chol, prepared.jacobian)
+    col_w = _solve_lower(chol, columns)
+    q = np.linalg.qr(jac_w)[0]
+    off = col_w - q @ (q.T @ col_w)
+    _, r, order = linalg.qr(off, mode="economic", pivoting=True)
+    scale = max(float(np.max(np.linalg.norm(col_w, axis=0))), 1e-300)
+    rank = int(np.sum(np.abs(np.diag(r)) > 1e-8 * scale))
+    keep = np.sort(order[:rank])
+    if rank == 0:
+        return prepared
+    design = np.hstack([prepared.jacobian, columns[:, keep]])
+    design_w = np.hstack([jac_w, col_w[:, keep]])
+    resid_w = _solve_lower(chol, prepared.residual[:, None])[:, 0]
+    step = np.linalg.lstsq(design_w, resid_w, rcond=None)[0]
+    residual = prepared.residual - design @ step
+    left = resid_w - design_w @ step
+    p = prepared.jacobian.shape[1]
+    sigmas = np.sqrt(np.abs(np.diag(np.linalg.inv(design_w.T @ design_w))))
+    return dataclasses.replace(
+        prepared,
+        residual=residual,
+        jacobian=design,
+        names=prepared.names + tuple(names[i] for i in keep),
+        values=np.concatenate([prepared.values + step[:p], step[p:]]),
+        sigmas=np.concatenate([prepared.sigmas, sigmas[p:]]),
+        residual_table=residual.reshape(prepared.residual_table.shape),
+        chi2=float(left @ left),
+        dof=max(prepared.dof - rank, 0),
+    )
+
+
+def _solve_lower(chol: Array, b: Array) -> Array:
+    return np.asarray(linalg.solve_triangular(chol, b, lower=True), dtype=float)
 
 
 def _unit_angle_covariance(
@@ -159,8 +263,9 @@ def fit_scalar_base(data: SessionData) -> tuple[PreparedBase, ScalarFit]:
     var_a = np.array([r @ a.cov_accel @ r for r, a in zip(rows_m, data.averages, strict=True)])
     resid_a = data.g - np.linalg.norm(f, axis=1)  # observed g − predicted |f|
     gyro = data.has_gyro
+    earth = gyro and earth_rate_visible(data)
     size = n + (3 * n if gyro else 0)
-    p = 6 + (3 if gyro else 0)
+    p = 6 + (3 if gyro else 0) + (1 if earth else 0)
     cov, jac, resid = np.zeros((size, size)), np.zeros((size, p)), np.zeros(size)
     cov[:n, :n] = np.diag(var_a)
     jac[:n, :6] = jac_a
@@ -171,10 +276,12 @@ def fit_scalar_base(data: SessionData) -> tuple[PreparedBase, ScalarFit]:
     table = resid_a[:, None]
     labels: tuple[str, ...] = ("|f| - g (m/s²)",)
     if gyro:
-        bias, bias_sigma = _gyro_bias_rows(data, cov, jac, resid)
-        names += [f"gyro.bias[{i}]" for i in range(3)]
-        values += list(bias)
-        sigmas += list(bias_sigma)
+        est, est_sigma, earth_unit = _scalar_gyro_rows(
+            data, unit if earth else None, (cov, jac, resid)
+        )
+        names += [f"gyro.bias[{i}]" for i in range(3)] + ([EARTH_RATE_VERTICAL] if earth else [])
+        values += list(est)
+        sigmas += list(est_sigma)
         table = np.column_stack([table, resid[n:].reshape(n, 3)])
         labels += ("gyro.x", "gyro.y", "gyro.z")
     idx = np.arange(n, dtype=np.int64)
@@ -187,23 +294,53 @@ def fit_scalar_base(data: SessionData) -> tuple[PreparedBase, ScalarFit]:
     prepared = PreparedBase(
         "scalar", resid, jac, cov, block, scale, sensor, channel, tuple(cands),
         tuple(names), np.array(values), np.array(sigmas), table, labels, chi2, max(n - 6, 0),
+        within_covariance=None if earth_unit is None else cov,
+        earth_unit_covariance=earth_unit,
     )  # fmt: skip
     return prepared, fit
 
 
-def _gyro_bias_rows(data: SessionData, cov: Array, jac: Array, resid: Array) -> tuple[Array, Array]:
-    """Fill the gyro rows (after the n accel rows) of the scalar problem; bias and its σ."""
+def _scalar_gyro_rows(
+    data: SessionData, unit: Array | None, problem: tuple[Array, Array, Array]
+) -> tuple[Array, Array, Array | None]:
+    """Fill the gyro rows (after the n accel rows) of the scalar problem ``(cov, jac, resid)``.
+
+    Each gyro mean is ``V_k = B + c S u_k + e_k``, ``u_k = f_k/|f_k|`` (the measured up, the
+    accelerometer's), ``S = I/gyro_lsb`` nominal, ``c`` the Earth rate's vertical part (rad/s
+    at the nominal scale), and ``e_k`` the within-position noise plus the horizontal Earth
+    rate of an unknown heading, ``(Ω_h²/2) S (I − u_k u_kᵀ) Sᵀ`` (module doc). ``B`` and
+    ``c`` by generalised least squares (eq. 36 with the vertical term); ``unit`` None leaves
+    the Earth rate out. Returns ``(B, c)`` (or ``B``), their σ, and, for a gyro of unknown
+    scale, the covariance per count² of horizontal Earth rate (else None: ``cov`` holds it).
+    """
+    cov, jac, resid = problem
     n = len(data.averages)
     vg = np.array([a.mean_gyro for a in data.averages], dtype=float)
     cg = np.array([a.cov_gyro for a in data.averages], dtype=float)
+    design = np.broadcast_to(np.eye(3), (n, 3, 3))
+    horizontal = np.zeros((n, 3, 3))
+    if unit is not None:
+        s = 1.0 / data.gyro_lsb
+        design = np.concatenate([design, s * unit[:, :, None]], axis=2)
+        horizontal = 0.5 * (np.eye(3) - np.einsum("ni,nj->nij", unit, unit))
+    known = unit is not None and data.gyro_lsb_known
+    if known:
+        lat = data.latitude
+        length = EARTH_RATE_RAD_S * (1.0 if lat is None else float(np.cos(lat)))
+        cg = cg + (length / data.gyro_lsb) ** 2 * horizontal
     w = np.linalg.inv(cg)
-    bias = np.linalg.solve(w.sum(axis=0), np.einsum("nij,nj->i", w, vg))  # eq. (36), weighted
+    normal = np.einsum("nki,nkl,nlj->ij", design, w, design)
+    info = np.linalg.pinv(normal, hermitian=True)
+    est = info @ np.einsum("nki,nkl,nl->i", design, w, vg)
+    earth_unit = None if unit is None or known else np.zeros_like(cov)
     for k in range(n):
         rows = slice(n + 3 * k, n + 3 * k + 3)
         cov[rows, rows] = cg[k]
-        jac[rows, 6:] = np.eye(3)
-        resid[rows] = vg[k] - bias
-    return bias, np.sqrt(np.diag(np.linalg.inv(w.sum(axis=0))))
+        jac[rows, 6:] = design[k]
+        resid[rows] = vg[k] - design[k] @ est
+        if earth_unit is not None:
+            earth_unit[rows, rows] = horizontal[k]
+    return est, np.sqrt(np.abs(np.diag(info))), earth_unit
 
 
 def _position_temperatures(data: SessionData) -> Array | None:

@@ -56,6 +56,8 @@ class SessionData:
     the windows and averages are already trimmed by it.
     ``tilt_limit_deg`` is the largest |alpha| and |beta| of the plan that produced the
     recording (None: no built-in plan named; a separating position then uses the default).
+    ``gyro_lsb_known`` is false when ``gyro_lsb`` is a stand-in (a file without one): the
+    Earth rate's size in counts is then unknown.
     """
 
     averages: tuple[PositionAverage, ...]
@@ -69,6 +71,7 @@ class SessionData:
     scatter_source: str = "plan"
     settling: Mapping[str, Settling] = field(default_factory=dict)
     tilt_limit_deg: float | None = None
+    gyro_lsb_known: bool = True
 
     @property
     def has_gyro(self) -> bool:

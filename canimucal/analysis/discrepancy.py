@@ -38,6 +38,7 @@ from scipy import stats
 
 from canimucal.analysis.base_fit import (
     PreparedBase,
+    earth_rate_visible,
     fit_known,
     fit_scalar_base,
     named_values,
@@ -152,6 +153,11 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
     findings = [f for f in findings if f"{f.sensor}.{f.effect}" not in refuted]
     kept = [c for c in chosen if c not in refuted]
     sparse = significant_columns(problem.linear, columns, chosen)
+    if prepared.earth_unit_covariance is not None:
+        untestable["earth_rate"] += (
+            f", of {tau.value:.3g} counts estimated from the data (REML, 95 % "
+            f"{tau.ci95[0]:.3g}–{tau.ci95[1]:.3g}; the gyro's scale is unknown)"
+        )
     values, sigmas = named_values(prepared)
     base = fit_terms(problem.linear, columns, [])
     lack = (prepared.chi2, prepared.dof)
@@ -166,7 +172,7 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
         findings=tuple(findings),
         untestable=untestable,
         tests=tuple(tests),
-        scores=_scores(problem.linear, sparse, chosen, held),
+        scores=_scores(problem.linear, sparse, chosen, held, _earth_rate_in_base(data)),
         params=_extended(prepared, fit_terms(problem.linear, sparse, kept), drifts, drifting, data),
         base_values=values,
         base_sigmas=sigmas,
@@ -273,6 +279,12 @@ def _chi2_sf(chi2: float, dof: int) -> float:
     return float(stats.chi2.sf(chi2, dof)) if dof > 0 else float("nan")
 
 
+def _earth_rate_in_base(data: SessionData) -> bool:
+    """Whether the gyro's base model holds the Earth rate (known site, or fitted: base_fit)."""
+    known = data.known_positions and data.latitude is not None
+    return data.has_gyro and (known or earth_rate_visible(data))
+
+
 def _untestable(data: SessionData) -> dict[str, str]:
     out: dict[str, str] = {}
     if not data.known_positions:
@@ -280,10 +292,23 @@ def _untestable(data: SessionData) -> dict[str, str]:
         out["axis_sign"] = "the sign of an axis is invisible to |f| = g fits"
     if not data.has_gyro:
         out["gyro_g_sensitivity"] = "no gyro data"
-    elif data.latitude is None or not data.known_positions:
+    elif data.known_positions and data.latitude is not None:
+        pass  # the Earth rate is in the base model, from the latitude and heading
+    elif not earth_rate_visible(data):
         out["earth_rate"] = (
-            "no latitude or orientation: the Earth rate (up to 7.3e-5 rad/s) stays in the "
-            "gyro residuals as a confounder"
+            "below the gyro's noise here (less than 1 unit of non-centrality over all "
+            "positions at the nominal scale): left out of the model"
+        )
+    elif not data.known_positions:
+        out["earth_rate"] = (
+            "no orientation: the Earth rate's vertical part is fitted along f/|f| (a G "
+            "proportional to I cannot be told from it) and its horizontal part is taken as "
+            "noise of an unknown heading"
+        )
+    elif data.latitude is None:
+        out["earth_rate"] = (
+            "no latitude: the Earth rate is fitted as a free vector in the level frame (its "
+            "part along gravity cannot be told from a G proportional to I)"
         )
     return out
 
@@ -369,9 +394,16 @@ def _scatter_model(
     """Build the noise family ``V(τ)`` of :mod:`.noise_model` (scalar fits: τ held at 0).
 
     With a given scatter (header, flag, plan) ``V`` is the base fit's covariance (the poses'
-    tolerances, to second order) and τ is held; estimated, ``V(τ) = C + τ² A``.
+    tolerances, to second order) and τ is held; estimated, ``V(τ) = C + τ² A``. A scalar fit
+    of a gyro of unknown scale estimates the horizontal Earth rate the same way, τ in counts
+    (:mod:`.base_fit`).
     """
     extra = _walk_covariance(prepared, drifts, drifting, data)
+    if prepared.earth_unit_covariance is not None:  # scalar fit, gyro of unknown scale
+        base = prepared.covariance + extra
+        unit = prepared.earth_unit_covariance
+        blocks = block_labels(base, unit, prepared.block)
+        return ScatterModel(base, unit, "estimated", blocks=blocks)
     if prepared.within_covariance is None or prepared.angle_unit_covariance is None:
         return ScatterModel(prepared.covariance + extra, np.zeros_like(extra), "none", 0.0)
     if data.scatter_source == "estimated":
@@ -564,9 +596,15 @@ def _column_finding(
 
 
 def _scores(
-    problem: LinearProblem, columns: Mapping[str, Array], chosen: Sequence[str], held: Holdout
+    problem: LinearProblem,
+    columns: Mapping[str, Array],
+    chosen: Sequence[str],
+    held: Holdout,
+    earth_rate: bool,
 ) -> dict[str, SensorScore]:
     """Score each sensor: the fit's rms, and cv_rms from :mod:`.holdout` (refits).
+
+    ``earth_rate``: the gyro's base model holds the Earth rate (from the latitude, or fitted).
 
     A sensor the full data extends with nothing keeps its base model: ratio 1 and the
     interval (1, 1), though a fold may have chosen a term on its own data (that fold's
@@ -574,10 +612,11 @@ def _scores(
     """
     base = score_model(problem, columns, [])
     ext = score_model(problem, columns, chosen)
+    gyro_base = ("bias", "earth_rate") if earth_rate else ("bias",)
     out = {}
     for sensor in base.rms:
         terms = tuple(c.split(".", 1)[1] for c in chosen if c.startswith(sensor + "."))
-        base_terms = ("bias", "scale") if sensor == "accel" else ("bias",)
+        base_terms = ("bias", "scale") if sensor == "accel" else gyro_base
         out[sensor] = SensorScore(
             base_terms,
             base_terms + terms,

@@ -99,6 +99,7 @@ def session_from_recording(
         scatter_source=source,
         settling=settling,
         tilt_limit_deg=plan_tilt_limit_deg(rec.header.get("plan")),
+        gyro_lsb_known=known or "gyro_lsb" in rec.header,
     )
 
 

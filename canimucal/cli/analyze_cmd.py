@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from canimucal.analysis.base_fit import EARTH_RATE_NAMES, EARTH_RATE_VERTICAL
 from canimucal.analysis.conditions import recording_conditions
 from canimucal.analysis.reference import Reference, reference_for
 from canimucal.analysis.replay import ReplayRow, replay, replay_ratios
@@ -234,11 +235,16 @@ def _estimates(a: Analysis, ref: Reference | None) -> list[str]:
         rows.append((f"accel.K[{i}][{i}]", "counts/(m/s²)", ref.accel_scales[i] if ref else None))
     for i in range(3):
         rows.append((f"gyro.bias[{i}]", "counts", ref.gyro_offsets[i] if ref else None))
+    # the Earth rate fitted as a nuisance (no latitude or orientation), at the nominal scale
+    earth = "rad/s" if a.session.gyro_lsb_known else "counts"
+    rows += [(name, earth, None) for name in (*EARTH_RATE_NAMES, EARTH_RATE_VERTICAL)]
     for name, unit, factory in rows:
         if name not in vals:
             continue
         v, s = vals[name], sigs[name]
         text = f"  {name:<16} {v:12.3f} ± {s:.3g} {unit}"
+        if name.startswith("gyro.earth_rate"):
+            text = f"  {name:<24} {v:12.3g} ± {s:.3g} {unit}"
         if factory is not None:
             text += f"   factory {factory:9.1f}   difference {(v - factory) / s:+.1f}σ"
         out.append(text)
