@@ -152,7 +152,7 @@ def fit_known(data: SessionData) -> tuple[PreparedBase, JointResult]:
         float(np.max(tol)),
     )  # fmt: skip
     if m == 6 and data.latitude is None and earth_rate_visible(data):
-        prepared = with_nuisance(prepared, _free_earth_rate(angles, s, m), EARTH_RATE_NAMES)
+        prepared = with_nuisance(prepared, free_earth_rate(angles, s, m), EARTH_RATE_NAMES)
     return prepared, res
 
 
@@ -173,7 +173,7 @@ def earth_rate_visible(data: SessionData) -> bool:
     return bool(np.sum(counts * counts / variances) >= 1.0)
 
 
-def _free_earth_rate(angles: Array, s_matrix: Array, m: int) -> Array:
+def free_earth_rate(angles: Array, s_matrix: Array, m: int) -> Array:
     """``∂V_i/∂w_L = S C_i`` on each pose's gyro rows ``(n·m, 3)``: the unknown Earth rate."""
     c, _, _ = dcm_stack(angles, 0.0, 0.0, "rigid")
     n = angles.shape[0]

@@ -230,3 +230,6 @@ class DiscrepancyResult:
     noise: NoiseSummary | None = None
     warnings: tuple[str, ...] = ()
     ambiguous: tuple[Ambiguity, ...] = ()
+    earth_rate_horizontal: ScatterEstimate | None = None
+    """Scalar fits of a gyro of unknown scale: the horizontal Earth rate (counts) estimated as
+    a variance component (REML, 95 % interval); None where the model sizes it or leaves it."""

@@ -142,8 +142,10 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
     findings = _findings(tests, fit, {c.key: c for c in candidates}, drifts, prepared, data, alpha)
     duel = _head_to_head(problem.linear, columns, chosen, alpha, (weights, family), use_f)
     if joint is not None:
+        nuisance = prepared.names[len(joint[1].names) :]
         duel = [
-            _separate(x, data, joint[1], problem.linear, columns, chosen, tau.value) for x in duel
+            _separate(x, data, joint[1], problem.linear, columns, chosen, tau.value, nuisance)
+            for x in duel
         ]
     unresolved = {f"{a.sensor}.{a.candidates[0]}" for a in duel}
     findings = [f for f in findings if f"{f.sensor}.{f.effect}" not in unresolved]
@@ -181,6 +183,7 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
         warnings=_warnings(chosen, held, refuted)
         + _drift_warnings(drifts, drifting, data, alpha, family),
         ambiguous=tuple(duel),
+        earth_rate_horizontal=tau if prepared.earth_unit_covariance is not None else None,
     )
 
 
@@ -254,11 +257,12 @@ def _separate(
     columns: Mapping[str, Array],
     chosen: Sequence[str],
     tau: float,
+    nuisance: Sequence[str],
 ) -> Ambiguity:
     """Add the position that would separate an ambiguous pair best (:mod:`.separation`)."""
     term, rival = (f"{pair.sensor}.{c}" for c in pair.candidates)
     others = [c for c in chosen if c != term]
-    where = separating_position(data, joint, problem, columns, others, (term, rival), tau)
+    where = separating_position(data, joint, problem, columns, others, (term, rival), tau, nuisance)
     return dataclasses.replace(pair, separating=where)
 
 

@@ -227,6 +227,9 @@ def analysis_document(a: Analysis) -> dict[str, Any]:
             "ci95": list(est.ci95_deg),
             "source": est.source,
         }
+    earth = a.result.earth_rate_horizontal
+    if earth is not None:
+        noise["earth_rate_horizontal_counts"] = {"value": earth.value, "ci95": list(earth.ci95)}
     return {
         "schema": ANALYSIS_SCHEMA,
         "sensors": {s: _sensor_block(a, s) for s in ("accel", "gyro") if s in a.result.scores},

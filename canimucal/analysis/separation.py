@@ -48,6 +48,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from canimucal.analysis.base_fit import EARTH_RATE_NAMES, free_earth_rate
 from canimucal.analysis.candidates import candidates_at_angles
 from canimucal.analysis.data import SeparatingPosition, SessionData
 from canimucal.analysis.significance import LinearProblem, canonical_correlation, fit_terms
@@ -104,9 +105,18 @@ def _neighbourhood(centre: Array, limit_deg: float) -> Array:
 
 
 def _pose_rows(
-    data: SessionData, joint: JointResult, keys: Sequence[str], angles: Array, tau: float
+    data: SessionData,
+    joint: JointResult,
+    keys: Sequence[str],
+    angles: Array,
+    tau: float,
+    nuisance: Sequence[str] = (),
 ) -> tuple[Array, Array]:
-    """Raw rows ``R_x`` ``(k, m, p)`` and covariances ``V_x`` ``(k, m, m)`` of eq. (1)."""
+    """Raw rows ``R_x`` ``(k, m, p)`` and covariances ``V_x`` ``(k, m, m)`` of eq. (1).
+
+    ``nuisance``: the base model's parameters beyond the joint fit's (the Earth rate fitted
+    without a latitude, :mod:`.base_fit`), in the order of the base columns.
+    """
     layout = ParameterLayout.of(joint.spec)
     ctx = ModelContext.build(data.g, data.latitude, data.heading, data.gyro_lsb)
     pred = predict(layout, joint.values, angles, ctx)
@@ -122,7 +132,10 @@ def _pose_rows(
         temperatures=np.zeros(k),  # the added pose at the mean temperature: no information
     )
     by_key = {c.key: c.columns.reshape(k, m, -1) for c in cands}
-    rows = np.concatenate([pred.d_theta] + [by_key[t] for t in keys], axis=2)
+    s_matrix = gyro.S if gyro is not None else np.eye(3) / data.gyro_lsb
+    earth = free_earth_rate(angles, s_matrix, m).reshape(k, m, 3)
+    extra = earth[:, :, [EARTH_RATE_NAMES.index(n) for n in nuisance]]
+    rows = np.concatenate([pred.d_theta, extra] + [by_key[t] for t in keys], axis=2)
     within = np.zeros((m, m))
     for a in data.averages:
         within[:3, :3] += a.cov_accel / len(data.averages)
@@ -156,11 +169,14 @@ def separating_position(
     others: Sequence[str],
     pair: tuple[str, str],
     tau: float,
+    nuisance: Sequence[str] = (),
 ) -> SeparatingPosition:
     """Find the grid pose that minimises the pair's correlation ρ of eq. (2) (module doc).
 
     ``columns`` are whitened as ``problem``; ``pair`` the term and its rival (keys
-    ``sensor.effect``); ``others`` the other terms in the model; ``tau`` radians.
+    ``sensor.effect``); ``others`` the other terms in the model; ``tau`` radians;
+    ``nuisance`` the base parameters ``problem`` holds beyond ``joint``'s (see
+    :func:`_pose_rows`).
     """
     a, b = pair
     keys = [*others, a, b]
@@ -181,7 +197,7 @@ def separating_position(
         rhos, lams, covs = [], [], []
         for start in range(0, grid_deg.shape[0], CHUNK):
             poses = grid_deg[start : start + CHUNK]
-            rows, cov_x = _pose_rows(data, joint, keys, np.deg2rad(poses), tau)
+            rows, cov_x = _pose_rows(data, joint, keys, np.deg2rad(poses), tau, nuisance)
             white = np.linalg.solve(np.linalg.cholesky(cov_x), rows * scale)
             info = info0[None] + np.einsum("kmi,kmj->kij", white, white)
             cov = np.linalg.pinv(info, hermitian=True)
