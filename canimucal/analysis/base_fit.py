@@ -12,9 +12,12 @@ leaving it out fakes g-sensitivity (DESIGN §6: its part along gravity *is* an i
 Where the gyro cannot see it (:func:`earth_rate_visible`: its whole non-centrality over the
 positions below 1 at a known gyro scale) it is left out, as before; else
 
-- known positions without a latitude: the Earth rate in the level frame ``w_L`` is three
-  nuisance parameters, seen through S in each pose, ``S C_i w_L`` (:func:`_free_earth_rate`);
-  the combinations the poses cannot tell from the gyro bias are left to the bias;
+- known positions: the Earth rate in the level frame ``w_L`` is seen through S in each
+  pose, ``S C_i w_L`` (:func:`free_earth_rate`). Its horizontal components (East, North)
+  are two nuisance parameters, since a heading is seldom known to the few degrees that
+  would fix them (a session's default is 0°); the vertical one ``−Ω sin φ`` is a third
+  when no latitude is given. Combinations the poses cannot tell from the gyro bias are
+  left to the bias;
 - unknown positions (no orientation): its vertical part ``Ω sin φ`` is one nuisance
   parameter along the measured ``f/|f|``; its horizontal part, of magnitude ``Ω cos φ``
   (``Ω`` when the latitude is unknown) in a direction set by each pose's unknown heading,
@@ -151,8 +154,14 @@ def fit_known(data: SessionData) -> tuple[PreparedBase, JointResult]:
         _block_covariance(data, _unit_angle_covariance(layout, res.values, angles, ctx), False),
         float(np.max(tol)),
     )  # fmt: skip
-    if m == 6 and data.latitude is None and earth_rate_visible(data):
-        prepared = with_nuisance(prepared, free_earth_rate(angles, s, m), EARTH_RATE_NAMES)
+    if m == 6 and earth_rate_visible(data):
+        # the heading is never trusted (a session's default is 0; wrong by 90°, it faked G
+        # and temperature terms on 12 and 9 of 30 clean sessions): the horizontal part is
+        # fitted, the vertical too when no latitude gives it
+        axes = [0, 2] if data.latitude is not None else [0, 1, 2]
+        columns = free_earth_rate(angles, s, m)[:, axes]
+        names = tuple(EARTH_RATE_NAMES[i] for i in axes)
+        prepared = with_nuisance(prepared, columns, names, ctx.w_level[axes])
     return prepared, res
 
 
@@ -182,12 +191,15 @@ def free_earth_rate(angles: Array, s_matrix: Array, m: int) -> Array:
     return cols.reshape(n * m, 3)
 
 
-def with_nuisance(prepared: PreparedBase, columns: Array, names: tuple[str, ...]) -> PreparedBase:
+def with_nuisance(
+    prepared: PreparedBase, columns: Array, names: tuple[str, ...], start: Array
+) -> PreparedBase:
     """Return the known-position ``prepared`` with the nuisance ``columns`` in its base model.
 
-    The columns the base model already spans (in the whitened metric) are dropped, so the
-    base Jacobian keeps full column rank; the kept ones are fitted with the base parameters
-    by one generalised least-squares step, and the residuals, χ² and dof follow.
+    ``start`` are the nuisance parameters' values in the base fit as it stands. The columns
+    the base model already spans (in the whitened metric) are dropped, so the base Jacobian
+    keeps full column rank; the kept ones are fitted with the base parameters by one
+    generalised least-squares step, and the residuals, χ² and dof follow.
     """
     chol = np.asarray(
         np.linalg.cholesky(0.5 * (prepared.covariance + prepared.covariance.T)), dtype=float
@@ -215,7 +227,7 @@ def with_nuisance(prepared: PreparedBase, columns: Array, names: tuple[str, ...]
         residual=residual,
         jacobian=design,
         names=prepared.names + tuple(names[i] for i in keep),
-        values=np.concatenate([prepared.values + step[:p], step[p:]]),
+        values=np.concatenate([prepared.values + step[:p], start[keep] + step[p:]]),
         sigmas=np.concatenate([prepared.sigmas, sigmas[p:]]),
         residual_table=residual.reshape(prepared.residual_table.shape),
         chi2=float(left @ left),

@@ -284,7 +284,7 @@ def _chi2_sf(chi2: float, dof: int) -> float:
 
 
 def _earth_rate_in_base(data: SessionData) -> bool:
-    """Whether the gyro's base model holds the Earth rate (known site, or fitted: base_fit)."""
+    """Whether the gyro's base model holds the Earth rate (from the latitude, or fitted)."""
     known = data.known_positions and data.latitude is not None
     return data.has_gyro and (known or earth_rate_visible(data))
 
@@ -296,8 +296,6 @@ def _untestable(data: SessionData) -> dict[str, str]:
         out["axis_sign"] = "the sign of an axis is invisible to |f| = g fits"
     if not data.has_gyro:
         out["gyro_g_sensitivity"] = "no gyro data"
-    elif data.known_positions and data.latitude is not None:
-        pass  # the Earth rate is in the base model, from the latitude and heading
     elif not earth_rate_visible(data):
         out["earth_rate"] = (
             "below the gyro's noise here (less than 1 unit of non-centrality over all "
@@ -313,6 +311,11 @@ def _untestable(data: SessionData) -> dict[str, str]:
         out["earth_rate"] = (
             "no latitude: the Earth rate is fitted as a free vector in the level frame (its "
             "part along gravity cannot be told from a G proportional to I)"
+        )
+    else:
+        out["earth_rate"] = (
+            "the heading is not trusted: the Earth rate's horizontal part is fitted in the "
+            "level frame, its vertical part is the latitude's"
         )
     return out
 
