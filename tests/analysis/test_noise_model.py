@@ -20,7 +20,6 @@ from canimucal.analysis.noise_model import (
 from canimucal.analysis.session import session_from_recording
 from canimucal.analysis.simulated import simulate_plan_recording
 from canimucal.errors import InputError
-from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.sim.effects import hide_effect
 from canimucal.sim.truth import Truth
 from tests.analysis.test_hidden_effects import clean_truth
@@ -178,32 +177,3 @@ def test_scatter_source_flag_then_header_then_estimated() -> None:
         session_from_recording(rec, **kw)
     with pytest.raises(InputError, match="tolerance-deg"):
         session_from_recording(rec, tolerance_deg=float("nan"), **kw)
-
-
-def test_look_alike_is_named_right_or_reported_ambiguous() -> None:
-    """Small tilts (≤ 15°, f_y near −g), exact poses, a y→z cross-axis term K[2][1] at ±8σ,
-    seeds 0..7: never a wrong cause named; cross_axis named in >= 6 (measured 7, the other
-    reported ambiguous against temperature_bias; worst entry pair correlated −0.82, so the
-    canonical correlation is at least 0.82)."""
-    small = Plan(
-        "small",
-        tuple(
-            PlannedPosition(*(float(x) for x in np.deg2rad([a, b, p])), tolerance=0.0)
-            for a, b in [(0, 0), (15, 0), (-15, 0), (0, 15), (0, -15), (15, 15)]
-            for p in (0, 180)
-        ),
-    )
-    ref = simulate_session(Truth.from_dict(clean_truth(999)), small, seed=999)
-    sigma = effect_sigmas(ref)["accel.cross_axis"][5]  # K[2][1]
-    named = 0
-    for seed in range(8):
-        doc = clean_truth(seed)
-        doc["accel"]["K"][2][1] += (1 if seed % 2 else -1) * 8.0 * sigma
-        session = simulate_session(Truth.from_dict(doc), small, seed=seed, estimate_scatter=True)
-        result = analyse_discrepancy(session)
-        found = {f.effect for f in result.findings}
-        assert found <= {"cross_axis"}, (seed, found)
-        stated = found or {x.candidates[0] for x in result.ambiguous}
-        assert "cross_axis" in stated, (seed, result.ambiguous)
-        named += found == {"cross_axis"}
-    assert named >= 6
