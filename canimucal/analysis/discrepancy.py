@@ -157,8 +157,9 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
     sparse = significant_columns(problem.linear, columns, chosen)
     if prepared.earth_unit_covariance is not None:
         untestable["earth_rate"] += (
-            f", of {tau.value:.3g} counts estimated from the data (REML, 95 % "
-            f"{tau.ci95[0]:.3g}–{tau.ci95[1]:.3g}; the gyro's scale is unknown)"
+            f"; the gyro's scale unknown, its size is estimated from the data: "
+            f"{tau.value:.3g} counts (REML, 95 % {tau.ci95[0]:.3g}–{tau.ci95[1]:.3g}), which "
+            "also holds any other rate misfit of that kind"
         )
     values, sigmas = named_values(prepared)
     base = fit_terms(problem.linear, columns, [])
@@ -410,7 +411,10 @@ def _scatter_model(
         base = prepared.covariance + extra
         unit = prepared.earth_unit_covariance
         blocks = block_labels(base, unit, prepared.block)
-        return ScatterModel(base, unit, "estimated", blocks=blocks)
+        gyro = prepared.sensor == "gyro"
+        # counts: up to ten times the gyro rows' raw rms (misfit and noise together)
+        top = 10.0 * float(np.sqrt(np.mean(prepared.residual[gyro] ** 2 + np.diag(base)[gyro])))
+        return ScatterModel(base, unit, "estimated", blocks=blocks, tau_max=top)
     if prepared.within_covariance is None or prepared.angle_unit_covariance is None:
         return ScatterModel(prepared.covariance + extra, np.zeros_like(extra), "none", 0.0)
     if data.scatter_source == "estimated":

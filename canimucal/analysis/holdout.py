@@ -102,6 +102,7 @@ def rescatter(
         scatter.unit[np.ix_(keep, keep)],
         scatter.source,
         blocks=None if scatter.blocks is None else scatter.blocks[keep],
+        tau_max=scatter.tau_max,
     )
     design = np.hstack([raw_base] + [raw_cols[t] for t in terms])
     tau = reml_scatter(fold, raw_r, design)

@@ -20,8 +20,9 @@ column space of ``X_w`` (rank ``p``):
   non-zero singular values), which accounts for the ``p`` directions the fit uses up
   (Patterson & Thompson 1971; Harville 1977, eq. 2.4).
 
-``τ`` is estimated by maximising ``ℓ_R`` over ``[0, TAU_MAX_RAD]`` (a log grid refined by a
-bounded search), and its 95 % interval is the profile-likelihood set
+``τ`` is estimated by maximising ``ℓ_R`` over ``[0, τ_max]`` (``TAU_MAX_RAD`` for a pose
+scatter; a log grid over five decades below it, refined by a bounded search), and its 95 %
+interval is the profile-likelihood set
 ``2 (ℓ_R(τ̂) − ℓ_R(τ)) ≤ χ²₁(0.95) = 3.84``. Nested models are compared by an F test with
 both models whitened at the REML ``τ̂`` of the larger one and Satterthwaite's denominator
 degrees of freedom (:func:`scatter_f_test`), so that a term is not judged against a scatter
@@ -43,7 +44,8 @@ Array = NDArray[np.float64]
 TAU_MAX_RAD = float(np.deg2rad(10.0))
 """Largest pose-setting scatter considered (10°): beyond it the first-order model fails."""
 
-_GRID = np.concatenate([[0.0], np.geomspace(np.deg2rad(1e-4), TAU_MAX_RAD, 31)])
+_DECADES = np.concatenate([[0.0], np.geomspace(1e-5, 1.0, 31)])
+"""The search grid as fractions of ``τ_max`` (1e-4° to 10° for a pose scatter)."""
 _CHI2_95_1 = float(stats.chi2.ppf(0.95, 1))
 _RANK_TOL = 1e-9
 
@@ -63,6 +65,8 @@ class ScatterModel:
     blocks: NDArray[np.int64] | None = field(default=None, compare=False)
     """Position of each row when ``base`` and ``unit`` are block-diagonal by position (the
     basis is then found block by block); None: dense."""
+    tau_max: float = TAU_MAX_RAD
+    """Largest τ considered, in τ's own unit (radians for the pose scatter)."""
 
     def covariance(self, tau: float) -> Array:
         """``V(τ)`` of eq. (1)."""
@@ -138,7 +142,7 @@ class _Rotated:
 
 def _rotate(model: ScatterModel, residual: Array, design: Array) -> _Rotated:
     w, lam, logdet = model.basis
-    x = w @ design
+    x = _unit_columns(w @ design)  # the rank must not depend on the columns' units
     if x.shape[1] == 0:
         return _Rotated(w @ residual, x, 0.0, lam, logdet)
     u, s, _vt = np.linalg.svd(x, full_matrices=False)
@@ -165,16 +169,17 @@ def _solve_lower(chol: Array, b: Array) -> Array:
     return np.asarray(solve_triangular(chol, b, lower=True), dtype=float)
 
 
-def _maximise(rot: _Rotated) -> tuple[float, float]:
-    """``(τ̂, ℓ_R(τ̂))`` over ``[0, TAU_MAX_RAD]``: grid, then a bounded search around its best."""
+def _maximise(rot: _Rotated, tau_max: float) -> tuple[float, float]:
+    """``(τ̂, ℓ_R(τ̂))`` over ``[0, tau_max]``: grid, then a bounded search around its best."""
 
     def f(t: float) -> float:
         return _loglik(rot, t)
 
-    values = np.array([f(t) for t in _GRID])
+    grid = _DECADES * tau_max
+    values = np.array([f(t) for t in grid])
     k = int(np.argmax(values))
-    best_t, best_v = float(_GRID[k]), float(values[k])
-    lo, hi = float(_GRID[max(k - 1, 0)]), float(_GRID[min(k + 1, _GRID.size - 1)])
+    best_t, best_v = float(grid[k]), float(values[k])
+    lo, hi = float(grid[max(k - 1, 0)]), float(grid[min(k + 1, grid.size - 1)])
     if hi > lo:
         res = optimize.minimize_scalar(
             lambda t: -f(t), bounds=(lo, hi), method="bounded", options={"xatol": 1e-3 * hi}
@@ -188,7 +193,7 @@ def reml_scatter(model: ScatterModel, residual: Array, design: Array) -> float:
     """REML estimate of τ alone (no interval); a fixed τ as given."""
     if model.fixed is not None:
         return model.fixed
-    return _maximise(_rotate(model, residual, design))[0]
+    return _maximise(_rotate(model, residual, design), model.tau_max)[0]
 
 
 @dataclass(frozen=True)
@@ -230,12 +235,14 @@ def scatter_f_test(
     direction.
     """
     rot = _rotate(model, residual, big)
-    tau = _maximise(rot)[0]
+    tau = _maximise(rot, model.tau_max)[0]
     scale = 1.0 / np.sqrt(1.0 + tau * tau * rot.lam)
     w = model.basis[0]
     rw = rot.residual * scale
     q_big = _orthonormal(rot.basis_u * scale[:, None])
-    q_small = _orthonormal((w @ small) * scale[:, None]) if small.shape[1] else rw[:, :0]
+    q_small = (
+        _orthonormal(_unit_columns((w @ small) * scale[:, None])) if small.shape[1] else rw[:, :0]
+    )
     extra = q_big - q_small @ (q_small.T @ q_big)
     e = _orthonormal(extra)
     q = e.shape[1]
@@ -267,6 +274,12 @@ def _combined_dof(nus: Array) -> float:
     return float(np.inf) if excess <= 0.0 else 2.0 * (nus.size + excess) / excess
 
 
+def _unit_columns(x: Array) -> Array:
+    """Scale each non-zero column of ``x`` to unit length (the span is unchanged)."""
+    norms = np.linalg.norm(x, axis=0)
+    return np.asarray(x[:, norms > 0] / norms[norms > 0], dtype=float)
+
+
 def _orthonormal(x: Array) -> Array:
     """Return an orthonormal basis of the column space of ``x`` (rank by :data:`_RANK_TOL`)."""
     if x.shape[1] == 0:
@@ -284,14 +297,14 @@ def estimate_scatter(model: ScatterModel, residual: Array, design: Array) -> Sca
     if model.fixed is not None:
         ll = _loglik(rot, model.fixed)
         return ScatterEstimate(model.fixed, (model.fixed, model.fixed), model.source, ll)
-    tau, best = _maximise(rot)
+    tau, best = _maximise(rot, model.tau_max)
     cut = best - 0.5 * _CHI2_95_1
 
     def g(t: float) -> float:
         return _loglik(rot, t) - cut
 
-    low = 0.0 if g(0.0) >= 0.0 else float(optimize.brentq(g, 0.0, tau, xtol=1e-9))
-    high = TAU_MAX_RAD
-    if g(TAU_MAX_RAD) < 0.0:
-        high = float(optimize.brentq(g, tau, TAU_MAX_RAD, xtol=1e-9))
+    low = 0.0 if g(0.0) >= 0.0 else float(optimize.brentq(g, 0.0, tau, xtol=1e-9 * model.tau_max))
+    high = model.tau_max
+    if g(model.tau_max) < 0.0:
+        high = float(optimize.brentq(g, tau, model.tau_max, xtol=1e-9 * model.tau_max))
     return ScatterEstimate(tau, (low, high), model.source, best)
