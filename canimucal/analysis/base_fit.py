@@ -94,10 +94,11 @@ UNIT_PROBE_RAD = 1e-4
 """Angle scatter at which the per-radian angle covariance is probed (second order negligible)."""
 
 EARTH_RATE_NAMES = tuple(f"gyro.earth_rate_level[{i}]" for i in range(3))
-"""Nuisance parameters of a known-position fit without a latitude: the Earth rate in the level
-frame (x East, y Down, z North at the start heading), rad/s."""
+"""Nuisance parameters of a known-position fit: the Earth rate in the level frame (x East,
+y Down, z North at the start heading), rad/s; [1] only when no latitude gives it."""
 EARTH_RATE_VERTICAL = "gyro.earth_rate_vertical"
-"""Nuisance parameter of a scalar fit: the Earth rate along the measured ``f/|f|``, rad/s."""
+"""Nuisance parameter of a scalar fit: the Earth rate along the measured ``f/|f|``, rad/s at
+the nominal LSB (counts when the file gives none)."""
 
 
 def _rows_meta(
@@ -170,8 +171,8 @@ def earth_rate_visible(data: SessionData) -> bool:
 
     ``σ_k²`` is the mean variance of position k's gyro mean (counts²); ``Ω/lsb`` the Earth
     rate in counts at the nominal scale. Below 1 the Earth rate adds less than one unit of
-    non-centrality to any test, and fitting it would only cost degrees of freedom (imu_tk's
-    Xsens file: 0.15 with the default LSB).
+    non-centrality to any test, and fitting it would only cost degrees of freedom. A file
+    without a gyro LSB (``gyro_lsb_known`` false) cannot rule it out.
     """
     if not data.has_gyro:
         return False
