@@ -9,9 +9,9 @@ beside it; σ from seed 999), signs alternating; seeds 0..99 for each of the pai
 Counted: named exactly, reported ambiguous (nothing named; the rival may be the other of
 the pair or ``temperature_bias``, which the warm-up makes alike too), and confidently wrong
 (any other cause named). Measured: K[2][1] 83 named, 17 ambiguous; z quadratic 86 named, 14
-ambiguous; none wrong, none missed. The same sets with 0.1° poses (not run here: 4 min more)
-gave 81 named, 6 ambiguous, 13 missed and 90, 9, 1 missed, with 1 wrong (z quadratic, seed 56:
-both causes named).
+ambiguous; none wrong, none missed. The same sets with 0.1° poses (SMALL_TILTS' tolerance
+set to 0.1°, scatter still estimated; not run here: 4 min more) gave 81 named, 6 ambiguous,
+13 missed and 90, 9, 1 missed, with 1 wrong (z quadratic, seed 56: both causes named).
 """
 
 from __future__ import annotations
