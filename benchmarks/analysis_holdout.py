@@ -8,8 +8,9 @@
    the extended model's mean χ²/dof; how often the gain is claimed.
 2. Clean data: false alarms and the scatter's interval coverage.
 3. Real data (``../shared/data``; skipped when absent): the imucal session's estimated noise
-   model, its findings and the held-out (refit) cv_rms with the ratio's interval; the imu_tk
-   session's scalar fit the same way (no angles: no pose scatter).
+   model, its findings and the held-out (refit) cv_rms with the ratio's interval, and its
+   gyro rows' χ² without and with the Earth rate fitted (no latitude); the imu_tk session's
+   scalar fit the same way (no angles: no pose scatter).
 
 Run: ``.venv/bin/python benchmarks/analysis_holdout.py [--seeds 15] [--size 5]
 [--tolerance 0.0]``.
@@ -148,6 +149,38 @@ def real_data() -> None:
             )
         for w in r.warnings:
             print(f"  warning: {w}")
+        if r.method == "joint":
+            _earth_rate_gain(a.session)
+
+
+def _earth_rate_gain(session: Any) -> None:
+    """The gyro rows' χ² of the joint base fit without and with the fitted Earth rate."""
+    from scipy import stats
+
+    from canimucal.analysis.base_fit import EARTH_RATE_NAMES, fit_known
+
+    prepared, res = fit_known(session)
+    kept = [n for n in prepared.names if n in EARTH_RATE_NAMES]
+    if not kept:
+        return
+    gyro = np.flatnonzero(prepared.sensor == "gyro")
+    cov = prepared.covariance[np.ix_(gyro, gyro)]
+
+    def chi2(resid: np.ndarray) -> float:
+        r = resid[gyro]
+        return float(r @ np.linalg.solve(cov, r))
+
+    n = gyro.size
+    before, after = chi2(res.residuals.ravel()), chi2(prepared.residual)
+    f = ((before - after) / len(kept)) / (after / (n - 3 - len(kept)))
+    p = float(stats.f.sf(f, len(kept), n - 3 - len(kept)))
+    values = dict(zip(prepared.names, prepared.values, strict=True))
+    w = np.array([values[k] for k in kept])
+    print(
+        f"  gyro rows χ²: bias only {before:.1f} on {n - 3} dof, with the Earth rate "
+        f"{after:.1f} on {n - 3 - len(kept)} (F {f:.1f}, p {p:.2g}); fitted "
+        f"{', '.join(f'{x:.3g}' for x in w)} rad/s, length {np.linalg.norm(w):.3g}"
+    )
 
 
 def main() -> None:
