@@ -2,7 +2,8 @@
 
 DESIGN §6: a consumer MEMS gyro averaged 10-30 s sees the Earth rate at 1-2σ, and its part
 along gravity is an isotropic G. Left out of the base model when the recording gives no
-latitude (or no orientation), it was named ``gyro_g_sensitivity`` on 20 of 30 clean
+latitude (or no orientation), it was named (on dde0c2f, these tests' sessions and seeds
+0..29 or 0..19) ``gyro_g_sensitivity`` on 20 of 30 clean
 recommended-plan sessions, 28 of 30 twelve-position ones and 13 of 20 sets of ten hand-held
 poses; modelled from a heading 90° off (a session's default heading is 0°), on 12 of 30, with
 ``temperature_bias`` on 9. Fixed seeds, listed; thresholds as binomial statements at the
