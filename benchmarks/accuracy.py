@@ -368,7 +368,7 @@ def print_worst_case() -> list[str]:
     print("\nWORST-CASE BOUND (bias + diagonal K + rigid tilt, effect at 1 g), equal total time")
     lines = []
     for noise, tol, label in (
-        (1.0, False, "DESIGN §3 reference: 1 count/√Hz, no angle tolerance"),
+        (1.0, False, "docs/design.md §3 reference: 1 count/√Hz, no angle tolerance"),
         (1.0, True, "1 count/√Hz with the 0.1° angle tolerances"),
         (NOISE_COUNTS, True, f"{NOISE_COUNTS:.3f} counts/√Hz with the 0.1° tolerances"),
     ):

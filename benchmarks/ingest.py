@@ -9,7 +9,7 @@ Run: ``.venv/bin/python benchmarks/ingest.py [--seconds 3] [--rates 200,1000,350
    samples received/sent, lost/late/duplicate counts, latency (block hand-out time minus the
    frame's CAN timestamp, p50/p99/max), CPU of the consumer thread and of the notifier
    (callback) thread per wall second, and CPU µs per sample. The virtual bus never drops a
-   frame, so "keeping up" means every sample arrives with bounded latency (DESIGN §8).
+   frame, so "keeping up" means every sample arrives with bounded latency (docs/design.md §8).
    Classical CAN at 1 Mbit/s carries about 3,500 samples/s with two 8-byte TPDOs each
    (~130 bits per frame with stuffing): the target is that ceiling at ≤ 10 % of one core.
    Note: the producer runs in the same process (the virtual bus is in-process), so it

@@ -10,7 +10,7 @@ and the operator's angle-setting errors included (errors in variables):
   MEMS part), i.e. 0.313 counts/√Hz through the nominal K of ±16 g (k = 2048/g);
 - gyro white noise 1.2e-4 rad/s/√Hz (the simulator's default); MEMS gyro model (bias only);
 - angle tolerance 0.1° (1σ) on every angle of every position;
-- g = 9.80665 m/s², evaluated at K = k·I and zero tilt (DESIGN §3).
+- g = 9.80665 m/s², evaluated at K = k·I and zero tilt (docs/design.md §3).
 
 Targets: worst accelerometer bias σ ≤ 1 mg (0.209 counts) and worst relative scale-factor σ
 (σ(K_ii)/k) ≤ 100 ppm. The model each plan is solved with: RECOMMENDED bias + full K + rigid

@@ -1,4 +1,4 @@
-"""Every error the tool raises on purpose: one root, a branch per exit status (DESIGN §7).
+"""Every error the tool raises on purpose: one root, a branch per exit status (docs/design.md §7).
 
 Exit statuses: 1 internal error, 2 bad input or usage, 3 device refused / verification
 failed / rollback incomplete, 4 no device or no bus. The tree::

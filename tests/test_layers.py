@@ -1,4 +1,4 @@
-"""The layers look down only (DESIGN §1): checked in fresh interpreters."""
+"""The layers look down only (docs/design.md §1): checked in fresh interpreters."""
 
 from __future__ import annotations
 

@@ -1,13 +1,13 @@
 """The base fits of the discrepancy loop, prepared for the linearised candidate tests.
 
 Known positions: ``solve_joint`` with bias + diagonal K, no tilt, and the gyro bias with the
-Earth rate through the nominal S (DESIGN §6). Unknown positions: the scalar ``|f| = g`` fit,
+Earth rate through the nominal S (docs/design.md §6). Unknown positions: the scalar ``|f| = g`` fit,
 model "6" (bias + diagonal K), and the gyro bias. Each gives the raw residuals, the raw
 Jacobian of the prediction, the covariance of the residual vector (within-position scatter,
 angle tolerances, and a random-walk term when drift was found) and the candidates' columns.
 
 The Earth rate is part of the gyro's base model even when the site is unknown, because
-leaving it out fakes g-sensitivity (DESIGN §6: its part along gravity *is* an isotropic G,
+leaving it out fakes g-sensitivity (docs/design.md §6: its part along gravity *is* an isotropic G,
 ``ω_up = Ω sin φ · f/|f|``, and a consumer MEMS gyro sees it at 1-2σ of a 10-30 s mean).
 Where the gyro cannot see it (:func:`earth_rate_visible`: its whole non-centrality over the
 positions below 1 at a known gyro scale) it is left out, as before; else

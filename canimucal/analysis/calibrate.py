@@ -169,7 +169,7 @@ def _plan_warnings(
     site: SiteConditions,
     already: tuple[str, ...],
 ) -> tuple[str, ...]:
-    """Correlations above 0.999 of the positions as a plan at DESIGN §3's reference noise.
+    """Correlations above 0.999 of the positions as a plan at docs/design.md §3's reference noise.
 
     The fit's own correlations include the angle tolerances, which can mask a combination
     the plan itself barely separates (bias z against beta0 in the paper's five positions,
@@ -221,12 +221,12 @@ def _lack_of_fit_warning(result: JointResult) -> tuple[str, ...]:
 
 
 def _correlation_warnings(result: JointResult) -> tuple[str, ...]:
-    """Warnings for parameter pairs correlated beyond 0.999 in the fit (DESIGN §3).
+    """Warnings for parameter pairs correlated beyond 0.999 in the fit (docs/design.md §3).
 
     Only the correlation criterion is used here: in a real fit the channels' precisions differ
     by orders of magnitude (level channels see no angle error, tilted ones do), so the
     eigenvalue ratios of the whitened information measure precision, not separability. The
-    plan table (`canimucal plan`) applies both criteria at DESIGN §3's reference noise.
+    plan table (`canimucal plan`) applies both criteria at docs/design.md §3's reference noise.
     """
     seen: set[frozenset[str]] = set()
     out = []

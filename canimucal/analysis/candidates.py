@@ -1,12 +1,12 @@
 """Candidate effects of the discrepancy loop as extra columns of the linearised base fit.
 
-Two data sets are supported (DESIGN §5, §6):
+Two data sets are supported (docs/design.md §5, §6):
 
 - **known positions** (angles labelled): the base model is the joint model with bias and
   diagonal K, no tilt, and the gyro bias with the Earth rate seen through the nominal S
   (``solve_joint`` with ``JointSpec(accel_k="diag", tilt="none", gyro="mems")``). Each
   candidate is the derivative of the predicted means with respect to its extra parameters:
-  ``base_tilt`` ``K dC/d(alpha0, beta0) f_L`` (rigid tilt, DESIGN §2), ``cross_axis`` the
+  ``base_tilt`` ``K dC/d(alpha0, beta0) f_L`` (rigid tilt, docs/design.md §2), ``cross_axis`` the
   off-diagonal K entries (``f_j`` on channel i, eq. 6), ``scale_nonlinearity`` ``f_i²`` on
   channel i, ``temperature_bias`` ``T − T̄`` on each channel, ``gyro_g_sensitivity`` ``f_j``
   on gyro channel i.

@@ -1,4 +1,4 @@
-"""Conditions of a recording: local gravity, latitude and heading from its header (DESIGN §2)."""
+"""A recording's conditions: gravity, latitude and heading from its header (docs/design.md §2)."""
 
 from __future__ import annotations
 
@@ -46,7 +46,7 @@ def recording_conditions(rec: Recording, g_override: float | None = None) -> Rec
     """Read the conditions of a recording.
 
     g: the flag, else the header's ``g``, else WGS-84 normal gravity from latitude and
-    height, else 9.80665 with a warning (DESIGN §2).
+    height, else 9.80665 with a warning (docs/design.md §2).
     """
     latitude = _number(rec, "latitude_deg")
     height = _number(rec, "height_m")

@@ -24,7 +24,7 @@ EFFECTS = (
     "gyro_g_sensitivity",
     "axis_sign",
 )
-"""The fixed effect vocabulary of the analysis JSON (DESIGN §5)."""
+"""The fixed effect vocabulary of the analysis JSON (docs/design.md §5)."""
 
 FAMILY_ALPHA = 0.01
 """Family-wise error rate of the candidate tests (Holm)."""

@@ -1,4 +1,4 @@
-"""The model-discrepancy loop on measured data (DESIGN §6): test, name, extend, score.
+"""The model-discrepancy loop on measured data (docs/design.md §6): test, name, extend, score.
 
 :func:`analyse_discrepancy` fits the base model (bias + diagonal scale + white noise; the
 known-position joint model when angles are labelled, the scalar ``|f| = g`` fit otherwise),
@@ -757,7 +757,7 @@ def _lower_m(m: Array, coef: Mapping[str, Array]) -> Array:
 def effect_sigmas(data: SessionData) -> dict[str, Array]:
     """σ of each candidate entry fitted beside the base model and every other candidate.
 
-    The size scale of the hidden-effect tests (DESIGN §5: 5σ–10σ of the effect's own estimate
+    The size scale of hidden-effect tests (docs/design.md §5: 5σ–10σ of the effect's own estimate
     under the plan and noise of ``data``); only the design and the noise enter, not the
     residuals. Entries that the positions cannot determine are infinite.
     """

@@ -1,6 +1,6 @@
 """Drift inside the static positions, recognised before any other term is tested.
 
-A bias that wanders (random walk or instability, DESIGN §5 ``bias_drift``) makes each
+A bias that wanders (random walk or instability, docs/design.md §5 ``bias_drift``) makes each
 position's samples trend. Within position p and axis c the least-squares slope ``s_pc`` has,
 for white noise alone, the standard error ``σ_pc = s_e / √Σ(t − t̄)²`` (``s_e`` the
 residual scatter), so ``z_pc = s_pc/σ_pc`` is N(0, 1). A temperature that changes during

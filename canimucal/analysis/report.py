@@ -2,7 +2,7 @@
 
 load (``io.importers``) → group into positions (``analysis_session``) → base fit, candidate
 tests, extension (``model.discrepancy``) → noise against the simulator's white noise (Allan
-deviation) → the analysis JSON (DESIGN §5), a truth JSON of the extended model and the
+deviation) → the analysis JSON (docs/design.md §5), a truth JSON of the extended model and the
 observed poses as a pose schedule, and a replay of the session through the simulator
 (:mod:`canimucal.analysis.replay`).
 """
@@ -185,7 +185,7 @@ def input_referred_white(a: Analysis, sensor: str) -> list[float]:
 
 
 def analysis_document(a: Analysis) -> dict[str, Any]:
-    """Build the analysis JSON of DESIGN §5."""
+    """Build the analysis JSON of docs/design.md §5."""
     findings = [
         {
             "effect": f.effect,
@@ -209,7 +209,7 @@ def analysis_document(a: Analysis) -> dict[str, Any]:
     if terms:
         choice = choose_averaging(terms)
         noise["best_averaging_s_per_axis"] = {k: v.tolist() for k, v in choice.optima_s.items()}
-        # DESIGN §5: the largest of the axes' optima, on the same clipped scale as the
+        # docs/design.md §5: the largest of the axes' optima, on the same clipped scale as the
         # per-axis values (a white axis has no minimum inside the data: the clip's top)
         noise["best_averaging_s"] = max(float(np.max(v)) for v in choice.optima_s.values())
         noise["limiting_axis"] = choice.limiting_axis
@@ -266,7 +266,7 @@ def _ambiguity(x: Ambiguity) -> dict[str, Any]:
 
 
 def extended_truth(a: Analysis) -> dict[str, Any]:
-    """Build a truth JSON document of the extended model (DESIGN §5), for `sim --truth`."""
+    """Build a truth JSON document of the extended model (docs/design.md §5), for `sim --truth`."""
     p, s, rec = a.result.params, a.session, a.recording
     temps, t0 = _temperature_profile(a)
     temp0 = temps[0][1] if temps else 25.0

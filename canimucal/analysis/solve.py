@@ -232,7 +232,7 @@ def calibrate(
     diagonal K without tilt), so ``calibrate(rec, model="full", tilt=True)`` gives the
     numbers of ``canimucal solve REC --model full --tilt``. Averages (from
     :func:`~canimucal.model.positions.average_position`) are solved with standard gravity
-    (or ``g``) and the nominal LSBs of DESIGN §4. A failed acceptance check is reported in
+    (or ``g``) and the nominal LSBs of docs/design.md §4. A failed acceptance check is reported in
     ``.acceptance``, never raised.
     """
     choice = ModelChoice(

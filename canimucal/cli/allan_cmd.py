@@ -1,7 +1,7 @@
 """`canimucal allan`: Allan deviation of one static file or a recording's longest still stretch.
 
 Also the fitted noise terms with intervals, a drift test, each axis's best averaging time and
-one for all axes (:mod:`canimucal.analysis.static_noise`; DESIGN §2 conventions).
+one for all axes (:mod:`canimucal.analysis.static_noise`; docs/design.md §2 conventions).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""`canimucal analyze`: model discrepancy on measured data (DESIGN §5, §6)."""
+"""`canimucal analyze`: model discrepancy on measured data (docs/design.md §5, §6)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The bus flags every device command shares (DESIGN §7) and the devices they open.
+"""The bus flags every device command shares (docs/design.md §7) and the devices they open.
 
 ``--interface --channel --bitrate`` follow python-can (its config file, ``--can-config``, and
 ``CAN_*`` environment fill in what the flags leave out; ``--interface`` defaults to

@@ -8,7 +8,7 @@ writes with the transactional write, verifies at level). ``--seconds S`` average
 position S seconds (skipping the long first recording); ``--time-scale`` runs the simulated
 clock faster than the wall clock. Into ``--out`` (the tool's own directory: files there are
 replaced) go per node the recording CSV, the verification CSV, the calibration JSON with the
-``readback`` block (DESIGN §5), the certificate, the truth and the device backup. Then it
+``readback`` block (docs/design.md §5), the certificate, the truth and the device backup. Then it
 prints each value read back from the device beside the truth, with σ and the deviation in σ.
 
 Without ``--headless`` the TUI (:mod:`canimucal.tui`, imported lazily) runs the same

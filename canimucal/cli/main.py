@@ -1,4 +1,4 @@
-"""The `canimucal` entry point: one subparser per verb, errors mapped to DESIGN §7 exit codes.
+"""The `canimucal` entry point: a subparser per verb, errors mapped to docs/design.md §7 exit codes.
 
 Subcommand modules are imported lazily by name so that `canimucal --help` loads neither
 Textual nor the CAN stack.

@@ -1,4 +1,4 @@
-"""`canimucal plan`: Cramér–Rao bounds of a plan and what it cannot determine (DESIGN §3)."""
+"""`canimucal plan`: a plan's Cramér–Rao bounds and what it cannot determine (docs/design.md §3)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """`canimucal read-params`: identity, nominal LSBs and the calibration block a node holds.
 
-``--json PATH`` writes, per node, the identity, the nominal values, the DESIGN §5
+``--json PATH`` writes, per node, the identity, the nominal values, the docs/design.md §5
 ``readback`` block (the device's values as read, valid flag, CRC check) and the calibration
 record of what the node holds, with the raw ``objects`` map (so the file restores it with
 ``write-params``). Several ``--node-id``: one file per node, ``NAME.node<ID>.json``.

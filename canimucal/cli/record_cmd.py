@@ -47,7 +47,7 @@ def add_subparser(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "record",
         help="record one position or a whole plan from the IMU node(s)",
-        description="Record raw samples into the recording CSV (DESIGN §5), labelled by "
+        description="Record raw samples into the recording CSV (docs/design.md §5), labelled by "
         "position: one position, or a whole plan pose by pose.",
     )
     p.add_argument("output", help="recording CSV to write")

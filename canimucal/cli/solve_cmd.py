@@ -1,4 +1,4 @@
-"""`canimucal solve`: a recording in, the calibration JSON of DESIGN §5 out."""
+"""`canimucal solve`: a recording in, the calibration JSON of docs/design.md §5 out."""
 
 from __future__ import annotations
 

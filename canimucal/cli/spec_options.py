@@ -29,7 +29,7 @@ def add_model_options(parser: argparse.ArgumentParser, *, default_tilt: bool) ->
         "--tilt-model",
         choices=("rigid", "additive"),
         default="rigid",
-        help="rigid tilted base (DESIGN §2) or the paper's added angles (eq. 15)",
+        help="rigid tilted base (docs/design.md §2) or the paper's added angles (eq. 15)",
     )
     parser.add_argument(
         "--gyro",

@@ -1,4 +1,4 @@
-"""`canimucal write-params CAL.json`: the transactional calibration write of DESIGN §4.
+"""`canimucal write-params CAL.json`: the transactional calibration write of docs/design.md §4.
 
 Validation order: the file (schema, keys, finite numbers, invertible K and S, a backup's
 ``objects``) before connecting; the device's ranges after reading its nominal LSBs but before

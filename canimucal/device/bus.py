@@ -1,4 +1,4 @@
-"""Bus settings (DESIGN §7) and the SDO transport policy (timeouts, retries, aborts).
+"""Bus settings (docs/design.md §7) and the SDO transport policy (timeouts, retries, aborts).
 
 The flags win over the environment, which wins over the config file (python-can's
 ``can.util.load_config`` order). ``interface`` defaults to ``socketcan`` when a channel is
@@ -40,7 +40,7 @@ DEFAULT_SDO_TIMEOUT_S = 0.5
 """SDO response timeout on a real or virtual bus."""
 
 VM_SDO_TIMEOUT_S = 2.0
-"""SDO response timeout inside the CAN VM (``IN_CAN_VM=1``, DESIGN §8)."""
+"""SDO response timeout inside the CAN VM (``IN_CAN_VM=1``, docs/design.md §8)."""
 
 DEFAULT_INTERFACE_WITH_CHANNEL = "socketcan"
 

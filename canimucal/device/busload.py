@@ -1,4 +1,4 @@
-"""Bus load as the tool sees it (DESIGN §4: "it shows the bus load it sees").
+"""Bus load as the tool sees it (docs/design.md §4: "it shows the bus load it sees").
 
 :class:`BusLoadMeter` is a python-can :class:`~can.Listener` on the client's notifier: it
 counts every frame received (all identifiers, not only the IMU's) and the bits each one

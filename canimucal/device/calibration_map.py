@@ -1,4 +1,4 @@
-"""Calibration record (DESIGN §5) ⇄ device calibration block (DESIGN §4), on typed records.
+"""Calibration record (docs/design.md §5) ⇄ the device's calibration block (§4), on typed records.
 
 The file holds the sensor models (K counts per m/s², S counts per rad/s, G, biases, tilt in
 degrees); the device holds their inverses M = K⁻¹ and N = S⁻¹ (m/s² and rad/s per count),
@@ -220,7 +220,7 @@ def record_from_readout(
 
 
 def readback_of(block: od.CalibrationBlock, valid: int, crc_ok: bool) -> Readback:
-    """DESIGN §5 ``readback``: the device's values as read (tilt in radians), valid, CRC ok."""
+    """docs/design.md §5 ``readback``: the device's values as read (tilt in rad), valid, CRC ok."""
     return Readback(
         accel_bias=_vector(block.accel_bias),
         accel_correction=_matrix(block.accel_correction),

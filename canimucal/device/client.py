@@ -1,4 +1,4 @@
-"""``ImuClient``: the tool's side of one IMU node (DESIGN §4, STYLE "CANopen").
+"""``ImuClient``: the tool's side of one IMU node (docs/design.md §4, STYLE "CANopen").
 
 SDO access with a retry policy (timeouts retried with exponential backoff, aborts never),
 node discovery, identity, nominal LSBs, the PDO layout read from the node, the calibration
@@ -229,7 +229,7 @@ class ImuClient:
         return int(self.read_value(od.NOMINAL, 3, "u16"))
 
     def set_output_data_rate(self, rate_hz: int) -> None:
-        """Change the output data rate (only when the user asks: DESIGN §4 quiet bus)."""
+        """Change the output data rate (only when the user asks: docs/design.md §4 quiet bus)."""
         if rate_hz not in od.ODR_CHOICES_HZ:
             raise ValueError(f"output data rate must be one of {od.ODR_CHOICES_HZ}, got {rate_hz}")
         if self._original_odr is None:
@@ -259,7 +259,7 @@ class ImuClient:
             raise DeviceError(f"unusable PDO mapping: {exc}") from exc
 
     def read_calibration_block(self) -> CalibrationReadout:
-        """Read every calibration object (DESIGN §4), the valid flag and the stored CRC."""
+        """Read every calibration object (docs/design.md §4), the valid flag and the stored CRC."""
         objects: dict[tuple[int, int], float | int] = {}
         read: dict[tuple[int, int], bytes] = {}
         for index, sub, code in od.CALIBRATION_OBJECTS:

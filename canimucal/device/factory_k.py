@@ -1,6 +1,6 @@
 """The accelerometer K a device holds now: the mean of a plan's prior on K, read live.
 
-Which object holds it (DESIGN §4): the firmware corrects with ``a = M (U − b)`` where
+Which object holds it (docs/design.md §4): the firmware corrects with ``a = M (U − b)`` where
 M = K⁻¹ is 0x2101:01–09 (REAL32, m/s² per count, row-major), but only while 0x2121:05
 (valid) is 1 and 0x2121:06 matches the CRC of the block. Then the device's K is M⁻¹ (the
 factory's or the last calibration's). Otherwise the firmware applies the nominal LSB of

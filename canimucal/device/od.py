@@ -1,4 +1,4 @@
-"""The IMU node's object dictionary (DESIGN §4): names, encodings, CRC, value ranges, firmware.
+"""The IMU node's object dictionary (docs/design.md §4): names, encodings, CRC, ranges, firmware.
 
 Pure data and numerics: nothing here talks to a bus, so the client, the simulated node, the
 file layer and the tests share one definition of what each object holds and how it is
@@ -94,7 +94,7 @@ CRC_ORDER: tuple[tuple[int, int, str], ...] = (
         (CAL_INFO, CAL_RMS_SUB, "f32"),
     )
 )
-"""The objects the CRC covers, in CRC order, with their encoding code (DESIGN §4)."""
+"""The objects the CRC covers, in CRC order, with their encoding code (docs/design.md §4)."""
 
 CALIBRATION_OBJECTS: tuple[tuple[int, int, str], ...] = CRC_ORDER + (
     (CAL_INFO, CAL_VALID_SUB, "u8"),
@@ -297,7 +297,7 @@ def apply_firmware(
     accel_lsb: float,
     gyro_lsb: float,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Corrected outputs (m/s², rad/s) as the firmware computes them (DESIGN §4).
+    """Corrected outputs (m/s², rad/s) as the firmware computes them (docs/design.md §4).
 
     With valid = 1 and a matching CRC: ``a = M (U − b)``, ``w = N (V − B − G a)``;
     otherwise the nominal values ``lsb · counts``. Accepts ``(3,)`` or ``(n, 3)`` counts.
@@ -340,7 +340,7 @@ def range_problems(
     gyro_lsb: float,
     row_diagonal: float | None = None,
 ) -> str | None:
-    """Check one object's value against DESIGN §4's ranges; None if fine, else the reason.
+    """Check one object's value against docs/design.md §4's ranges; None if fine, else the reason.
 
     ``row_diagonal`` is the current diagonal of the row an off-diagonal M/N entry belongs
     to; without it the nominal |LSB| stands in.

@@ -1,4 +1,4 @@
-"""TPDO decoding and pairing (DESIGN §4 PDOs): a sample is the TPDO1/TPDO2 pair of one counter.
+"""TPDO decoding and pairing (docs/design.md §4 PDOs): a sample pairs TPDO1/TPDO2 of a counter.
 
 Frames arrive as raw ``(can_id, data, timestamp)`` tuples handed over by the receive callback;
 everything here runs on the consumer thread. Rules:

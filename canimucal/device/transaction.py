@@ -1,4 +1,4 @@
-"""The transactional calibration write of DESIGN §4 ("Writing is transactional").
+"""The transactional calibration write of docs/design.md §4 ("Writing is transactional").
 
 (1) identity, serial check before anything is written; (2) nominal LSBs, the block, range
 checks before writing; (3) backup of the whole current block to a never-overwritten JSON;
@@ -222,7 +222,7 @@ def write_calibration_transaction(
     store_sub: int | None = None,
     store_timeout_s: float = DEFAULT_STORE_TIMEOUT_S,
 ) -> WriteReport:
-    """Write ``record`` (a calibration or a backup with ``objects``) to the node, DESIGN §4.
+    """Write ``record`` (a calibration or a backup with ``objects``) to the node, docs/design.md §4.
 
     Raises :class:`DeviceError` (exit 3) for a serial mismatch (nothing written) or a
     failure that was rolled back, :class:`RollbackIncompleteError` when the rollback failed,

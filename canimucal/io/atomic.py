@@ -1,4 +1,4 @@
-"""Atomic file writes and collision-free names (DESIGN §7: `--overwrite` rules).
+"""Atomic file writes and collision-free names (docs/design.md §7: `--overwrite` rules).
 
 A file is written to a temporary sibling, flushed and fsynced, then moved into place in one
 ``rename``: a reader sees either the old file or the complete new one, never a partial file.

@@ -1,4 +1,4 @@
-"""The calibration JSON (DESIGN §5): a frozen record, a strict reader, an atomic writer.
+"""The calibration JSON (docs/design.md §5): a frozen record, a strict reader, an atomic writer.
 
 :class:`Calibration` mirrors the file key for key; nothing else is allowed in it (a
 solver's warnings travel beside the record, not inside it). Arrays are tuples whose elements

@@ -24,7 +24,7 @@ from canimucal.model.static import detect_static_intervals
 logger = logging.getLogger(__name__)
 
 COUNTER_MODULUS = 65536
-"""The sample counter 0x2002:02 is a U16 that wraps (DESIGN §4)."""
+"""The sample counter 0x2002:02 is a U16 that wraps (docs/design.md §4)."""
 
 
 def position_labels(recording: Recording) -> list[int]:

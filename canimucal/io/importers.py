@@ -1,4 +1,4 @@
-"""Importers of other tools' recordings into :class:`Recording` objects (DESIGN §5, §6).
+"""Importers of other tools' recordings into :class:`Recording` objects (docs/design.md §5, §6).
 
 - **imu_tk**: two ASCII files (accelerometer, gyro) of whitespace columns ``t x y z``; raw
   counts of a 16-bit offset-binary sensor (about 32768 at zero). The header says so with
@@ -57,7 +57,7 @@ FERRARIS_POSES = {
     "z_p": (0.0, 90.0, 0.0),
     "z_a": (0.0, -90.0, 0.0),
 }
-"""(alpha, beta, psi) degrees of imucal's six static poses in DESIGN §2's convention: at
+"""(alpha, beta, psi) degrees of imucal's six static poses in docs/design.md §2's convention: at
 rest f = C f_L with f_L = [0, −g, 0], so +x up (``x_p``, f = [+g, 0, 0]) is alpha = −90°,
 +y up (f = [0, +g, 0]) alpha = 180°, +z up (f = [0, 0, +g]) beta = +90°."""
 

@@ -1,4 +1,4 @@
-"""Custom position plans and pose schedules (DESIGN §3 and §5): JSON or TOML files.
+"""Custom position plans and pose schedules (docs/design.md §3 and §5): JSON or TOML files.
 
 ``{"positions": [{"alpha_deg", "beta_deg", "psi_deg", "seconds", "tolerance_deg"}]}`` in
 JSON, or ``[[positions]]`` tables in TOML; an optional ``psi_tolerance_deg`` gives the
@@ -31,7 +31,7 @@ BUILTIN_PLANS = ("two", "five", "recommended", "vehicle")
 """Plan names resolved by the model, not read from a file."""
 
 DEFAULT_TOLERANCE_DEG = 0.1
-"""Angle-setting tolerance of a position that names none (DESIGN §3)."""
+"""Angle-setting tolerance of a position that names none (docs/design.md §3)."""
 
 _LIMITS_DEG = {"alpha_deg": 180.0, "beta_deg": 180.0, "psi_deg": 360.0}
 _KEYS = ("alpha_deg", "beta_deg", "psi_deg", "seconds", "tolerance_deg", "psi_tolerance_deg")

@@ -1,4 +1,4 @@
-"""The recording CSV (DESIGN §5): the parsed :class:`Recording` and its strict fast reader.
+"""The recording CSV (docs/design.md §5): the parsed :class:`Recording` and its strict fast reader.
 
 Layout: ``# key: value`` header lines (``schema: canimucal.recording/1`` required), the exact
 column line ``t,counter,position,alpha_deg,beta_deg,psi_deg,ax,ay,az,gx,gy,gz,temp_c``, then
@@ -523,7 +523,7 @@ HEADER_PARSERS: Mapping[str, Callable[[str], HeaderValue]] = {
     "prior_k_sigma_source": _text,
     "gyro_g": _bool,
 }
-"""Every header key (DESIGN §5, §9 and docs/recording-header.md), with the parser of its value;
+"""Every header key (docs/design.md §5, §9, docs/recording-header.md), with its value's parser;
 any other is refused.
 
 ``plan``, ``model``, ``tilt``, ``gyro``, ``tolerance_deg`` (the plan's angle-setting 1σ) and

@@ -1,4 +1,4 @@
-"""Writers of the recording CSV (DESIGN §5): a streaming writer and a whole-file writer.
+"""Writers of the recording CSV (docs/design.md §5): a streaming writer and a whole-file writer.
 
 :class:`RecordingWriter` streams into ``OUT.csv.partial`` (flushed per block) and renames it
 to ``OUT.csv`` on :meth:`RecordingWriter.close`, which the context manager calls on any

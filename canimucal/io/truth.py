@@ -1,4 +1,4 @@
-"""The simulator truth JSON (DESIGN §5): reading with located syntax errors, writing.
+"""The simulator truth JSON (docs/design.md §5): reading with located syntax errors, writing.
 
 :func:`read_truth` only parses (syntax, finite numbers, an object at the top);
 the meaning of the keys is checked by :meth:`canimucal.sim.truth.Truth.from_dict`.

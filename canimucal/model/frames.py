@@ -1,4 +1,4 @@
-"""Rotations, positions and the reference vectors of the level frame L (DESIGN §2).
+"""Rotations, positions and the reference vectors of the level frame L (docs/design.md §2).
 
 Frame L is right-handed: x East, y Down, z North. A position ``(alpha, beta, psi)`` tilts
 the unit by ``alpha`` about body z, then by ``beta`` about the new body x (the paper's
@@ -47,7 +47,7 @@ def position_dcm(
     beta0: float = 0.0,
     tilt_model: TiltModel = "rigid",
 ) -> Matrix:
-    """Direction cosine matrix body <- L of one position (DESIGN §2).
+    """Direction cosine matrix body <- L of one position (docs/design.md §2).
 
     rigid:    ``C = Ay(psi) A2(beta) A1(alpha) A2(beta0) A1(alpha0)``
     additive: ``C = Ay(psi) A2(beta + beta0) A1(alpha + alpha0)`` (the paper's eq. 15)

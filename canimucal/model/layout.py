@@ -4,7 +4,7 @@ One implementation serves both the joint estimator (``joint.py``) and the plan b
 (``plan.py``): the predicted mean of each position, its derivative with respect to the
 parameters and with respect to the position's own angles (for the angle-setting tolerance).
 
-Sensor models (DESIGN §2, counts): accelerometer ``U = b + K C f_L`` (eq. 6, 15 with a rigid
+Sensor models (docs/design.md §2, counts): accelerometer ``U = b + K C f_L`` (eq. 6, 15 with a rigid
 or additive base tilt), gyro ``V = B + S C w_L + G C f_L`` (eq. 35 with g-sensitivity).
 Angles are radians; the base tilt parameters ``base_tilt.alpha0/beta0`` too. The DCMs of
 all positions and their derivatives come from :mod:`canimucal.model.dcm_stack`.
@@ -43,7 +43,7 @@ class JointSpec:
     """Which parameters the joint model estimates.
 
     ``accel_k``: diagonal scale factors or the full K (cross-axis terms). ``tilt``: no base
-    tilt, a rigid tilted base (DESIGN §2) or the paper's added angles (eq. 15). ``gyro``:
+    tilt, a rigid tilted base (docs/design.md §2) or the paper's added angles (eq. 15). ``gyro``:
     none; ``mems`` (bias only, S fixed at nominal, Earth rate with nominal S when a latitude is
     given); ``nav`` (bias and S from Earth rate; needs a latitude). ``gyro_s`` the shape of S
     for ``nav``; ``gyro_g`` estimates the g-sensitivity G.
@@ -145,7 +145,7 @@ class ParameterLayout:
         return ModelParams(bias, k, float(alpha0), float(beta0), gbias, s, gg)
 
     def effect_scales(self, g: float, k_counts_per_ms2: float) -> Array:
-        """Effect of a unit change of each parameter at 1 g, in counts (DESIGN §3).
+        """Effect of a unit change of each parameter at 1 g, in counts (docs/design.md §3).
 
         Biases 1; K and G entries g; tilt angles |k|·g; S entries Ω (their effect at the
         Earth rate). Used to normalise the Fisher information so units do not dominate.

@@ -1,4 +1,4 @@
-"""How the unit sits in a vehicle, and a pose read as the vehicle's attitude (DESIGN §2, §9).
+"""How the unit sits in a vehicle, and a pose read as the vehicle attitude (docs/design.md §2, §9).
 
 A :class:`MountingMap` names the vehicle direction (forward, back, left, right, up, down) of
 each of the unit's axes x, y, z: a signed permutation ``M`` (vehicle ← unit, its columns the

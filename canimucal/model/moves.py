@@ -289,7 +289,7 @@ def attitude_covariance(angles: ArrayLike, tolerances: ArrayLike) -> Array:
 
     The pose ``(alpha, beta, psi)`` (rad) is set with independent 1σ errors ``tolerances``
     (rad); ``C' = exp([ε]×) C`` with ``ε = Σ_i a_i δ_i``, ``a_i = log(∂C/∂angle_i Cᵀ)`` the
-    axis (body frame) each angle turns about (``position_dcm``, DESIGN §2), so
+    axis (body frame) each angle turns about (``position_dcm``, docs/design.md §2), so
     ``Σ = A diag(tolerance²) Aᵀ``. At ``beta = ±90°`` the axes of alpha and psi coincide
     and ``Σ`` is singular in the unturned direction: the pose's errors are not isotropic.
     """

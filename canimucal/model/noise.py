@@ -1,4 +1,4 @@
-"""Allan deviation, noise terms and the best averaging time (DESIGN §2 noise conventions).
+"""Allan deviation, noise terms and the best averaging time (docs/design.md §2 noise conventions).
 
 Everything here works **in the units of the data** ``x`` (counts for raw outputs, or m/s²,
 rad/s after scaling): with ``u`` those units,
@@ -318,7 +318,7 @@ def best_averaging_time_s(terms: NoiseTerms, *, clip: tuple[float, float] = (15.
 
     Per axis the minimum of ``N²/τ + c + q²τ/3`` is at ``τ* = √3·N/q`` (the flicker floor
     does not move it); an axis with q = 0 (white noise everywhere) has no minimum and gives
-    the upper clip. The result is ``clip(max over axes of τ*)`` (DESIGN §5: "the largest of
+    the upper clip. The result is ``clip(max over axes of τ*)`` (docs/design.md §5: "the largest of
     the axes' Allan minima").
     """
     lo, hi = float(clip[0]), float(clip[1])

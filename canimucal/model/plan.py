@@ -1,4 +1,4 @@
-"""Position plans, their Fisher information, Cramér–Rao bounds and identifiability (DESIGN §3).
+"""Position plans: Fisher information, Cramér–Rao bounds and identifiability (docs/design.md §3).
 
 The bounds are evaluated at the nominal model: ``K = k·I`` (k from the nominal LSB), zero
 tilt, white noise of density N counts/√Hz per axis, so a position averaged T seconds has a
@@ -37,9 +37,9 @@ Array = NDArray[np.float64]
 NOT_IDENTIFIABLE_RATIO = 1e-10
 """An eigenvalue of the normalised Fisher information below this × the largest: rank loss."""
 POORLY_SEPARABLE_RATIO = 1e-4
-"""An eigenvalue below this × the largest: poorly separable (DESIGN §3)."""
+"""An eigenvalue below this × the largest: poorly separable (docs/design.md §3)."""
 CORRELATION_LIMIT = 0.999
-"""A correlation above this in magnitude: poorly separable (DESIGN §3)."""
+"""A correlation above this in magnitude: poorly separable (docs/design.md §3)."""
 CARRIER_WEIGHT = 0.9
 """Name the parameters that carry this share of an eigenvector's squared weight."""
 _NULL_WEIGHT = 1e-6  # a parameter with more weight than this in the null space is undetermined
@@ -89,7 +89,7 @@ def analyse_information(fisher: Array, names: Sequence[str], scales: Array) -> S
     Each parameter is scaled by ``scales`` (its effect at 1 g in counts: bias 1, K and G
     entries g, tilt angles k·g) before the eigen-analysis, so that units do not dominate.
     Not identifiable: eigenvalue < 1e-10 × the largest; poorly separable: < 1e-4 × the
-    largest, or a correlation above 0.999 in magnitude (DESIGN §3).
+    largest, or a correlation above 0.999 in magnitude (docs/design.md §3).
     """
     names = tuple(names)
     d = np.asarray(scales, dtype=float)
@@ -374,7 +374,7 @@ def fisher_information(
     default the same, per gyro axis): a position of T seconds has a mean of covariance
     ``N²/T · I``. With ``include_tolerance`` each position's angle tolerance is added (errors
     in variables). Latitude and heading in radians. ``at`` moves the point of evaluation away
-    from DESIGN §3's nominal one (K = k·I, zero tilt, nominal S, zero biases and G).
+    from docs/design.md §3's nominal one (K = k·I, zero tilt, nominal S, zero biases and G).
     ``prior_sigma`` adds a Gaussian prior's information ``1/σ²`` to the parameters it names
     (the pseudo-observations of :func:`canimucal.model.joint.solve_joint`).
     """

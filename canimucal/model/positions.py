@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 DEFAULT_TOLERANCE_RAD = float(np.deg2rad(0.1))
-"""Default angle-setting tolerance of one position (DESIGN §3: 0.1°)."""
+"""Default angle-setting tolerance of one position (docs/design.md §3: 0.1°)."""
 
 DEFAULT_SECONDS = 30.0
 """Default averaging time of one position."""

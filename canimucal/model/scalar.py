@@ -1,7 +1,7 @@
 """Accelerometer calibration without angle labels: fit ``|K⁻¹ (U_i − b)| = g``.
 
 Data: the means ``U_i`` (counts) of static positions in unknown orientations, and the local
-gravity ``g``. The model ``U = b + K f`` (DESIGN §2) is inverted as ``f = M (U − b)`` with
+gravity ``g``. The model ``U = b + K f`` (docs/design.md §2) is inverted as ``f = M (U − b)`` with
 ``M = K⁻¹`` (m/s² per count), and the fit asks every corrected mean to have norm g.
 
 **What |f| can see.** ``|R M (U − b)| = |M (U − b)|`` for every orthogonal R (rotations and
@@ -15,7 +15,7 @@ reflections), so only ``MᵀM`` is observable: 6 numbers, plus the 3 biases. Hen
   (bias + 9 entries) fit is not identifiable: the 3 rotation angles of R leave |f| unchanged.
 - The **sign** of each row of M (an inverted axis) is also invisible to |f|: the diagonal is
   given the sign of ``accel_lsb`` (positive when it is None). ``axis_sign`` is therefore
-  untestable in scalar fits (DESIGN §5).
+  untestable in scalar fits (docs/design.md §5).
 
 Reported parameters: the bias (counts) and the free entries of K (counts per m/s²), with
 their covariance propagated from that of (b, M) through ``dK = −K dM K``. Covariance: from
@@ -43,10 +43,10 @@ ScalarModel = Literal["6", "9"]
 Array = NDArray[np.float64]
 
 NOT_IDENTIFIABLE = 1e-10
-"""Information eigenvalue ratio below which the fit is refused (DESIGN §3)."""
+"""Information eigenvalue ratio below which the fit is refused (docs/design.md §3)."""
 
 POORLY_SEPARABLE = 1e-4
-"""Information eigenvalue ratio below which a warning is logged (DESIGN §3)."""
+"""Information eigenvalue ratio below which a warning is logged (docs/design.md §3)."""
 
 _FREE = {
     "6": ((0, 0), (1, 1), (2, 2)),

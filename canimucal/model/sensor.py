@@ -1,4 +1,4 @@
-"""Sensor error models (DESIGN §2): accelerometer ``U = b + K f``, gyro ``V = B + S w + G f``.
+"""Sensor error models (docs/design.md §2): accel ``U = b + K f``, gyro ``V = B + S w + G f``.
 
 Units: outputs in counts, K counts per m/s², S counts per rad/s, G counts per m/s².
 """
@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 STANDARD_GRAVITY = 9.80665
-"""Standard gravity (m/s²): a last-resort default only (DESIGN §2)."""
+"""Standard gravity (m/s²): a last-resort default only (docs/design.md §2)."""
 
 DEFAULT_ACCEL_LSB = STANDARD_GRAVITY / 2048.0
 """Nominal accelerometer LSB for ±16 g on INT16, m/s² per count."""

@@ -1,7 +1,7 @@
 """The level check: |f| − g and the tilt at the level pose, nominal and with new parameters.
 
 The new accelerometer parameters are applied in software as the firmware would
-(DESIGN §4): ``a = M (U − b)`` with ``M = K⁻¹`` and nominal values where the record holds
+(docs/design.md §4): ``a = M (U − b)`` with ``M = K⁻¹`` and nominal values where the record holds
 ``null`` (:meth:`canimucal.io.calibration.AccelBlock.correct`). The tilt is read from
 the direction of ``a`` with :func:`canimucal.model.frames.gravity_direction_angles`.
 """

@@ -1,7 +1,7 @@
 """A picture of a pose: the unit drawn in the level frame, as SVG text (no plotting library).
 
 The unit is a box (long along body x, flat along body y, mid along body z) with its body
-axes drawn as arrows and labelled; the level frame L (x East, y Down, z North, DESIGN §2) is
+axes drawn as arrows and labelled; the level frame L (x East, y Down, z North, docs/design.md §2) is
 drawn in an oblique projection: screen right = East, screen up = up, North recedes up and to
 the right at 30°, foreshortened by half. The box's faces are painted far to near. Gravity is
 the arrow beside it. The pose's DCM is :func:`canimucal.model.frames.position_dcm` (body ←
@@ -93,7 +93,7 @@ def pose_svg(pose: Pose, title: str = "") -> str:
     parts.append(f'<text x="{middle[0] + 8:.0f}" y="{middle[1] + 4:.0f}">g</text>')
     parts.append(
         '<text x="8" y="232" fill="#555555" font-size="10">East →, up ↑, North into the '
-        "page ↗ (DESIGN §2 level frame)</text>"
+        "page ↗ (docs/design.md §2 level frame)</text>"
     )
     parts.append("</svg>")
     return "\n".join(parts) + "\n"
@@ -132,7 +132,7 @@ def field_guide(plans: Sequence[Plan]) -> tuple[str, dict[str, str]]:
         "edit by hand. Each picture shows the unit at the pose in the level frame (East to",
         "the right, up, North into the page), its body axes +x (red), +y (green, down when",
         "level) and +z (blue), and gravity g. Angles: alpha about body z, then beta about",
-        "the new x, then the turn psi about the unit's own y (DESIGN §2).",
+        "the new x, then the turn psi about the unit's own y (docs/design.md §2).",
         "",
         "The vehicle plan's poses are also worded for the vehicle, through the mounting map",
         f"`{DEFAULT_MOUNTING.text()}` (the unit flat, +x to the front: the TUI's default",

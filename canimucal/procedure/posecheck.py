@@ -1,4 +1,4 @@
-"""The pose check before averaging, and a target pose in words (DESIGN §2 directions).
+"""The pose check before averaging, and a target pose in words (docs/design.md §2 directions).
 
 The measured specific force ``f = lsb · U − offset`` (nominal K; ``offset`` is what the
 first accepted position showed beyond its prediction: bias and base tilt) is compared with
@@ -131,7 +131,7 @@ def _steps(steps: list[str]) -> str:
 
 
 def describe_body_pose(pose: Pose) -> str:
-    """Describe the pose in the unit's body axes, with DESIGN §2's directions (bench use)."""
+    """Describe the pose in the unit's body axes (docs/design.md §2 directions; bench use)."""
     alpha, beta, psi = (float(np.rad2deg(x)) for x in pose.angles)
     parts = []
     if abs(alpha) > 1e-9:

@@ -1,4 +1,4 @@
-"""Recording sample blocks from IMU nodes into recording CSVs (DESIGN §5), labelled by position.
+"""Record sample blocks of IMU nodes into recording CSVs (docs/design.md §5), labelled by position.
 
 One :class:`Recorder` drives one or more nodes (one :class:`~canimucal.device.client.ImuClient`
 and one :class:`~canimucal.io.recording_writer.RecordingWriter` each) and writes **every** sample it

@@ -32,7 +32,7 @@ ANGLE_MATCH_DEG = 1e-3
 
 
 def recording_path(out_dir: Path, node_id: int, several: bool) -> Path:
-    """``recording.csv``, or ``recording.node<ID>.csv`` when several nodes (DESIGN §7)."""
+    """``recording.csv``, or ``recording.node<ID>.csv`` when several nodes (docs/design.md §7)."""
     return out_dir / (f"recording.node{node_id}.csv" if several else "recording.csv")
 
 

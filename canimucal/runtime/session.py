@@ -93,7 +93,7 @@ class WriteOptions:
     """How :meth:`Session.write` writes.
 
     ``override`` writes a result that failed the acceptance limits (operator's choice);
-    ``force`` only overrides the serial check (DESIGN §7); ``store`` saves with 0x1010:04.
+    ``force`` only overrides the serial check (docs/design.md §7); ``store`` saves with 0x1010:04.
     """
 
     override: bool = False
@@ -468,7 +468,7 @@ class Session:
 
 
 def output_name(out_dir: Path, stem: str, node_id: int, several: bool, suffix: str) -> Path:
-    """``stem.suffix``, or ``stem.node<ID>.suffix`` when several nodes (DESIGN §7)."""
+    """``stem.suffix``, or ``stem.node<ID>.suffix`` when several nodes (docs/design.md §7)."""
     return out_dir / (f"{stem}.node{node_id}{suffix}" if several else f"{stem}{suffix}")
 
 
@@ -564,7 +564,7 @@ def k_prior_header(held: KPrior, plan: Plan, accel_lsb: float) -> dict[str, Any]
 def recording_header(
     rate_hz: float, site: SiteConditions, identity: Identity, node_id: int
 ) -> dict[str, Any]:
-    """Return the header of a node's recording CSV (DESIGN §5)."""
+    """Return the header of a node's recording CSV (docs/design.md §5)."""
     header: dict[str, Any] = {
         "sample_rate_hz": rate_hz,
         "node_id": node_id,

@@ -1,6 +1,6 @@
 """Hidden effects for the discrepancy tests: one effect of the vocabulary, sized in σ.
 
-:func:`hide_effect` returns a truth JSON document carrying one effect (DESIGN §5
+:func:`hide_effect` returns a truth JSON document carrying one effect (docs/design.md §5
 vocabulary) on a random axis or entry, of a size drawn uniformly between ``low`` and
 ``high`` times the σ of that entry's own estimate (``sigmas``, from
 :func:`canimucal.analysis.discrepancy.effect_sigmas` on a clean session of the same plan and
@@ -34,7 +34,7 @@ HIDDEN_EFFECTS = (
     "gyro_g_sensitivity",
     "axis_sign",
 )
-"""Effects :func:`hide_effect` can inject (the DESIGN §5 vocabulary)."""
+"""Effects :func:`hide_effect` can inject (the docs/design.md §5 vocabulary)."""
 
 _KEYS = {
     "base_tilt": "accel.base_tilt",

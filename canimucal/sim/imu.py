@@ -1,6 +1,6 @@
 """The simulated IMU: truth parameters + effects + pose schedule -> raw count samples.
 
-Per sample (DESIGN §2): ``C`` body <- L from the pose and the base tilt (``position_dcm``),
+Per sample (docs/design.md §2): ``C`` body <- L from the pose and the base tilt (``position_dcm``),
 ``f = C f_L`` and ``w = C w_L + w_motion`` (the body rate of a move, exact from the angle
 rates). Specific force from the motion itself (lever arms) is not modelled: a tilt on a step
 ladder is slow. Outputs in counts:

@@ -1,4 +1,4 @@
-"""The simulator's truth: every parameter of the simulated unit (DESIGN §5, truth JSON).
+"""The simulator's truth: every parameter of the simulated unit (docs/design.md §5, truth JSON).
 
 Angles are radians inside (``alpha0``, ``beta0``, ``latitude``, ``heading``) and degrees in the
 JSON dict; every other value keeps the JSON's units: biases, quantization, random walk and bias

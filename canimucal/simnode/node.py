@@ -1,6 +1,6 @@
 """``SimulatedImuNode``: a real canopen ``LocalNode`` built from the EDS, driven by the simulator.
 
-What canopen's ``LocalNode`` lacks and this class adds (STYLE.md, DESIGN §4): TPDOs on their
+What canopen's ``LocalNode`` lacks and this class adds (STYLE.md, docs/design.md §4): TPDOs on their
 event timer or on SYNC, only while OPERATIONAL; storing on 0x1010 and restoring defaults on
 0x1011 (effective at the next reset); NMT reset node / reset communication with a new
 boot-up; range checks on writes; live values for SDO reads of 0x2000–0x2002 (the SDO

@@ -71,7 +71,7 @@ class ObjectAccess:
         return var.decode_raw(self._node.get_data(index, sub))
 
     def calibration_values(self) -> dict[Key, float | int]:
-        """Return the CRC-covered calibration objects, decoded, in DESIGN §4 order."""
+        """Return the CRC-covered calibration objects, decoded, in docs/design.md §4 order."""
         return {(i, s): self.value(i, s) for i, s, _ in od.CRC_ORDER}
 
     def calibration_active(self) -> bool:

@@ -6,7 +6,7 @@ verification. A screen that is done posts a message (:mod:`canimucal.tui.message
 app pushes the next screen, so no screen imports another. Errors are shown in
 :class:`~canimucal.tui.modals.ErrorModal`, never as a traceback.
 
-Exits (DESIGN §7): ``q`` quits at once when no session is in progress (exit 0); during a
+Exits (docs/design.md §7): ``q`` quits at once when no session is in progress (exit 0); during a
 session it first asks, saying what is kept, and a confirmed quit is an interrupted session
 (exit 130). Ctrl+C is the interrupt: it quits at once with exit 130. Either way the I/O
 loop is stopped, the recording so far is kept, and the bus is released.
@@ -45,7 +45,7 @@ its SDO and store timeouts, and the bus must not be closed under it."""
 BUILTIN = BUILTIN_PLANS
 EXIT_OK = 0
 EXIT_INTERRUPTED = 130
-"""Exit status of an interrupted session (DESIGN §7: what was recorded so far is kept)."""
+"""Exit status of an interrupted session (docs/design.md §7: what was recorded so far is kept)."""
 
 
 class CalibrationApp(App[int]):

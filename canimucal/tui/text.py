@@ -86,7 +86,7 @@ def pose_drawing(
     psi_deg: float = 0.0,
     measured: tuple[float, float] | None = None,
 ) -> str:
-    """Two side views of the target tilt and, with ``measured``, of the unit's (DESIGN §2).
+    """Two side views of the target tilt and, with ``measured``, of the unit's (docs/design.md §2).
 
     Left: seen from the +z end, +x to the right; positive alpha lowers the +x end.
     Right: seen from the −x side, +z to the right; positive beta raises the +z end.

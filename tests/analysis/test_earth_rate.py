@@ -1,6 +1,6 @@
 """The Earth rate without a site: fitted in the base model, never named g-sensitivity.
 
-DESIGN §6: a consumer MEMS gyro averaged 10-30 s sees the Earth rate at 1-2σ, and its part
+docs/design.md §6: a consumer MEMS gyro averaged 10-30 s sees the Earth rate at 1-2σ, and its part
 along gravity is an isotropic G. Left out of the base model when the recording gives no
 latitude (or no orientation), it was named (on dde0c2f, these tests' sessions and seeds
 0..29 or 0..19) ``gyro_g_sensitivity`` on 20 of 30 clean

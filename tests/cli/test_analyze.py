@@ -205,7 +205,7 @@ def test_imucal_gyro_misfit_is_the_earth_rate_not_g_sensitivity(
     tmp_path: Path, capsys: Any
 ) -> None:
     """imucal's session gives no latitude, so the gyro's base model fits the Earth rate as a
-    free vector in the level frame (DESIGN §6: left out, it fakes g-sensitivity). Its length
+    free vector in the level frame (docs/design.md §6: left out, it fakes g-sensitivity). Its length
     must agree with the Earth's rotation rate, a reference nobody here measured, within 3σ
     (measured 1.06e-4 ± 1.6e-5 rad/s against 7.29e-5), and gyro_g_sensitivity, which passed
     an in-sample test when the Earth rate was left out, is neither chosen nor written to

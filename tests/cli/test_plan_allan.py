@@ -93,7 +93,7 @@ def test_five_positions_names_bias_z_against_beta0(cli: Cli) -> None:
         "base_tilt.alpha0",
         "base_tilt.beta0",
     }
-    # the tilt's effect at 1 g is |k|·g·σ with k = 1/LSB (DESIGN §3)
+    # the tilt's effect at 1 g is |k|·g·σ with k = 1/LSB (docs/design.md §3)
     beta0 = r["base_tilt.beta0"]
     assert beta0["effect_at_1g_counts"] == pytest.approx(
         beta0["sigma"] * STANDARD_GRAVITY / DEFAULT_ACCEL_LSB, rel=1e-9

@@ -1,4 +1,4 @@
-"""The EDS against DESIGN §4's object table, loaded the way nodes and clients load it."""
+"""The EDS against docs/design.md §4's object table, loaded the way nodes and clients load it."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ NODE_ID = 0x10
 U8, U16, U32 = datatypes.UNSIGNED8, datatypes.UNSIGNED16, datatypes.UNSIGNED32
 I16, R32, VSTR = datatypes.INTEGER16, datatypes.REAL32, datatypes.VISIBLE_STRING
 
-# DESIGN §4: (index, subs, type, access, PDO mappable)
+# docs/design.md §4: (index, subs, type, access, PDO mappable)
 TABLE = [
     (0x1000, [0], U32, "ro", False),
     (0x1001, [0], U8, "ro", True),

@@ -1,6 +1,6 @@
 """Each fault mode of the simulated node, and the client surviving it (issue 6, items 1–2).
 
-Streaming runs on python-can's virtual bus (which never drops a frame itself, DESIGN §8),
+Streaming runs on python-can's virtual bus (which never drops a frame itself, docs/design.md §8),
 so every loss the client reports must be one the node injected: the tests compare the
 client's counts with the injector's, exactly. Counting identity for TPDO1/TPDO2 frames:
 ``lost_accel + lost_gyro + 2·lost_samples`` = frames that never arrived in time.

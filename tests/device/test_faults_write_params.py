@@ -1,4 +1,6 @@
-"""``write-params`` refuses bad files before connecting, bad values before writing (DESIGN §4).
+"""``write-params`` refuses bad files before connecting, bad values before writes.
+
+The rules are docs/design.md §4.
 
 Validation order: schema, keys and finite numbers are checked before any bus is opened
 (the session class is replaced by a tripwire); the device's ranges, which need its nominal

@@ -3,7 +3,7 @@
 A spy bus on the same virtual channel records every frame the client sends to the node
 (COB-ID 0x600 + node) and every answer (0x580 + node), for the simulated and the independent
 durand node alike (``device_kind``). The script expected here is written from CiA 301 and
-DESIGN §4 alone: expedited uploads ``40 ii ii ss``, expedited downloads ``23``/``2B``/``2F``
+docs/design.md §4 alone: expedited uploads ``40 ii ii ss``, expedited downloads ``23``/``2B``/``2F``
 (4/2/1 bytes) with index and value little-endian; valid cleared first, the block in CRC
 order, every value read back, the CRC, valid set last, read back, then the store signature
 'save' to 0x1010:04.

@@ -1,4 +1,4 @@
-"""The transactional calibration write (DESIGN §4) against both IMU nodes.
+"""The transactional calibration write (docs/design.md §4) against both IMU nodes.
 
 Every test with a node runs against the simulated and the independent durand node
 (``device_kind``). Failures are injected: at the node, a hook before the write of one object

@@ -1,4 +1,4 @@
-"""≥ 1,000 injected faults at random points of the transactional write (DESIGN §4, issue 6).
+"""≥ 1,000 injected faults at random points of the transactional write (docs/design.md §4, issue 6).
 
 The node and the client talk over :func:`loopback_pair` (frames delivered synchronously, in
 process), with a 3 ms SDO timeout and 1 ms backoff, so a fault costs milliseconds. Before

@@ -1,4 +1,4 @@
-"""The whole job over SocketCAN vcan, node and tool in separate processes (DESIGN §8).
+"""The whole job over SocketCAN vcan, node and tool in separate processes (docs/design.md §8).
 
 ``canimucal sim --poses P --truth T`` runs the simulated unit; this test, as the operator's
 laptop, runs ``record --plan P --follow-schedule``, ``solve``, ``write-params`` and

@@ -37,7 +37,7 @@ M3 = [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 3.0]]
 
 
 def full_document() -> dict[str, Any]:
-    """Every key DESIGN §5 lists, with values of the right shapes."""
+    """Every key docs/design.md §5 lists, with values of the right shapes."""
     return {
         "schema": "canimucal.calibration/1",
         "created": "2026-01-01T00:00:00Z",

@@ -85,7 +85,7 @@ def _fit(averages: Sequence[PositionAverage], channel: int) -> Array:
 def test_erratum_5_fz_of_the_tilted_position() -> None:
     f2 = position_dcm(ALPHA, BETA) @ specific_force_level(G)
     printed_fz2 = -G * np.cos(ALPHA) * np.sin(BETA)  # PRINTED eq. (5)
-    assert f2[2] > 0  # positive beta raises the +z end (DESIGN §2)
+    assert f2[2] > 0  # positive beta raises the +z end (docs/design.md §2)
     assert printed_fz2 == pytest.approx(-f2[2], rel=1e-12)
     assert printed_fz2 != pytest.approx(f2[2], rel=1e-3)
     # Its consequence: k33 from the printed f_z has the wrong sign; ours is right.

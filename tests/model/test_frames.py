@@ -1,4 +1,4 @@
-"""Property tests of canimucal.model.frames against DESIGN §2 and METHOD.md."""
+"""Property tests of canimucal.model.frames against docs/design.md §2 and METHOD.md."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ G = 9.80665
 DEG = np.pi / 180.0
 
 angle = st.floats(-np.pi, np.pi, allow_nan=False)
-tilt = st.floats(-0.2, 0.2, allow_nan=False)  # a base tilt, |angle| ≤ 0.2 rad (DESIGN §4)
+tilt = st.floats(-0.2, 0.2, allow_nan=False)  # a base tilt, |angle| ≤ 0.2 rad (docs/design.md §4)
 small_tilt = st.floats(1e-5, 1e-3, allow_nan=False) | st.floats(-1e-3, -1e-5, allow_nan=False)
 latitude = st.floats(-np.pi / 2, np.pi / 2, allow_nan=False)
 model = st.sampled_from(["rigid", "additive"])

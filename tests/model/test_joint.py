@@ -5,7 +5,7 @@ Statistical thresholds (fixed seeds, N = 200 trials per case):
 - empirical std within 15 % of the reported σ and of the Cramér–Rao bound: with N = 200,
   (N − 1) s²/σ² ~ χ²(199), so P(s/σ < 0.85) = 0.0012 and P(s/σ > 1.15) = 0.0016: the band
   is the ≈3σ band of the sampling error of a std (relative SE 1/√(2·199) = 5.0 %). The
-  truths sit within 2 % of the nominal point where the bound is evaluated (DESIGN §3).
+  truths sit within 2 % of the nominal point where the bound is evaluated (docs/design.md §3).
 With up to 14 parameters per case the family-wise false-alarm rate at an arbitrary seed is
 below 4 %; the seeds are fixed, so the tests are deterministic.
 """

@@ -29,7 +29,7 @@ FS = 100.0
 
 
 def white(rng: np.random.Generator, n: int, density: float, fs: float = FS) -> np.ndarray:
-    """White noise of density N: per-sample σ = N·√f_s (DESIGN §2)."""
+    """White noise of density N: per-sample σ = N·√f_s (docs/design.md §2)."""
     return rng.normal(0.0, density * np.sqrt(fs), n)
 
 

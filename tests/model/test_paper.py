@@ -235,7 +235,7 @@ def test_fourier_accel_noiseless_recovers_truth_and_reports_fit() -> None:
 def test_fourier_accel_misreads_a_rigid_tilt_as_bias_z() -> None:
     # The additive reading (eq. 15) applied to a rigid base tilt: at every position the z
     # channel sees ≈ k33·g·β0 more than the additive model says, a constant the fit takes as
-    # bias z (DESIGN §3: bias z against beta0, correlation −0.9996). Noiseless, and the fit
+    # bias z (docs/design.md §3: bias z against beta0, correlation −0.9996). Noiseless, and the fit
     # residual stays at zero: the paper's method cannot tell.
     accel = _accel((1, 1, 1))
     beta0 = np.deg2rad(-1.0)

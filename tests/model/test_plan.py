@@ -1,4 +1,4 @@
-"""Plans, Fisher information, Cramér–Rao bounds and the identifiability verdicts (DESIGN §3)."""
+"""Plans, Fisher information, Cramér–Rao bounds and identifiability verdicts (docs/design.md §3)."""
 
 from __future__ import annotations
 

@@ -230,7 +230,7 @@ def test_xsens_static_means_match_the_factory_calibration() -> None:
 def test_orientations_in_a_narrow_cone_warn_poorly_separable(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
-    """Gravity within 40° of body −y: y bias and y scale nearly trade off (DESIGN §3)."""
+    """Gravity within 40° of body −y: y bias and y scale nearly trade off (docs/design.md §3)."""
     rng = np.random.default_rng(15)
     dirs: list[np.ndarray] = []
     while len(dirs) < 14:

@@ -26,7 +26,7 @@ def test_pose_words_follow_design_directions() -> None:
 
 
 def test_predicted_force_matches_design_anchors() -> None:
-    # DESIGN §2: C(90°,0,0) f_L = [-g, 0, 0]; C(0,90°,0) f_L = [0, 0, +g]
+    # docs/design.md §2: C(90°,0,0) f_L = [-g, 0, 0]; C(0,90°,0) f_L = [0, 0, +g]
     assert predicted_force(Pose(90 * DEG, 0.0), G) == pytest.approx([-G, 0, 0], abs=1e-9)
     assert predicted_force(Pose(0.0, 90 * DEG), G) == pytest.approx([0, 0, G], abs=1e-9)
 

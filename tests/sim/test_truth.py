@@ -1,4 +1,4 @@
-"""Truth JSON of the simulator (DESIGN §5): defaults, strict validation, round trip, random."""
+"""Truth JSON of the simulator (docs/design.md §5): defaults, strict checks, round trip, random."""
 
 from __future__ import annotations
 
@@ -237,7 +237,7 @@ def test_temperature_profile_interpolates_and_overrides_rate() -> None:
 
 
 def _within_device_ranges(k: np.ndarray, lsb: float) -> bool:
-    """DESIGN §4 ranges of the correction M = K⁻¹ the node would accept."""
+    """docs/design.md §4 ranges of the correction M = K⁻¹ the node would accept."""
     m = np.linalg.inv(k)
     diag = np.abs(np.diag(m))
     off = np.abs(m - np.diag(np.diag(m)))

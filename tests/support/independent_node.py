@@ -1,9 +1,9 @@
-"""The IMU node of DESIGN §4 on an independent CANopen responder stack: ``durand`` 0.5.0.
+"""The IMU node of docs/design.md §4 on an independent CANopen responder stack: ``durand`` 0.5.0.
 
 The client and :class:`~canimucal.simnode.node.SimulatedImuNode` both use python-canopen, so
 protocol assumptions cancel out between them. This node shares nothing with either: its SDO
 server, NMT slave, heartbeat, EMCY and PDO code are durand's; its object dictionary is
-transcribed from DESIGN §4 (not loaded from the EDS); the CRC and the range checks are
+transcribed from docs/design.md §4 (not loaded from the EDS); the CRC and the range checks are
 written again here. Nothing in this module imports ``canopen`` or ``canimucal``.
 
 It reproduces what CANopenNode devices do (``Behaviour``): a store that blocks the SDO
@@ -45,7 +45,7 @@ from durand.services.sdo.server import SDODomainAbort
 
 log = logging.getLogger(__name__)
 
-# -- DESIGN §4, transcribed ---------------------------------------------------------------
+# -- docs/design.md §4, transcribed ---------------------------------------------------------------
 SAVE = 0x65766173  # 'save'
 LOAD = 0x64616F6C  # 'load'
 ABORT_RANGE = 0x06090030
@@ -233,7 +233,7 @@ class _LockedNetwork(CANBusNetwork):
 
 
 class IndependentImuNode:
-    """The DESIGN §4 IMU node on durand; ``start()``/``stop()`` or a context manager."""
+    """The docs/design.md §4 IMU node on durand; ``start()``/``stop()`` or a context manager."""
 
     def __init__(
         self, bus: can.BusABC, node_id: int = 0x10, behaviour: Behaviour | None = None

@@ -101,7 +101,7 @@ class DeviceUnderTest:
             self.node.emcy(code, register)
 
     def raw_objects(self) -> dict[tuple[int, int], bytes]:
-        """The calibration objects (0x2100–0x2121) as their SDO bytes (DESIGN §4 codes)."""
+        """The calibration objects (0x2100–0x2121) as their SDO bytes (docs/design.md §4 codes)."""
         if isinstance(self.node, SimulatedImuNode):  # the bytes it holds, NaN payloads too
             get = self.node.local_node.get_data
             return {(i, s): bytes(get(i, s)) for i, s, _ in od.CALIBRATION_OBJECTS}

@@ -1,4 +1,4 @@
-"""The DESIGN §4 PDO mapping, for tests and benchmarks that make or decode frames without a node."""
+"""The docs/design.md §4 PDO mapping, for tests and benchmarks that code frames without a node."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from canimucal.device.pdo_layout import (
 
 
 def design_layout(node_id: int) -> SampleLayout:
-    """Return the DESIGN §4 mapping (the EDS defaults) at the default COB-IDs of ``node_id``.
+    """Return the docs/design.md §4 mapping (EDS defaults) at the default COB-IDs of ``node_id``.
 
     TPDO1 accel x/y/z + counter, TPDO2 gyro x/y/z + counter (INT16, U16), TPDO3 temperature
     + counter + status. The client reads the real mapping from the node; this is for tools
