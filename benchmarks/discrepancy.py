@@ -56,7 +56,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.support
 from canimucal.analysis.discrepancy import analyse_discrepancy, effect_sigmas
 from canimucal.analysis.report import analyse_recording
 from canimucal.analysis.simulated import simulate_plan_recording
-from canimucal.model.plan import RECOMMENDED
+from canimucal.model.vocabulary.plans import RECOMMENDED
 from canimucal.sim.effects import HIDDEN_EFFECTS, hide_effect, warm_up_profile
 from canimucal.sim.truth import Truth
 from tests.support.sessions import simulate_session

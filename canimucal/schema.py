@@ -295,8 +295,12 @@ def integer(low: int, high: int | None) -> dict[str, Checker]:
     return _meta(lambda value, path: read_integer(value, path, low, high))
 
 
-def text(choices: tuple[str, ...] | None = None, pattern: str | None = None) -> dict[str, Checker]:
-    """Field metadata: a string, optionally one of ``choices`` or matching ``pattern``."""
+def text(choices: Collection[str] | None = None, pattern: str | None = None) -> dict[str, Checker]:
+    """Field metadata: a string, optionally one of ``choices`` or matching ``pattern``.
+
+    ``choices`` is read when a value is checked, so a registry given here (the plans) checks
+    against the entries it holds then.
+    """
 
     def check(value: Any, path: str) -> str:
         if not isinstance(value, str):

@@ -32,7 +32,7 @@ from canimucal.model.noise import (
     fit_noise,
 )
 from canimucal.model.positions import Plan, PlannedPosition
-from canimucal.sim.truth import SAMPLE_RATES_HZ
+from canimucal.model.vocabulary.constants import OUTPUT_DATA_RATES_HZ
 
 log = logging.getLogger(__name__)
 
@@ -272,7 +272,7 @@ def extended_truth(a: Analysis) -> dict[str, Any]:
     temp0 = temps[0][1] if temps else 25.0
     mean_t = float(np.mean([t for _, t in temps])) if temps else temp0
     accel_bias = p.accel_bias + p.accel_temp_coeff * (temp0 - mean_t)
-    rate = min(SAMPLE_RATES_HZ, key=lambda r: abs(r - rec.sample_rate_hz))
+    rate = min(OUTPUT_DATA_RATES_HZ, key=lambda r: abs(r - rec.sample_rate_hz))
     ka, kg = _count_scale(rec.accel), _count_scale(rec.gyro)
     doc: dict[str, Any] = {
         "schema": "canimucal.truth/1",

@@ -30,10 +30,10 @@ import numpy as np
 
 from canimucal.cli.output import add_json_option, check_outputs, dumps, emit
 from canimucal.io.atomic import write_text_atomic
-from canimucal.io.plans import BUILTIN_PLANS, resolve_plan
+from canimucal.io.plans import resolve_plan
 from canimucal.io.truth import load_truth
-from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
+from canimucal.model.vocabulary.plans import builtin_names, plan_help
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.runtime.operator import run_automatic
@@ -67,9 +67,7 @@ def add_subparser(subparsers: Any) -> None:
         "CAN bus, write the result into them and compare what they hold with the truth.",
     )
     p.add_argument("--headless", action="store_true", help="no TUI: an automatic operator")
-    p.add_argument(
-        "--plan", default="recommended", help="two, five, recommended, vehicle or a plan file"
-    )
+    p.add_argument("--plan", default="recommended", help=plan_help())
     p.add_argument("--truth", help="truth JSON for the simulated unit(s) (default: random)")
     p.add_argument("--seed", type=int, default=2026, help="random seed (truth and noise)")
     p.add_argument("--seconds", type=float, help="averaging seconds of every position")
@@ -134,8 +132,8 @@ def run(args: argparse.Namespace) -> int:
     """Run the demo and print the comparison of the read-back values with the truth."""
     check_outputs(args)
     _check_numbers(args)
-    plan = resolve_plan(args.plan, builtin_plan)
-    plan_name = plan.name if plan.name in BUILTIN_PLANS else "custom"
+    plan = resolve_plan(args.plan)
+    plan_name = plan.name if plan.name in builtin_names() else "custom"
     truths = _truths(args)
     out = Path(args.resume or args.out)
     out.mkdir(parents=True, exist_ok=True)

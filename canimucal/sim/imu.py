@@ -28,13 +28,12 @@ from scipy.signal import lfilter
 from canimucal.errors import InputError
 from canimucal.model.frames import earth_rate_level, position_dcm, specific_force_level
 from canimucal.model.positions import Plan, Pose
+from canimucal.model.vocabulary.constants import INT16_MAX, INT16_MIN, OUTPUT_DATA_RATES_HZ
 from canimucal.sim.schedule import PoseTrajectory
-from canimucal.sim.truth import SAMPLE_RATES_HZ, Truth
+from canimucal.sim.truth import Truth
 
 log = logging.getLogger(__name__)
 
-INT16_MIN = -32768
-INT16_MAX = 32767
 
 Array = NDArray[np.float64]
 
@@ -124,8 +123,8 @@ class ImuSimulator:
 
     def set_sample_rate(self, hz: float) -> None:
         """Change the output data rate from the next sample on (one of 50…1000 Hz)."""
-        if hz not in SAMPLE_RATES_HZ:
-            rates = ", ".join(map(str, SAMPLE_RATES_HZ))
+        if hz not in OUTPUT_DATA_RATES_HZ:
+            rates = ", ".join(map(str, OUTPUT_DATA_RATES_HZ))
             raise InputError(f"sample rate must be one of {rates} Hz, got {hz!r}")
         self._t0_s, self._k = self.time_s, 0
         self._set_rate(float(hz))

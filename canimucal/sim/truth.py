@@ -29,6 +29,7 @@ from canimucal.errors import SchemaError
 from canimucal.model.frames import TiltModel
 from canimucal.model.gravity import normal_gravity
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, AccelParams, GyroParams
+from canimucal.model.vocabulary.constants import INT16_SPAN, OUTPUT_DATA_RATES_HZ
 from canimucal.schema import (
     fail,
     frozen_array,
@@ -165,8 +166,8 @@ class Truth:
         if d.get("schema", SCHEMA) != SCHEMA:
             fail("schema", f"must be {SCHEMA!r}")
         rate = read_number(d.get("sample_rate_hz", 200), "sample_rate_hz")
-        if rate not in SAMPLE_RATES_HZ:
-            fail("sample_rate_hz", f"must be one of {', '.join(map(str, SAMPLE_RATES_HZ))}")
+        if rate not in OUTPUT_DATA_RATES_HZ:
+            fail("sample_rate_hz", f"must be one of {', '.join(map(str, OUTPUT_DATA_RATES_HZ))}")
         lat_deg = read_number(d.get("latitude_deg", DEFAULT_LATITUDE_DEG), "latitude_deg")
         if abs(lat_deg) > 90.0:
             fail("latitude_deg", "must be within [-90, 90]")
@@ -373,14 +374,12 @@ def _tilt_angle(tilt: Mapping[str, Any], key: str) -> float:
     return angle
 
 
-SAMPLE_RATES_HZ = (50, 100, 200, 250, 500, 1000)
-"""Output data rates the node accepts (0x2010:03)."""
 DEFAULT_ACCEL_NOISE_DENSITY = 1.5e-3
 """Default accelerometer white noise, input-referred, m/s²/√Hz (≈150 µg/√Hz)."""
 DEFAULT_GYRO_NOISE_DENSITY = 1.2e-4
 """Default gyro white noise, input-referred, rad/s/√Hz (≈0.007 °/s/√Hz)."""
 DEFAULT_CORRELATION_TIME_S = 100.0
-NOISE_LIMIT_COUNTS = 65536.0
+NOISE_LIMIT_COUNTS = float(INT16_SPAN)
 """Largest noise σ a truth may ask for, in counts (per sample at the fastest output data
 rate for white noise): beyond the INT16 span every sample saturates, and far beyond it the
 arithmetic overflows."""
@@ -421,12 +420,14 @@ def _common(obj: Mapping[str, Any], path: str, lsb0: float, noise0: float) -> di
 def _check_noise(common: Mapping[str, Any], scale: Vector, path: str) -> None:
     """Refuse noise no INT16 sensor can report (see :data:`NOISE_LIMIT_COUNTS`)."""
     with np.errstate(over="ignore"):  # an absurd density may overflow to inf: refused below
-        white = common["noise_density"] * np.abs(np.diag(scale)) * np.sqrt(max(SAMPLE_RATES_HZ))
+        white = (
+            common["noise_density"] * np.abs(np.diag(scale)) * np.sqrt(max(OUTPUT_DATA_RATES_HZ))
+        )
     if np.any(white > NOISE_LIMIT_COUNTS):
         fail(
             key_path(path, "noise_density"),
             f"gives a white-noise σ above {NOISE_LIMIT_COUNTS:g} counts per sample at "
-            f"{max(SAMPLE_RATES_HZ)} Hz",
+            f"{max(OUTPUT_DATA_RATES_HZ)} Hz",
         )
     for key in ("random_walk", "bias_instability"):
         if np.any(common[key] > NOISE_LIMIT_COUNTS):

@@ -21,11 +21,11 @@ from pathlib import Path
 from textual.app import App
 from textual.binding import Binding
 
-from canimucal.io.plans import BUILTIN_PLANS
-from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
+from canimucal.model.vocabulary.plans import builtin_names, builtin_plan
 from canimucal.procedure.averaging import AveragingPolicy, averaged_sensors, describe_rule
 from canimucal.procedure.machine import Phase
+from canimucal.signals import EXIT_INTERRUPTED
 from canimucal.tui.connection import ConnectionScreen
 from canimucal.tui.messages import PlanWanted, ProcedureEnded, ResultsReady, StartWanted
 from canimucal.tui.modals import ConfirmQuit
@@ -42,10 +42,7 @@ RUNNER_STOP_TIMEOUT_S = 10.0
 WRITE_STOP_TIMEOUT_S = 60.0
 """How long quitting waits for a write in progress: it ends (verified, or rolled back) within
 its SDO and store timeouts, and the bus must not be closed under it."""
-BUILTIN = BUILTIN_PLANS
 EXIT_OK = 0
-EXIT_INTERRUPTED = 130
-"""Exit status of an interrupted session (docs/design.md §7: what was recorded so far is kept)."""
 
 
 class CalibrationApp(App[int]):
@@ -183,7 +180,7 @@ def make_app(
     ``plan_name`` is the plan selected first. ``autoconnect=False`` leaves the connection
     screen waiting (tests inject the node statuses).
     """
-    plans: dict[str, Plan] = {name: builtin_plan(name) for name in BUILTIN}
+    plans: dict[str, Plan] = {name: builtin_plan(name) for name in builtin_names()}
     if custom_plan is not None:
         plans["custom"] = custom_plan
     if plan_name not in plans:

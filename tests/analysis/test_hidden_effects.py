@@ -44,7 +44,7 @@ import pytest
 from canimucal.analysis.discrepancy import analyse_discrepancy, effect_sigmas
 from canimucal.analysis.session import session_from_recording
 from canimucal.analysis.simulated import simulate_plan_recording
-from canimucal.model.plan import RECOMMENDED
+from canimucal.model.vocabulary.plans import RECOMMENDED
 from canimucal.sim.effects import HIDDEN_EFFECTS, hide_effect, warm_up_profile
 from canimucal.sim.truth import Truth
 from tests.support.sessions import simulate_session

@@ -15,8 +15,8 @@ from canimucal.model.mounting import (
     start_frame,
     vehicle_attitude,
 )
-from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Pose
+from canimucal.model.vocabulary.plans import builtin_plan
 from tests.support.mounts import all_proper_maps
 
 

@@ -17,7 +17,7 @@ from canimucal.device import od
 from canimucal.errors import DeviceError
 from canimucal.io.recording import read_recording
 from canimucal.io.recording_writer import RecordingWriter
-from canimucal.model.plan import builtin_plan
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.procedure.machine import Phase

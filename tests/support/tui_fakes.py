@@ -16,9 +16,9 @@ from canimucal.device.client import CalibrationReadout, Identity
 from canimucal.device.od import factory_block
 from canimucal.errors import InputError, NoDeviceError
 from canimucal.model.mounting import MountingMap
-from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.procedure import events as ev
 from canimucal.runtime.session import Session, device_of
 from canimucal.runtime.wiring import spec_for_plan

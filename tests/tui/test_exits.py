@@ -19,8 +19,9 @@ from canimucal.io.calibration import Calibration
 from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase
 from canimucal.runtime.session import SessionCommand
+from canimucal.signals import EXIT_INTERRUPTED
 from canimucal.sim.truth import Truth
-from canimucal.tui.app import EXIT_INTERRUPTED, EXIT_OK, CalibrationApp, make_app
+from canimucal.tui.app import EXIT_OK, CalibrationApp, make_app
 from canimucal.tui.connection import ConnectionScreen
 from canimucal.tui.messages import EventsArrived
 from canimucal.tui.modals import ConfirmQuit, ConfirmSkip

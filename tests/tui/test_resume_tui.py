@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from canimucal.model.plan import builtin_plan
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.runtime.readback_check import readback_deviations
 from canimucal.runtime.resume import load_resume_state
 from canimucal.sim.truth import Truth
