@@ -44,7 +44,7 @@ from canimucal.analysis.base_fit import (
     named_values,
     temperature_status,
 )
-from canimucal.analysis.candidates import SCALAR_UNITS, UNITS, Candidate
+from canimucal.analysis.candidates import Candidate
 from canimucal.analysis.data import (
     AXIS_SIGN_SIGMAS,
     FAMILY_ALPHA,
@@ -89,6 +89,7 @@ from canimucal.analysis.significance import (
 )
 from canimucal.errors import ModelError
 from canimucal.model.joint import JointResult
+from canimucal.model.vocabulary.effects import EFFECTS
 
 log = logging.getLogger(__name__)
 
@@ -547,7 +548,7 @@ def _findings(
     data: SessionData,
     alpha: float,
 ) -> list[Finding]:
-    units = UNITS if data.known_positions else SCALAR_UNITS
+    units = {name: e.unit_in(scalar=not data.known_positions) for name, e in EFFECTS.items()}
     out = []
     for t in tests:
         key = f"{t.sensor}.{t.effect}"
@@ -728,6 +729,7 @@ def _extended(
         k = np.asarray(np.linalg.inv(m), dtype=float)
         gyro_bias = values[6:9] if data.has_gyro else None
     tilt = coef.get("accel.base_tilt", np.zeros(2))
+    generic = {k: v for k, v in coef.items() if EFFECTS[k.split(".", 1)[1]].generic_truth}
     walk = {s: (drifts[s].random_walk if s in drifting else zero3) for s in ("accel", "gyro")}
     return ExtendedParams(
         accel_bias=bias,
@@ -741,6 +743,7 @@ def _extended(
         G=coef.get("gyro.gyro_g_sensitivity", np.zeros(9)).reshape(3, 3),
         gyro_temp_coeff=coef.get("gyro.temperature_bias", zero3),
         gyro_random_walk=walk["gyro"] if "gyro" in drifts else zero3,
+        effects=generic,
     )
 
 

@@ -33,6 +33,7 @@ from canimucal.model.noise import (
 )
 from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.model.vocabulary.constants import OUTPUT_DATA_RATES_HZ
+from canimucal.sim.truth import effects_document
 
 log = logging.getLogger(__name__)
 
@@ -309,6 +310,11 @@ def extended_truth(a: Analysis) -> dict[str, Any]:
         }
     if temps:
         doc["temperature"] = {"profile": [[t - t0, c] for t, c in temps]}
+    if p.effects:  # the simulator applies these through their columns (counts of its unit)
+        scale = {"accel": ka, "gyro": kg}
+        doc["effects"] = effects_document(
+            {key: scale[key.split(".", 1)[0]] * np.asarray(v) for key, v in p.effects.items()}
+        )
     return doc
 
 

@@ -20,7 +20,7 @@ from canimucal.model.layout import JointSpec
 from canimucal.model.plan import BoundTable, cramer_rao, plan_prior
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, STANDARD_GRAVITY
-from canimucal.model.vocabulary.plans import builtin_names, builtin_plan, plan_help
+from canimucal.model.vocabulary.plans import PLANS, builtin_names, builtin_plan, plan_help
 from canimucal.procedure.averaging import (
     AveragingPolicy,
     averaged_sensors,
@@ -185,8 +185,10 @@ def moves_report(bounds: GyroMoveBounds) -> str:
 def bound_document(table: BoundTable, plan: Plan) -> dict[str, Any]:
     """Return the JSON form of a bound table, with the plan's positions and operator time."""
     worst = table.worst_case_counts
+    entry = PLANS.get(table.plan)
     return {
         "plan": table.plan,
+        **({"description": entry.description} if entry is not None else {}),
         "total_seconds": plan.total_seconds,
         "operator_minutes": plan.operator_minutes,
         "positions": plan_to_dict(plan)["positions"],
@@ -230,9 +232,11 @@ def _spec_dict(table: BoundTable) -> dict[str, Any]:
 
 def bound_report(table: BoundTable, plan: Plan) -> str:
     """Format the bound table, the positions and the priors as text (fits 80 columns)."""
+    entry = PLANS.get(table.plan)
     lines = [
         f"plan {table.plan}: {plan.total_seconds:g} s of averaging in all, "
         f"{plan.operator_minutes:.0f} operator minutes",
+        *([entry.description] if entry is not None else []),
         "bounds at white noise 1 count/√Hz, K = I/LSB, zero tilt",
         *_position_lines(plan),
         f"{'parameter':<22}{'σ (own units)':>16} {'unit':<14}{'effect at 1 g':>14}",

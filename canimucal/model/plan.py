@@ -30,6 +30,7 @@ from canimucal.model.layout import (
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, STANDARD_GRAVITY
 from canimucal.model.vocabulary.plans import builtin_plan
+from canimucal.model.vocabulary.units import quantity_of
 
 log = logging.getLogger(__name__)
 
@@ -307,16 +308,6 @@ def fisher_information(
     return np.asarray(fisher)
 
 
-_UNITS = {
-    "accel.bias": "counts",
-    "accel.K": "counts/(m/s²)",
-    "base_tilt": "rad",
-    "gyro.bias": "counts",
-    "gyro.S": "counts/(rad/s)",
-    "gyro.G": "counts/(m/s²)",
-}
-
-
 @dataclass(frozen=True)
 class Bound:
     """Cramér–Rao σ of one parameter in its own units and as its effect at 1 g in counts.
@@ -405,7 +396,7 @@ def cramer_rao(
     sep = analyse_information(fisher, layout.names, scales)
     rows = []
     for j, name in enumerate(layout.names):
-        unit = _UNITS[name.split("[")[0] if "[" in name else "base_tilt"]
+        unit = quantity_of(name).unit
         if name in sep.undetermined:
             rows.append(Bound(name, unit, None, None, sep.undetermined[name]))
             continue

@@ -30,6 +30,7 @@ from canimucal.model.frames import TiltModel
 from canimucal.model.gravity import normal_gravity
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, AccelParams, GyroParams
 from canimucal.model.vocabulary.constants import INT16_SPAN, OUTPUT_DATA_RATES_HZ
+from canimucal.model.vocabulary.effects import EFFECTS
 from canimucal.schema import (
     fail,
     frozen_array,
@@ -54,7 +55,7 @@ _TOP_KEYS = tuple(
     "schema sample_rate_hz g latitude_deg height_m heading_deg serial tilt_model base_tilt_deg"
     " accel gyro temperature faults nmt_start heartbeat_ms store_delay_s store_pdo_mode"
     " storage_subs sync_pdos timer_skew_ppm"
-    " device_name hardware_version software_version".split()
+    " device_name hardware_version software_version effects".split()
 )
 NMT_STARTS = ("pre-operational", "operational")
 DEFAULT_STORAGE_SUBS = (1, 2, 3, 4)
@@ -148,6 +149,9 @@ class Truth:
     """0x1008, any text (tests present hostile names); 0x1009/0x100A likewise."""
     hardware_version: str = DEFAULT_HARDWARE_VERSION
     software_version: str = DEFAULT_SOFTWARE_VERSION
+    effects: Mapping[str, Vector] = field(default_factory=dict)
+    """Coefficients of effects the simulator applies through their columns, by
+    ``sensor.effect`` (:mod:`canimucal.model.vocabulary.effects`; its unit, in counts)."""
 
     @classmethod
     def from_dict(cls, d: Any) -> Truth:
@@ -207,6 +211,7 @@ class Truth:
             software_version=_text(
                 d.get("software_version", DEFAULT_SOFTWARE_VERSION), "software_version"
             ),
+            effects=_effects(d.get("effects", {})),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -243,6 +248,7 @@ class Truth:
             "faults": copy.deepcopy(dict(self.faults)),
             **self._behaviour_dict(),
             **identity,
+            **({"effects": effects_document(self.effects)} if self.effects else {}),
         }
 
     def _behaviour_dict(self) -> dict[str, Any]:
@@ -523,6 +529,31 @@ class GyroTruth(_SensorTruth):
     def params(self) -> GyroParams:
         """Return the model's bias, S and G (no drifts, no noise)."""
         return GyroParams(np.array(self.bias), np.array(self.S), np.array(self.G))
+
+
+def _effects(obj: Any) -> dict[str, Vector]:
+    """Read ``effects``: ``{sensor: {effect: [a coefficient per entry]}}`` (the registry's)."""
+    known = [f"{s}.{e.name}" for e in EFFECTS.values() if e.generic_truth for s in e.sensors]
+    out = {}
+    for sensor, block in read_object(obj, "effects", ("accel", "gyro")).items():
+        if not isinstance(block, Mapping):
+            fail(f"effects.{sensor}", "must be a JSON object")
+        for name, values in block.items():
+            key, path = f"{sensor}.{name}", f"effects.{sensor}.{name}"
+            effect = EFFECTS.get(name)
+            if effect is None or key not in known:
+                fail(path, f"not an effect the simulator applies ({', '.join(known) or 'none'})")
+            out[key] = read_array(values, path, (len(effect.labels),))
+    return out
+
+
+def effects_document(effects: Mapping[str, ArrayLike]) -> dict[str, dict[str, list[float]]]:
+    """Return the truth JSON's ``effects`` object of coefficients by ``sensor.effect``."""
+    out: dict[str, dict[str, list[float]]] = {}
+    for key, values in effects.items():
+        sensor, name = key.split(".", 1)
+        out.setdefault(sensor, {})[name] = np.asarray(values, dtype=float).tolist()
+    return out
 
 
 def _nonneg(arr: Vector, path: str) -> Vector:
