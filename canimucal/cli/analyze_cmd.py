@@ -230,13 +230,15 @@ def _estimates(a: Analysis, ref: Reference | None) -> list[str]:
     head = "Base-model estimates" + (f" beside {ref.name}:" if ref else ":")
     out = [head]
     rows: list[tuple[str, str, float | None]] = []
-    unit = {family: QUANTITIES[family].unit for family in ("accel.bias", "accel.K", "gyro.bias")}
+    units = {family: QUANTITIES[family].unit for family in ("accel.bias", "accel.K", "gyro.bias")}
     for i in range(3):
-        rows.append((f"accel.bias[{i}]", unit["accel.bias"], ref.accel_offsets[i] if ref else None))
+        rows.append(
+            (f"accel.bias[{i}]", units["accel.bias"], ref.accel_offsets[i] if ref else None)
+        )
     for i in range(3):
-        rows.append((f"accel.K[{i}][{i}]", unit["accel.K"], ref.accel_scales[i] if ref else None))
+        rows.append((f"accel.K[{i}][{i}]", units["accel.K"], ref.accel_scales[i] if ref else None))
     for i in range(3):
-        rows.append((f"gyro.bias[{i}]", unit["gyro.bias"], ref.gyro_offsets[i] if ref else None))
+        rows.append((f"gyro.bias[{i}]", units["gyro.bias"], ref.gyro_offsets[i] if ref else None))
     # the Earth rate fitted as a nuisance (no latitude or orientation), at the nominal scale
     earth = "rad/s" if a.session.gyro_lsb_known else "counts"
     rows += [(name, earth, None) for name in (*EARTH_RATE_NAMES, EARTH_RATE_VERTICAL)]
