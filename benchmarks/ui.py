@@ -68,7 +68,7 @@ def _child(rate_hz: int, result_path: Path) -> None:
     from canimucal.procedure.machine import Phase
     from canimucal.sim.truth import Truth
     from canimucal.tui.app import CalibrationApp
-    from canimucal.tui.position import PositionScreen
+    from canimucal.tui.screens.position import PositionScreen
     from canimucal.tui.source import DeviceSource, NodeStatus, demo_source
 
     class RateSource(DeviceSource):

@@ -26,15 +26,15 @@ from canimucal.model.vocabulary.plans import builtin_names, builtin_plan
 from canimucal.procedure.averaging import AveragingPolicy, averaged_sensors, describe_rule
 from canimucal.procedure.machine import Phase
 from canimucal.signals import EXIT_INTERRUPTED
-from canimucal.tui.connection import ConnectionScreen
 from canimucal.tui.messages import PlanWanted, ProcedureEnded, ResultsReady, StartWanted
 from canimucal.tui.modals import ConfirmQuit
-from canimucal.tui.plan_screen import PlanScreen
-from canimucal.tui.position import PositionScreen
-from canimucal.tui.results import ResultsScreen
 from canimucal.tui.runner import SessionRunner
+from canimucal.tui.screens.connection import ConnectionScreen
+from canimucal.tui.screens.plan import PlanScreen
+from canimucal.tui.screens.position import PositionScreen
+from canimucal.tui.screens.results import ResultsScreen
+from canimucal.tui.screens.verification import VerificationScreen
 from canimucal.tui.source import SessionSource
-from canimucal.tui.verification import VerificationScreen
 
 logger = logging.getLogger(__name__)
 

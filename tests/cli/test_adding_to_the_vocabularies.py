@@ -33,7 +33,7 @@ from canimucal.model.vocabulary.plans import PLANS, PlanEntry
 from canimucal.sim.effects import hide_effect
 from canimucal.sim.truth import Truth
 from canimucal.tui.app import make_app
-from canimucal.tui.plan_screen import PlanScreen
+from canimucal.tui.screens.plan import PlanScreen
 from tests.support.sessions import simulate_session
 from tests.support.tui_fakes import FakeSource, node_status, screen_text
 

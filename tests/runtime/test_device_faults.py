@@ -244,7 +244,7 @@ def test_record_flags_a_position_interrupted_by_a_reboot(tmp_path: Path) -> None
 
 
 def test_the_position_screen_tells_each_device_event() -> None:
-    from canimucal.tui.position import notice_text
+    from canimucal.tui.screens.position import notice_text
 
     event = ev.DeviceEventReported(NODE, "heartbeat_lost", "node 16: no heartbeat for 0.3 s")
     assert notice_text(event) == "[b]heartbeat lost[/b]: node 16: no heartbeat for 0.3 s"

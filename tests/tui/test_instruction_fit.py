@@ -14,7 +14,7 @@ from canimucal.procedure import events as ev
 from canimucal.procedure.posecheck import describe_pose
 from canimucal.tui.app import make_app
 from canimucal.tui.messages import EventsArrived
-from canimucal.tui.position import PositionScreen
+from canimucal.tui.screens.position import PositionScreen
 from tests.support.tui_fakes import FakeSource, node_status
 
 pytestmark = pytest.mark.asyncio

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from canimucal.model.vocabulary.units import QUANTITIES
-from canimucal.tui.results import parameter_rows
+from canimucal.tui.screens.results import parameter_rows
 from tests.support.tui_fakes import solved_event
 
 
