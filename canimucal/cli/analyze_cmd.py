@@ -49,8 +49,10 @@ def add_subparser(subparsers: Any) -> None:
         help="show what the base model gets wrong on measured data, name the cause",
         description="Fit the base model (bias + diagonal scale + white noise) to measured "
         "data, show where it fails, test each candidate effect (nested-model tests, Holm "
-        "at 1 %%, leave-one-position-out cross-validation), extend the model and report "
-        "the gain.",
+        "at 1 %, leave-one-position-out cross-validation), extend the model and report "
+        "the gain. Candidate effects: "
+        + "; ".join(f"{e.name}, {e.wording}" for e in EFFECTS.values())
+        + ".",
     )
     p.add_argument("input", help="recording CSV, imu_tk accelerometer file or imucal CSV")
     p.add_argument("second", nargs="?", help="imu_tk gyro file, or imucal section JSON (optional)")

@@ -275,10 +275,6 @@ class ImuClient:
             od.CalibrationBlock.from_objects(objects), valid, crc_stored, crc_ok, objects, read
         )
 
-    def store_calibration(self) -> None:
-        """Persist the calibration objects: 0x1010:04 = 'save'."""
-        self.store(od.STORE_CALIBRATION_SUB)
-
     def store_supported(self, sub: int) -> bool:
         """Tell whether 0x1010:``sub`` exists and reports "save on command" (bit 0).
 
@@ -471,11 +467,6 @@ class ImuClient:
         fault caused); negative: it is fast and re-sends counters (duplicates, not losses).
         """
         return self._stream.pairer.skew_ppm if self._stream is not None else None
-
-    @property
-    def consumer_cpu_s(self) -> float:
-        """CPU seconds the consumer thread has used (0 when not streaming)."""
-        return self._stream.cpu_s if self._stream is not None else 0.0
 
     @property
     def consumer_thread(self) -> threading.Thread | None:

@@ -118,11 +118,9 @@ SDO_ABORT_TEXT: dict[int, str] = {
 """Readable text of the common SDO abort codes (CiA 301 table 22)."""
 
 ABORT_VALUE_RANGE = 0x06090030
-ABORT_READ_ONLY = 0x06010002
 ABORT_NO_OBJECT = 0x06020000
 ABORT_NO_SUBINDEX = 0x06090011
 ABORT_CANNOT_STORE = 0x08000020
-ABORT_TIMEOUT = 0x05040000
 
 
 def eds_path() -> Path:

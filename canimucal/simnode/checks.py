@@ -20,7 +20,6 @@ log = logging.getLogger(__name__)
 
 ABORT_MAPPING = 0x06040041  # object cannot be mapped to the PDO
 ABORT_PDO_LENGTH = 0x06040042  # number and length of mapped objects exceed the PDO
-ABORT_PARAMETER = 0x06040043  # general parameter incompatibility
 
 ReadRaw = Callable[[int, int], bytes]
 
