@@ -58,6 +58,7 @@ def _tumble() -> Plan:
 TUMBLE = PlanEntry(
     "tumble", _tumble(), device_code=7, tui_key="t", accel_k="full", tilt="rigid",
     description="a level stand and a 30° wedge, each turned four ways",
+    acceptance={"max_bias_sigma_mg": 8.0},  # its own default, over the built-in 5 mg
 )  # fmt: skip
 
 
@@ -192,5 +193,6 @@ def test_a_demo_session_of_the_new_plan_certifies_it(
     assert record["plan"] == "tumble" and len(record["positions"]) == 8
     assert "accel.K[0][1]" in record["covariance"]["order"]  # the plan's model: full K
     assert record["readback"]["valid"] == 1 and record["readback"]["crc_ok"] is True
+    assert record["acceptance"]["limits"]["max_bias_sigma_mg"] == 8.0
     for page in ("certificate.md", "certificate.html"):
         assert f"tumble ({tumble.description}), 8 positions" in (out / page).read_text()
