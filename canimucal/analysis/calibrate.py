@@ -31,7 +31,7 @@ from canimucal.model.layout import JointSpec
 from canimucal.model.plan import cramer_rao
 from canimucal.model.positions import Plan, PlannedPosition, PositionAverage
 from canimucal.model.scalar import ScalarFit, fit_scalar_averages
-from canimucal.model.vocabulary.plans import plan_of_poses
+from canimucal.model.vocabulary.plans import CUSTOM, SCALAR, plan_of_poses
 
 LACK_OF_FIT_P = 1e-3
 """A fit whose χ² has a p-value below this gets a lack-of-fit warning."""
@@ -75,7 +75,7 @@ class Solution:
 def plan_name_of(averages: Sequence[PositionAverage]) -> str:
     """Name the built-in plan whose poses these are (the plan registry's), else ``custom``."""
     angles = np.array([a.pose.angles for a in averages])
-    return plan_of_poses(angles, _ANGLE_MATCH_RAD) or "custom"
+    return plan_of_poses(angles, _ANGLE_MATCH_RAD) or CUSTOM
 
 
 def solve_positions(
@@ -253,7 +253,7 @@ def solve_scalar(
         fit.params,
         fit.covariance,
         device=device,
-        plan="scalar",
+        plan=SCALAR,
         conditions=site.as_record_conditions(),
         positions=[summarize_position(a) for a in averages],
         fit=Fit(rms=fit.rms_mps2, dof=fit.dof),

@@ -89,7 +89,7 @@ from canimucal.analysis.significance import (
 )
 from canimucal.errors import ModelError
 from canimucal.model.joint import JointResult
-from canimucal.model.vocabulary.effects import EFFECTS
+from canimucal.model.vocabulary.effects import EFFECTS, column_effects
 
 log = logging.getLogger(__name__)
 
@@ -293,33 +293,40 @@ def _earth_rate_in_base(data: SessionData) -> bool:
 
 def _untestable(data: SessionData) -> dict[str, str]:
     out: dict[str, str] = {}
+    for effect in column_effects():  # what the registry's columns cannot show here
+        if not data.known_positions and effect.scalar is None:
+            out[effect.name] = "no angles: only the scalar |f| = g fit applies"
+        if not data.has_gyro and effect.sensors == ("gyro",):
+            out[effect.name] = "no gyro data"
     if not data.known_positions:
-        out["base_tilt"] = "no angles: only the scalar |f| = g fit applies"
         out["axis_sign"] = "the sign of an axis is invisible to |f| = g fits"
-    if not data.has_gyro:
-        out["gyro_g_sensitivity"] = "no gyro data"
-    elif not earth_rate_visible(data):
-        out["earth_rate"] = (
+    if data.has_gyro:
+        out["earth_rate"] = _earth_rate_reason(data)
+    return out
+
+
+def _earth_rate_reason(data: SessionData) -> str:
+    """Say how the gyro's base model holds the Earth rate, or why it leaves it out."""
+    if not earth_rate_visible(data):
+        return (
             "below the gyro's noise here (less than 1 unit of non-centrality over all "
             "positions at the nominal scale): left out of the model"
         )
-    elif not data.known_positions:
-        out["earth_rate"] = (
+    if not data.known_positions:
+        return (
             "no orientation: the Earth rate's vertical part is fitted along f/|f| (a G "
             "proportional to I cannot be told from it) and its horizontal part is taken as "
             "noise of an unknown heading"
         )
-    elif data.latitude is None:
-        out["earth_rate"] = (
+    if data.latitude is None:
+        return (
             "no latitude: the Earth rate is fitted as a free vector in the level frame (its "
             "part along gravity cannot be told from a G proportional to I)"
         )
-    else:
-        out["earth_rate"] = (
-            "the heading is not trusted: the Earth rate's horizontal part is fitted in the "
-            "level frame, its vertical part is the latitude's"
-        )
-    return out
+    return (
+        "the heading is not trusted: the Earth rate's horizontal part is fitted in the "
+        "level frame, its vertical part is the latitude's"
+    )
 
 
 def _drift_tests(data: SessionData, temps: Array | None) -> dict[str, DriftTest]:

@@ -33,6 +33,7 @@ from canimucal.model.noise import (
 )
 from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.model.vocabulary.constants import OUTPUT_DATA_RATES_HZ
+from canimucal.model.vocabulary.plans import CUSTOM
 from canimucal.sim.truth import effects_document
 
 log = logging.getLogger(__name__)
@@ -368,7 +369,7 @@ def observed_poses(a: Analysis) -> Plan | None:
         alpha, beta, psi = (_wrap(x) for x in (p.alpha, p.beta, p.psi))
         tol = p.tolerance if noise is None else noise.pose_scatter.value
         positions.append(PlannedPosition(alpha, beta, psi, tol, seconds))
-    return Plan("custom", tuple(positions))
+    return Plan(CUSTOM, tuple(positions))
 
 
 def _wrap(angle: float) -> float:

@@ -27,7 +27,7 @@ from canimucal.io.recording import HeaderValue, Recording, header_matrix
 from canimucal.model.layout import GyroSpec, JointSpec
 from canimucal.model.plan import KPrior, plan_prior
 from canimucal.model.positions import Plan, PositionAverage
-from canimucal.model.vocabulary.plans import PLANS, VEHICLE_PRIOR_K_SIGMA
+from canimucal.model.vocabulary.plans import CUSTOM, PLANS, VEHICLE_PRIOR_K_SIGMA
 
 _MATCH_DEG = 0.05
 """Recorded angles within this of a plan's are that plan's poses."""
@@ -113,7 +113,7 @@ class SessionModel:
         ``--prior-k`` alone, with a plan that names no σ, holds K at 1 % (the vehicle
         plan's own value).
         """
-        plan = self.plan or Plan("custom", ())
+        plan = self.plan or Plan(CUSTOM, ())
         sigma = self.prior_k_sigma
         if sigma is None and self.factory_k is not None and plan.prior_k_sigma is None:
             sigma = VEHICLE_PRIOR_K_SIGMA
@@ -155,7 +155,7 @@ def session_model(rec: Recording, choice: ModelChoice) -> tuple[ModelChoice, Ses
         if sigma is not None:
             held = replace(held, rel_sigma=sigma, sigma_source="--prior-k-sigma")
         factory_k, sigma = held.mean, held.rel_sigma
-        source = held.describe(plan or Plan("custom", ()))
+        source = held.describe(plan or Plan(CUSTOM, ()))
     resolved = replace(
         choice,
         model=model,  # type: ignore[arg-type]

@@ -33,7 +33,7 @@ from canimucal.io.atomic import write_text_atomic
 from canimucal.io.plans import resolve_plan
 from canimucal.io.truth import load_truth
 from canimucal.model.positions import Plan
-from canimucal.model.vocabulary.plans import PLANS, builtin_names, plan_help
+from canimucal.model.vocabulary.plans import CUSTOM, DEFAULT_PLAN, PLANS, builtin_names, plan_help
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.runtime.operator import run_automatic
@@ -59,7 +59,7 @@ def add_subparser(subparsers: Any) -> None:
         "CAN bus, write the result into them and compare what they hold with the truth.",
     )
     p.add_argument("--headless", action="store_true", help="no TUI: an automatic operator")
-    p.add_argument("--plan", default="recommended", help=plan_help())
+    p.add_argument("--plan", default=DEFAULT_PLAN, help=plan_help())
     p.add_argument("--truth", help="truth JSON for the simulated unit(s) (default: random)")
     p.add_argument("--seed", type=int, default=2026, help="random seed (truth and noise)")
     p.add_argument("--seconds", type=float, help="averaging seconds of every position")
@@ -145,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
     check_outputs(args)
     _check_numbers(args)
     plan = resolve_plan(args.plan)
-    plan_name = plan.name if plan.name in builtin_names() else "custom"
+    plan_name = plan.name if plan.name in builtin_names() else CUSTOM
     truths = _truths(args)
     out = Path(args.resume or args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -215,7 +215,7 @@ def _run_tui(
     source.resume = bool(args.resume)
     source.operator, source.site_name = args.operator, args.site
     source.gyro_g = args.gyro_g
-    custom = plan if plan_name == "custom" else None
+    custom = plan if plan_name == CUSTOM else None
     app = make_app(source, plan_name=plan_name, gyro=args.gyro, custom_plan=custom)
     try:
         app.run()

@@ -20,7 +20,13 @@ from canimucal.model.layout import JointSpec
 from canimucal.model.plan import BoundTable, cramer_rao, plan_prior
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, STANDARD_GRAVITY
-from canimucal.model.vocabulary.plans import PLANS, builtin_names, builtin_plan, plan_help
+from canimucal.model.vocabulary.plans import (
+    DEFAULT_PLAN,
+    PLANS,
+    builtin_names,
+    builtin_plan,
+    plan_help,
+)
 from canimucal.procedure.averaging import (
     AveragingPolicy,
     averaged_sensors,
@@ -41,7 +47,7 @@ def add_subparser(subparsers: Any) -> None:
     )
     p.add_argument(
         "--plan",
-        default="recommended",
+        default=DEFAULT_PLAN,
         help=plan_help() + " (JSON/TOML)",
     )
     p.add_argument(

@@ -27,7 +27,7 @@ from canimucal.io.plans import resolve_plan
 from canimucal.io.recording import HeaderValue
 from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.positions import DEFAULT_SECONDS, Plan, PlannedPosition
-from canimucal.model.vocabulary.plans import plan_help
+from canimucal.model.vocabulary.plans import CUSTOM, plan_help
 from canimucal.sim.schedule import set_by_operator
 from canimucal.sim.truth import Truth
 
@@ -135,7 +135,7 @@ def _single_position_plan(args: argparse.Namespace) -> Plan:
         raise InputError("--position needs --alpha-deg and --beta-deg")
     seconds = args.seconds if args.seconds is not None else DEFAULT_SECONDS
     alpha, beta, psi = np.deg2rad([args.alpha_deg, args.beta_deg, args.psi_deg])
-    return Plan("custom", (PlannedPosition(alpha, beta, psi, seconds=seconds),))
+    return Plan(CUSTOM, (PlannedPosition(alpha, beta, psi, seconds=seconds),))
 
 
 def header_for(

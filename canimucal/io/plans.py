@@ -23,7 +23,7 @@ import numpy as np
 from canimucal.errors import InputError, SchemaError
 from canimucal.io.atomic import write_text_atomic
 from canimucal.model.positions import DEFAULT_SECONDS, Plan, PlannedPosition
-from canimucal.model.vocabulary.plans import builtin_names, builtin_plan
+from canimucal.model.vocabulary.plans import CUSTOM, builtin_names, builtin_plan
 from canimucal.schema import parse_json, read_number, read_text
 
 DEFAULT_TOLERANCE_DEG = 0.1
@@ -61,7 +61,7 @@ def plan_from_document(document: Any, source: str = "plan") -> Plan:
     positions = document.get("positions")
     if not isinstance(positions, list) or not positions:
         raise InputError(f"{source}: 'positions' must be a non-empty list")
-    return Plan("custom", tuple(_position(p, i + 1, source) for i, p in enumerate(positions)))
+    return Plan(CUSTOM, tuple(_position(p, i + 1, source) for i, p in enumerate(positions)))
 
 
 def _position(entry: Any, number: int, source: str) -> PlannedPosition:

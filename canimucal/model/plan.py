@@ -29,7 +29,7 @@ from canimucal.model.layout import (
 )
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, STANDARD_GRAVITY
-from canimucal.model.vocabulary.plans import builtin_plan
+from canimucal.model.vocabulary.plans import DEFAULT_PLAN, builtin_plan
 from canimucal.model.vocabulary.units import quantity_of
 
 log = logging.getLogger(__name__)
@@ -407,7 +407,7 @@ def cramer_rao(
 
 
 def plan_bounds(
-    plan: Plan | str = "recommended",
+    plan: Plan | str = DEFAULT_PLAN,
     *,
     model: Literal["diag", "full"] = "diag",
     tilt: bool = True,

@@ -22,7 +22,7 @@ from textual.app import App
 from textual.binding import Binding
 
 from canimucal.model.positions import Plan
-from canimucal.model.vocabulary.plans import builtin_names, builtin_plan
+from canimucal.model.vocabulary.plans import CUSTOM, DEFAULT_PLAN, builtin_names, builtin_plan
 from canimucal.procedure.averaging import AveragingPolicy, averaged_sensors, describe_rule
 from canimucal.procedure.machine import Phase
 from canimucal.signals import EXIT_INTERRUPTED
@@ -61,7 +61,7 @@ class CalibrationApp(App[int]):
         source: SessionSource,
         plans: Mapping[str, Plan],
         *,
-        plan_name: str = "recommended",
+        plan_name: str = DEFAULT_PLAN,
         gyro: str = "mems",
         autoconnect: bool = True,
     ) -> None:
@@ -169,7 +169,7 @@ class CalibrationApp(App[int]):
 def make_app(
     source: SessionSource,
     *,
-    plan_name: str = "recommended",
+    plan_name: str = DEFAULT_PLAN,
     gyro: str = "mems",
     custom_plan: Plan | None = None,
     autoconnect: bool = True,
@@ -182,7 +182,7 @@ def make_app(
     """
     plans: dict[str, Plan] = {name: builtin_plan(name) for name in builtin_names()}
     if custom_plan is not None:
-        plans["custom"] = custom_plan
+        plans[CUSTOM] = custom_plan
     if plan_name not in plans:
-        plan_name = "custom" if custom_plan is not None else "recommended"
+        plan_name = CUSTOM if custom_plan is not None else DEFAULT_PLAN
     return CalibrationApp(source, plans, plan_name=plan_name, gyro=gyro, autoconnect=autoconnect)

@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 
 from canimucal.errors import ModelError
 from canimucal.model.dcm_stack import dcm_stack
-from canimucal.model.layout import ModelContext
+from canimucal.model.frames import specific_force_level
 from canimucal.model.vocabulary.registry import Registry
 
 Array = NDArray[np.float64]
@@ -80,7 +80,7 @@ class PoseInputs:
     ) -> PoseInputs:
         """Return the inputs at poses ``angles``, no base tilt: ``f = C(alpha, beta, psi) f_L``."""
         c, _, _ = dcm_stack(angles, 0.0, 0.0, "rigid")
-        f = c @ ModelContext.build(g).f_level
+        f = c @ specific_force_level(g)
         return cls(angles, f, g, k_matrix, s_matrix, w_level, channels, temperatures)
 
 
@@ -209,7 +209,7 @@ LOWER = ((1, 0), (2, 0), (2, 1))
 def _base_tilt(x: PoseInputs, sensor: Sensor) -> Array:
     """``K dC/d(alpha0, beta0) f_L`` (and ``S dC w_L`` on gyro rows): rigid tilt, eq. (15)."""
     _, _, d_tilt = dcm_stack(x.angles, 0.0, 0.0, "rigid")
-    f_level = ModelContext.build(x.g).f_level
+    f_level = specific_force_level(x.g)
     out = np.zeros((x.angles.shape[0], x.channels, 2))
     out[:, :3] = x.k_matrix @ np.einsum("nkij,j->nik", d_tilt, f_level)
     if x.channels == 6:

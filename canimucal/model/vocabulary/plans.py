@@ -30,6 +30,13 @@ from canimucal.errors import ModelError
 from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.model.vocabulary.registry import Registry
 
+DEFAULT_PLAN = "recommended"
+"""The plan the commands and the TUI choose when none is named."""
+CUSTOM = "custom"
+"""The plan name of poses from a file, or of poses no built-in plan has."""
+SCALAR = "scalar"
+"""The plan name of a calibration without angles (the ``|f| = g`` fit)."""
+
 DEVICE_CODE_MAX = 255
 """0x2121:02 is an UNSIGNED8; code 0 is "none" (the factory calibration)."""
 
@@ -249,8 +256,8 @@ PLANS.register(
 )  # fmt: skip
 PLANS.register(
     PlanEntry(
-        "custom", None, 4, "poses from a plan file (or poses no built-in plan has)",
+        CUSTOM, None, 4, "poses from a plan file (or poses no built-in plan has)",
         tui_key="u",
     )
 )  # fmt: skip
-PLANS.register(PlanEntry("scalar", None, 5, "no angles: the |f| = g fit"))
+PLANS.register(PlanEntry(SCALAR, None, 5, "no angles: the |f| = g fit"))

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from canimucal.model.frames import EARTH_RATE_RAD_S
 from canimucal.model.vocabulary.registry import Registry
 
 
@@ -40,7 +41,9 @@ class Quantity:
 
     ``unit`` is the solver's and the bound table's; ``file_unit`` the calibration file's and
     the results screen's (``file_per_unit`` of them per ``unit``); ``si_unit`` and
-    ``operator_unit`` with their factors per ``unit`` at given :class:`Scales`.
+    ``operator_unit`` with their factors per ``unit`` at given :class:`Scales`;
+    ``effect_counts`` the counts one unit changes at 1 g (biases 1, K and G entries g, tilt
+    angles |k|·g, S entries the Earth rate Ω).
     """
 
     family: str
@@ -50,6 +53,9 @@ class Quantity:
     to_si: Factor
     operator_unit: str
     to_operator: Factor
+    effect_counts: Callable[[float, float], float] = lambda g, k: 1.0
+    """Counts one unit changes at 1 g, of ``(g, |k| counts per m/s²)``: the bound table's
+    normalisation (docs/design.md §3)."""
     file_unit: str = ""
     file_per_unit: float = 1.0
 
@@ -105,12 +111,14 @@ QUANTITIES.register(
     Quantity(
         "accel.K", "accelerometer scale and cross-axis matrix", "counts/(m/s²)",
         "1", lambda s: abs(s.accel_lsb), "ppm", lambda s: abs(s.accel_lsb) * 1e6,
+        effect_counts=lambda g, k: g,
     )
 )  # fmt: skip
 QUANTITIES.register(
     Quantity(
         "base_tilt", "tilt of the base the poses are set on", "rad",
-        "rad", lambda s: 1.0, "°", lambda s: _DEG, file_unit="deg", file_per_unit=_DEG,
+        "rad", lambda s: 1.0, "°", lambda s: _DEG, effect_counts=lambda g, k: k * g,
+        file_unit="deg", file_per_unit=_DEG,
     )
 )  # fmt: skip
 QUANTITIES.register(
@@ -123,12 +131,13 @@ QUANTITIES.register(
     Quantity(
         "gyro.S", "gyro scale and cross-axis matrix", "counts/(rad/s)",
         "1", lambda s: abs(s.gyro_lsb), "ppm", lambda s: abs(s.gyro_lsb) * 1e6,
+        effect_counts=lambda g, k: EARTH_RATE_RAD_S,
     )
 )  # fmt: skip
 QUANTITIES.register(
     Quantity(
         "gyro.G", "gyro sensitivity to specific force", "counts/(m/s²)",
         "(rad/s)/(m/s²)", lambda s: abs(s.gyro_lsb),
-        "(°/s)/g", lambda s: abs(s.gyro_lsb) * _DEG * s.g,
+        "(°/s)/g", lambda s: abs(s.gyro_lsb) * _DEG * s.g, effect_counts=lambda g, k: g,
     )
 )  # fmt: skip

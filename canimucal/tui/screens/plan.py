@@ -22,7 +22,7 @@ from canimucal.io.mounting import BODY, load_mounting
 from canimucal.model.mounting import DEFAULT_MOUNTING, MountingMap
 from canimucal.model.plan import BoundTable, cramer_rao
 from canimucal.model.positions import Plan
-from canimucal.model.vocabulary.plans import PLANS, worded_for_vehicle
+from canimucal.model.vocabulary.plans import DEFAULT_PLAN, PLANS, worded_for_vehicle
 from canimucal.runtime.wiring import spec_for_plan
 from canimucal.tui.messages import StartWanted
 from canimucal.tui.modals import MountModal
@@ -51,7 +51,7 @@ class PlanScreen(Screen[None]):
         Binding("escape", "back", "Back"),
     )
     """Bound after the plans' keys, so that the footer lists the plans first."""
-    plan_name = reactive("recommended", bindings=True)
+    plan_name = reactive(DEFAULT_PLAN, bindings=True)
     gyro = reactive("mems")
 
     def __init__(
@@ -59,7 +59,7 @@ class PlanScreen(Screen[None]):
         statuses: list[NodeStatus],
         plans: Mapping[str, Plan],
         *,
-        plan_name: str = "recommended",
+        plan_name: str = DEFAULT_PLAN,
         gyro: str = "mems",
         mount: MountingMap | str | None = None,
         averaging: str = "",
@@ -75,7 +75,7 @@ class PlanScreen(Screen[None]):
         """The procedure's averaging rule in words (:func:`.describe_rule`): shown, not chosen."""
         self.statuses = statuses
         self.plans = dict(plans)
-        self.first_choice = (plan_name if plan_name in self.plans else "recommended", gyro)
+        self.first_choice = (plan_name if plan_name in self.plans else DEFAULT_PLAN, gyro)
         self.mount_map = mount
         self.mount_chosen = False
 
