@@ -135,16 +135,18 @@ class NotNegative(RangeRule):
 
 @dataclass(frozen=True)
 class OneOf(RangeRule):
-    """One of the values ``choices()`` gives when the value is checked."""
+    """One of the values ``choices()`` gives when the value is checked (``shown`` in words)."""
 
     what: str
     choices: Callable[[], Collection[float]]
+    shown: str = ""
 
     def problem(self, value: float, ctx: RangeContext) -> str | None:
         """Refuse a value not among the choices."""
         allowed = sorted(self.choices())
         if value not in allowed:
-            return f"{self.what} must be one of {', '.join(f'{c:g}' for c in allowed)}"
+            listed = self.shown or ", ".join(f"{c:g}" for c in allowed)
+            return f"{self.what} must be one of {listed}"
         return None
 
 
@@ -243,7 +245,9 @@ def _nominal_diagonal(sensor: str, sub: int) -> Callable[[Nominal], float]:
 
 def _xyz(index: int, what: str, data_type: DataType, unit: str) -> list[DeviceObject]:
     return [
-        DeviceObject(index, s, f"{what} {a} ({unit})", data_type, "ro", 0, TYPE_RANGE, unit, True)
+        DeviceObject(
+            index, s, f"{what} {a} ({unit})", data_type, "ro", 0, TYPE_RANGE, unit, pdo=True
+        )
         for s, a in zip((1, 2, 3), "xyz", strict=True)
     ]
 
@@ -292,6 +296,12 @@ def _plan_codes() -> Collection[float]:
     return {0, *(entry.device_code for entry in PLANS.values())}
 
 
+TRANSMISSION_TYPES = OneOf(
+    "transmission type", lambda: {*range(241), 252, 253, 254, 255}, "0–240, 252–255"
+)
+"""CiA 301 TPDO transmission types: synchronous 0–240, RTR-only 252/253, event-driven 254/255."""
+
+
 def _communication() -> list[DeviceObject]:
     rw: Access = "rw"
     ro: Access = "ro"
@@ -325,7 +335,7 @@ def _communication() -> list[DeviceObject]:
         out += [
             DeviceObject(index, 1, "COB-ID used by TPDO", u32, rw,
                          f"$NODEID+0x{0x180 + 0x100 * n:X}", TYPE_RANGE),
-            DeviceObject(index, 2, "Transmission type", u8, rw, 0xFE, TYPE_RANGE),
+            DeviceObject(index, 2, "Transmission type", u8, rw, 0xFE, TRANSMISSION_TYPES),
             DeviceObject(index, 3, "Inhibit time (100 us)", u16, rw, 0, TYPE_RANGE, "100 µs"),
             DeviceObject(index, 5, "Event timer (ms)", u16, rw, timer_ms, TYPE_RANGE, "ms"),
             DeviceObject(index, 6, "SYNC start value", u8, rw, 0, TYPE_RANGE),

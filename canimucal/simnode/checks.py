@@ -23,8 +23,6 @@ ABORT_PDO_LENGTH = 0x06040042  # number and length of mapped objects exceed the 
 
 ReadRaw = Callable[[int, int], bytes]
 
-_VALID_TRANS_TYPES = set(range(0, 241)) | {252, 253, 254, 255}
-
 
 def check_subindex_exists(node: LocalNode, index: int, sub: int) -> None:
     """Refuse sub-indices the EDS does not define (canopen answers any ARRAY sub 1–255)."""
@@ -83,8 +81,6 @@ def _check_range(
 
 
 def _check_tpdo_comm(sub: int, data: bytes) -> None:
-    if sub == 2 and data[0] not in _VALID_TRANS_TYPES:
-        raise SdoAbortedError(od.ABORT_VALUE_RANGE)
     if sub == 1 and struct.unpack("<I", data)[0] & 0x1FFFF800 and not data[3] & 0x20:
         # an 11-bit COB-ID must fit 0x001–0x7FF unless the 29-bit frame bit is set
         raise SdoAbortedError(od.ABORT_VALUE_RANGE)
