@@ -1,10 +1,10 @@
 """Hidden effects for the discrepancy tests: one effect of the vocabulary, sized in σ.
 
-:func:`hide_effect` returns a truth JSON document carrying one effect (docs/design.md §5
-vocabulary) on a random axis or entry, of a size drawn uniformly between ``low`` and
-``high`` times the σ of that entry's own estimate (``sigmas``, from
-:func:`canimucal.analysis.discrepancy.effect_sigmas` on a clean session of the same plan and
-noise). ``bias_drift`` is sized by the within-position slope it causes: a Wiener bias of
+:func:`hide_effect` returns a truth JSON document carrying one effect of the effect registry
+(docs/design.md §6), at the truth path the registry names, on a random axis or entry, of a
+size drawn uniformly between ``low`` and ``high`` times the σ of that entry's own estimate
+(``sigmas``, from :func:`canimucal.analysis.discrepancy.effect_sigmas` on a clean session
+of the same plan and noise). ``bias_drift`` is sized by the within-position slope it causes: a Wiener bias of
 intensity q gives slopes of rms ``√(6 q²/(5 T))`` over T seconds, set to ``k`` times the
 white-noise standard error of a slope. ``axis_sign`` inverts one accelerometer axis.
 
