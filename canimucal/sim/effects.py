@@ -4,9 +4,10 @@
 (docs/design.md §6), at the truth path the registry names, on a random axis or entry, of a
 size drawn uniformly between ``low`` and ``high`` times the σ of that entry's own estimate
 (``sigmas``, from :func:`canimucal.analysis.discrepancy.effect_sigmas` on a clean session
-of the same plan and noise). ``bias_drift`` is sized by the within-position slope it causes: a Wiener bias of
-intensity q gives slopes of rms ``√(6 q²/(5 T))`` over T seconds, set to ``k`` times the
-white-noise standard error of a slope. ``axis_sign`` inverts one accelerometer axis.
+of the same plan and noise). ``bias_drift`` is sized by the within-position slope it
+causes: a Wiener bias of intensity q gives slopes of rms ``√(6 q²/(5 T))`` over T seconds,
+set to ``k`` times the white-noise standard error of a slope. ``axis_sign`` inverts one
+accelerometer axis.
 
 Every session also follows a non-linear warm-up (:func:`warm_up_profile`), so that
 ``temperature_bias`` is testable and clean data see a changing temperature too.
