@@ -31,9 +31,10 @@ from canimucal.errors import ModelError
 from canimucal.model.joint import solve_joint
 from canimucal.model.layout import JointSpec, ModelParams, TiltSpec
 from canimucal.model.paper.accel import fourier_accel, two_position_accel
-from canimucal.model.plan import FIVE, RECOMMENDED, TWO, cramer_rao, nominal_params
+from canimucal.model.plan import cramer_rao, nominal_params
 from canimucal.model.positions import Plan, PlannedPosition, PositionAverage
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, AccelParams
+from canimucal.model.vocabulary.plans import FIVE, RECOMMENDED, TWO
 from canimucal.sim.averages import simulate_averages
 
 Array = NDArray[np.float64]

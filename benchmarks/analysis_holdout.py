@@ -32,7 +32,8 @@ from canimucal.analysis.discrepancy import analyse_discrepancy, effect_sigmas
 from canimucal.analysis.report import analyse_recording
 from canimucal.io.importers import load_any
 from canimucal.model.positions import Plan
-from canimucal.sim.effects import HIDDEN_EFFECTS, hide_effect, warm_up_profile
+from canimucal.model.vocabulary.effects import EFFECTS
+from canimucal.sim.effects import hide_effect, warm_up_profile
 from canimucal.sim.truth import Truth
 from tests.support.plans import twelve
 from tests.support.sessions import simulate_session
@@ -56,7 +57,7 @@ def hidden_study(seeds: int, size: float, tolerance: float) -> None:
     print(f"{'effect':<20} {'named (est.)':>12} {'named (0.1°)':>12} {'τ̂ median °':>11} "
           f"{'χ²/dof':>7} {'claimed':>8}")  # fmt: skip
     total_est = total_assumed = 0
-    for effect in HIDDEN_EFFECTS:
+    for effect in EFFECTS:
         est_hits = assumed_hits = claimed = 0
         taus, ratios, wrong = [], [], []
         for seed in range(seeds):
@@ -86,7 +87,7 @@ def hidden_study(seeds: int, size: float, tolerance: float) -> None:
         print(f"{effect:<20} {est_hits:>6}/{seeds:<5} {assumed_hits:>6}/{seeds:<5} "
               f"{np.median(taus):>11.4f} {np.mean(ratios):>7.2f} {claimed:>5}/{seeds}"
               + (f"  other: {wrong}" if wrong else ""))  # fmt: skip
-    n = seeds * len(HIDDEN_EFFECTS)
+    n = seeds * len(EFFECTS)
     print(f"named exactly: {total_est}/{n} estimated scatter, {total_assumed}/{n} assumed 0.1°")
     alarms = covered = 0
     for seed in range(seeds):

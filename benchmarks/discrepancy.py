@@ -56,8 +56,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.support
 from canimucal.analysis.discrepancy import analyse_discrepancy, effect_sigmas
 from canimucal.analysis.report import analyse_recording
 from canimucal.analysis.simulated import simulate_plan_recording
-from canimucal.model.plan import RECOMMENDED
-from canimucal.sim.effects import HIDDEN_EFFECTS, hide_effect, warm_up_profile
+from canimucal.model.vocabulary.effects import EFFECTS
+from canimucal.model.vocabulary.plans import RECOMMENDED
+from canimucal.sim.effects import hide_effect, warm_up_profile
 from canimucal.sim.truth import Truth
 from tests.support.sessions import simulate_session
 
@@ -84,7 +85,7 @@ def detection_table(seeds: int, sizes: list[float]) -> None:
     sigmas = effect_sigmas(simulate_session(ref, RECOMMENDED, seed=REFERENCE_SEED))
     print(f"detection rate (named exactly), {seeds} seeds per cell; sizes in σ of the estimate")
     print("effect".ljust(20) + "".join(f"{k:>7.1f}σ" for k in sizes) + "   smallest ≥95 %")
-    for effect in HIDDEN_EFFECTS:
+    for effect in EFFECTS:
         rates = []
         for k in sizes:
             hits = 0

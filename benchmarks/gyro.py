@@ -48,7 +48,7 @@ from canimucal.io.grouping import average_rows, position_rows
 from canimucal.io.importers import read_imucal, read_imutk
 from canimucal.model import gravity_moves as gm
 from canimucal.model import moves as mv
-from canimucal.model.plan import builtin_plan
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.sim.truth import Truth
 from tests.support.moves import turns_plan
 

@@ -35,9 +35,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from canimucal.model.layout import JointSpec
-from canimucal.model.plan import builtin_plan, cramer_rao
+from canimucal.model.plan import cramer_rao
 from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, STANDARD_GRAVITY
+from canimucal.model.vocabulary.plans import builtin_plan
 
 ACCEL_NOISE_COUNTS = 1.5e-3 / DEFAULT_ACCEL_LSB
 """Accelerometer white noise in counts/√Hz (1.5e-3 m/s²/√Hz through the nominal K)."""

@@ -13,8 +13,9 @@ import sys
 import numpy as np
 
 from canimucal.model.layout import JointSpec
-from canimucal.model.plan import FIVE, RECOMMENDED, cramer_rao
+from canimucal.model.plan import cramer_rao
 from canimucal.model.positions import Plan, PlannedPosition
+from canimucal.model.vocabulary.plans import FIVE, RECOMMENDED
 
 TOTAL_S = FIVE.total_seconds
 TILTS = (0.0, 45.0, -45.0)

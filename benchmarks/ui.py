@@ -64,11 +64,11 @@ def _threads_cpu_s() -> dict[str, float]:
 def _child(rate_hz: int, result_path: Path) -> None:
     from textual.binding import Binding
 
-    from canimucal.model.plan import builtin_plan
+    from canimucal.model.vocabulary.plans import builtin_plan
     from canimucal.procedure.machine import Phase
     from canimucal.sim.truth import Truth
     from canimucal.tui.app import CalibrationApp
-    from canimucal.tui.position import PositionScreen
+    from canimucal.tui.screens.position import PositionScreen
     from canimucal.tui.source import DeviceSource, NodeStatus, demo_source
 
     class RateSource(DeviceSource):

@@ -206,14 +206,6 @@ def read_integer(value: Any, path: str, low: int | None = None, high: int | None
     return n
 
 
-def read_choice(value: Any, path: str, choices: Collection[str]) -> str:
-    """Check a string that is one of ``choices``."""
-    if not isinstance(value, str) or value not in choices:
-        shown = value[:40] if isinstance(value, str) else value
-        fail(path, f"must be one of {', '.join(map(repr, choices))}, got {shown!r}")
-    return value
-
-
 def is_numeric_tree(value: Any) -> bool:
     """Tell whether ``value`` is a number or a (nested) list of numbers (bools refused)."""
     if isinstance(value, np.ndarray):
@@ -295,8 +287,12 @@ def integer(low: int, high: int | None) -> dict[str, Checker]:
     return _meta(lambda value, path: read_integer(value, path, low, high))
 
 
-def text(choices: tuple[str, ...] | None = None, pattern: str | None = None) -> dict[str, Checker]:
-    """Field metadata: a string, optionally one of ``choices`` or matching ``pattern``."""
+def text(choices: Collection[str] | None = None, pattern: str | None = None) -> dict[str, Checker]:
+    """Field metadata: a string, optionally one of ``choices`` or matching ``pattern``.
+
+    ``choices`` is read when a value is checked, so a registry given here (the plans) checks
+    against the entries it holds then.
+    """
 
     def check(value: Any, path: str) -> str:
         if not isinstance(value, str):

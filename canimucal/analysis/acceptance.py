@@ -30,6 +30,7 @@ from scipy.stats import chi2 as chi2_distribution
 from canimucal.analysis.calibrate import SiteConditions, Solution
 from canimucal.errors import InputError
 from canimucal.io.calibration import Acceptance
+from canimucal.model.vocabulary.plans import PLANS
 
 
 @dataclass(frozen=True)
@@ -58,14 +59,15 @@ def acceptance_config_path(environ: Mapping[str, str] | None = None) -> Path:
 def load_limits(path: Path | None = None, plan: str | None = None) -> AcceptanceLimits:
     """Read the acceptance limits (defaults for keys absent, or for an absent file).
 
-    ``plan``: the plan's own ``[plan.NAME]`` table, when the file has one, overrides the
-    top-level keys. An unreadable file, an unknown key or a value that is not a positive
-    number is an :class:`InputError` naming the file: a quality limit is never silently
-    dropped.
+    Each key comes from, last one winning: the built-in defaults, the plan's own defaults
+    in the plan registry (``PlanEntry.acceptance``), the file's top-level keys, and the
+    file's ``[plan.NAME]`` table for ``plan``. An unreadable file, an unknown key or a value
+    that is not a positive number is an :class:`InputError` naming the file: a quality
+    limit is never silently dropped.
     """
     path = acceptance_config_path() if path is None else path
     if not path.is_file():
-        return AcceptanceLimits()
+        return plan_limits(plan)
     try:
         document = tomllib.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
@@ -73,12 +75,19 @@ def load_limits(path: Path | None = None, plan: str | None = None) -> Acceptance
     plans = document.pop("plan", {})
     if not isinstance(plans, dict) or not all(isinstance(t, dict) for t in plans.values()):
         raise InputError(f"{path}: 'plan' must hold tables [plan.NAME] of limits")
-    values = _limit_values(document, path, "")
+    values = plan_limits(plan).as_dict()
+    values.update(_limit_values(document, path, ""))
     for name, table in plans.items():  # every table checked, not only this plan's
         own = _limit_values(table, path, f"plan.{name}.")
         if name == plan:
             values.update(own)
     return AcceptanceLimits(**values)
+
+
+def plan_limits(plan: str | None) -> AcceptanceLimits:
+    """Return the built-in limits with the plan registry's defaults for ``plan``."""
+    entry = None if plan is None else PLANS.get(plan)
+    return AcceptanceLimits(**({} if entry is None else dict(entry.acceptance)))
 
 
 def _limit_values(table: Mapping[str, object], path: Path, prefix: str) -> dict[str, float]:

@@ -39,7 +39,6 @@ from scipy import linalg
 
 from canimucal.analysis.candidates import (
     Candidate,
-    ScalarState,
     known_position_candidates,
     scalar_candidates,
     scalar_jacobian,
@@ -57,6 +56,7 @@ from canimucal.model.layout import (
     predict,
 )
 from canimucal.model.scalar import ScalarFit, fit_scalar_averages
+from canimucal.model.vocabulary.effects import ScalarInputs
 
 Array = NDArray[np.float64]
 
@@ -267,7 +267,9 @@ def fit_scalar_base(data: SessionData) -> tuple[PreparedBase, ScalarFit]:
     """Scalar ``|f| = g`` base fit (model "6") plus the gyro bias, and its linearisation."""
     fit = fit_scalar_averages(data.averages, data.g, model="6", accel_lsb=data.accel_lsb)
     means = np.array([a.mean_accel for a in data.averages])
-    state = ScalarState(means, fit.bias, fit.M, 3 if data.has_gyro else 0)
+    temps = _position_temperatures(data)
+    dt = None if temps is None else temps - np.mean(temps)
+    state = ScalarInputs(means, fit.bias, fit.M, data.has_gyro, dt)
     n = means.shape[0]
     jac_a = scalar_jacobian(state)
     f = (means - fit.bias) @ fit.M.T
@@ -302,7 +304,7 @@ def fit_scalar_base(data: SessionData) -> tuple[PreparedBase, ScalarFit]:
     channel = np.concatenate([np.zeros(n, np.int64), np.tile(np.arange(3, 6), n)])[:size]
     sensor = np.where(channel < 3, "accel", "gyro").astype(np.str_)
     scale = np.where(channel < 3, 1.0, abs(data.gyro_lsb)).astype(float)
-    cands = scalar_candidates(state, _position_temperatures(data), gyro)
+    cands = scalar_candidates(state)
     chi2 = float(np.sum(resid_a**2 / var_a))
     prepared = PreparedBase(
         "scalar", resid, jac, cov, block, scale, sensor, channel, tuple(cands),

@@ -28,11 +28,11 @@ from canimucal.io.calibration import (
 )
 from canimucal.model.joint import JointResult, solve_joint
 from canimucal.model.layout import JointSpec
-from canimucal.model.plan import builtin_plan, cramer_rao
+from canimucal.model.plan import cramer_rao
 from canimucal.model.positions import Plan, PlannedPosition, PositionAverage
 from canimucal.model.scalar import ScalarFit, fit_scalar_averages
+from canimucal.model.vocabulary.plans import CUSTOM, SCALAR, plan_of_poses
 
-BUILTIN_PLANS = ("two", "five", "recommended", "vehicle")
 LACK_OF_FIT_P = 1e-3
 """A fit whose χ² has a p-value below this gets a lack-of-fit warning."""
 _ANGLE_MATCH_RAD = float(np.deg2rad(0.05))
@@ -73,13 +73,9 @@ class Solution:
 
 
 def plan_name_of(averages: Sequence[PositionAverage]) -> str:
-    """``two``/``five``/``recommended`` when the poses are a built-in plan's, else ``custom``."""
+    """Name the built-in plan whose poses these are (the plan registry's), else ``custom``."""
     angles = np.array([a.pose.angles for a in averages])
-    for name in BUILTIN_PLANS:
-        plan = np.array([p.angles for p in builtin_plan(name).positions])
-        if plan.shape == angles.shape and np.allclose(plan, angles, atol=_ANGLE_MATCH_RAD):
-            return name
-    return "custom"
+    return plan_of_poses(angles, _ANGLE_MATCH_RAD) or CUSTOM
 
 
 def solve_positions(
@@ -257,7 +253,7 @@ def solve_scalar(
         fit.params,
         fit.covariance,
         device=device,
-        plan="scalar",
+        plan=SCALAR,
         conditions=site.as_record_conditions(),
         positions=[summarize_position(a) for a in averages],
         fit=Fit(rms=fit.rms_mps2, dof=fit.dof),

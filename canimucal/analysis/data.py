@@ -15,17 +15,6 @@ from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
 
 Array = NDArray[np.float64]
 
-EFFECTS = (
-    "base_tilt",
-    "cross_axis",
-    "scale_nonlinearity",
-    "temperature_bias",
-    "bias_drift",
-    "gyro_g_sensitivity",
-    "axis_sign",
-)
-"""The fixed effect vocabulary of the analysis JSON (docs/design.md §5)."""
-
 FAMILY_ALPHA = 0.01
 """Family-wise error rate of the candidate tests (Holm)."""
 
@@ -156,6 +145,9 @@ class ExtendedParams:
     G: Array = field(default_factory=lambda: np.zeros((3, 3)))
     gyro_temp_coeff: Array = field(default_factory=lambda: np.zeros(3))
     gyro_random_walk: Array = field(default_factory=lambda: np.zeros(3))
+    effects: Mapping[str, Array] = field(default_factory=dict)
+    """Chosen effects the simulator applies through their columns, by ``sensor.effect``
+    (the truth JSON's ``effects``; :mod:`canimucal.model.vocabulary.effects`)."""
 
 
 @dataclass(frozen=True)

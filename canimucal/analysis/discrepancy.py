@@ -44,7 +44,7 @@ from canimucal.analysis.base_fit import (
     named_values,
     temperature_status,
 )
-from canimucal.analysis.candidates import SCALAR_UNITS, UNITS, Candidate
+from canimucal.analysis.candidates import Candidate
 from canimucal.analysis.data import (
     AXIS_SIGN_SIGMAS,
     FAMILY_ALPHA,
@@ -89,6 +89,7 @@ from canimucal.analysis.significance import (
 )
 from canimucal.errors import ModelError
 from canimucal.model.joint import JointResult
+from canimucal.model.vocabulary.effects import EFFECTS, column_effects
 
 log = logging.getLogger(__name__)
 
@@ -292,33 +293,40 @@ def _earth_rate_in_base(data: SessionData) -> bool:
 
 def _untestable(data: SessionData) -> dict[str, str]:
     out: dict[str, str] = {}
+    for effect in column_effects():  # what the registry's columns cannot show here
+        if not data.known_positions and effect.scalar is None:
+            out[effect.name] = "no angles: only the scalar |f| = g fit applies"
+        if not data.has_gyro and effect.sensors == ("gyro",):
+            out[effect.name] = "no gyro data"
     if not data.known_positions:
-        out["base_tilt"] = "no angles: only the scalar |f| = g fit applies"
         out["axis_sign"] = "the sign of an axis is invisible to |f| = g fits"
-    if not data.has_gyro:
-        out["gyro_g_sensitivity"] = "no gyro data"
-    elif not earth_rate_visible(data):
-        out["earth_rate"] = (
+    if data.has_gyro:
+        out["earth_rate"] = _earth_rate_reason(data)
+    return out
+
+
+def _earth_rate_reason(data: SessionData) -> str:
+    """Say how the gyro's base model holds the Earth rate, or why it leaves it out."""
+    if not earth_rate_visible(data):
+        return (
             "below the gyro's noise here (less than 1 unit of non-centrality over all "
             "positions at the nominal scale): left out of the model"
         )
-    elif not data.known_positions:
-        out["earth_rate"] = (
+    if not data.known_positions:
+        return (
             "no orientation: the Earth rate's vertical part is fitted along f/|f| (a G "
             "proportional to I cannot be told from it) and its horizontal part is taken as "
             "noise of an unknown heading"
         )
-    elif data.latitude is None:
-        out["earth_rate"] = (
+    if data.latitude is None:
+        return (
             "no latitude: the Earth rate is fitted as a free vector in the level frame (its "
             "part along gravity cannot be told from a G proportional to I)"
         )
-    else:
-        out["earth_rate"] = (
-            "the heading is not trusted: the Earth rate's horizontal part is fitted in the "
-            "level frame, its vertical part is the latitude's"
-        )
-    return out
+    return (
+        "the heading is not trusted: the Earth rate's horizontal part is fitted in the "
+        "level frame, its vertical part is the latitude's"
+    )
 
 
 def _drift_tests(data: SessionData, temps: Array | None) -> dict[str, DriftTest]:
@@ -547,7 +555,7 @@ def _findings(
     data: SessionData,
     alpha: float,
 ) -> list[Finding]:
-    units = UNITS if data.known_positions else SCALAR_UNITS
+    units = {name: e.unit_in(scalar=not data.known_positions) for name, e in EFFECTS.items()}
     out = []
     for t in tests:
         key = f"{t.sensor}.{t.effect}"
@@ -728,6 +736,7 @@ def _extended(
         k = np.asarray(np.linalg.inv(m), dtype=float)
         gyro_bias = values[6:9] if data.has_gyro else None
     tilt = coef.get("accel.base_tilt", np.zeros(2))
+    generic = {k: v for k, v in coef.items() if EFFECTS[k.split(".", 1)[1]].generic_truth}
     walk = {s: (drifts[s].random_walk if s in drifting else zero3) for s in ("accel", "gyro")}
     return ExtendedParams(
         accel_bias=bias,
@@ -741,6 +750,7 @@ def _extended(
         G=coef.get("gyro.gyro_g_sensitivity", np.zeros(9)).reshape(3, 3),
         gyro_temp_coeff=coef.get("gyro.temperature_bias", zero3),
         gyro_random_walk=walk["gyro"] if "gyro" in drifts else zero3,
+        effects=generic,
     )
 
 

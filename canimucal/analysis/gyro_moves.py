@@ -47,6 +47,7 @@ from canimucal.model.moves import (
     solve_moves,
     turn_move,
 )
+from canimucal.model.vocabulary.constants import COUNTER_MODULUS
 
 Array = NDArray[np.float64]
 
@@ -206,7 +207,7 @@ def uniform_rows(
 
 def sample_clock(counter: Array) -> Array:
     """Sample index of each row from the node's 16-bit counter (wraps at 65536)."""
-    steps = np.diff(np.asarray(counter, dtype=float)) % 65536
+    steps = np.diff(np.asarray(counter, dtype=float)) % COUNTER_MODULUS
     return np.concatenate([[0.0], np.cumsum(steps)])
 
 

@@ -32,7 +32,9 @@ from canimucal.model.noise import (
     fit_noise,
 )
 from canimucal.model.positions import Plan, PlannedPosition
-from canimucal.sim.truth import SAMPLE_RATES_HZ
+from canimucal.model.vocabulary.constants import OUTPUT_DATA_RATES_HZ
+from canimucal.model.vocabulary.plans import CUSTOM
+from canimucal.sim.truth import effects_document
 
 log = logging.getLogger(__name__)
 
@@ -272,7 +274,7 @@ def extended_truth(a: Analysis) -> dict[str, Any]:
     temp0 = temps[0][1] if temps else 25.0
     mean_t = float(np.mean([t for _, t in temps])) if temps else temp0
     accel_bias = p.accel_bias + p.accel_temp_coeff * (temp0 - mean_t)
-    rate = min(SAMPLE_RATES_HZ, key=lambda r: abs(r - rec.sample_rate_hz))
+    rate = min(OUTPUT_DATA_RATES_HZ, key=lambda r: abs(r - rec.sample_rate_hz))
     ka, kg = _count_scale(rec.accel), _count_scale(rec.gyro)
     doc: dict[str, Any] = {
         "schema": "canimucal.truth/1",
@@ -309,6 +311,11 @@ def extended_truth(a: Analysis) -> dict[str, Any]:
         }
     if temps:
         doc["temperature"] = {"profile": [[t - t0, c] for t, c in temps]}
+    if p.effects:  # the simulator applies these through their columns (counts of its unit)
+        scale = {"accel": ka, "gyro": kg}
+        doc["effects"] = effects_document(
+            {key: scale[key.split(".", 1)[0]] * np.asarray(v) for key, v in p.effects.items()}
+        )
     return doc
 
 
@@ -362,7 +369,7 @@ def observed_poses(a: Analysis) -> Plan | None:
         alpha, beta, psi = (_wrap(x) for x in (p.alpha, p.beta, p.psi))
         tol = p.tolerance if noise is None else noise.pose_scatter.value
         positions.append(PlannedPosition(alpha, beta, psi, tol, seconds))
-    return Plan("custom", tuple(positions))
+    return Plan(CUSTOM, tuple(positions))
 
 
 def _wrap(angle: float) -> float:

@@ -55,7 +55,7 @@ from canimucal.analysis.significance import LinearProblem, canonical_correlation
 from canimucal.errors import ModelError
 from canimucal.model.joint import JointResult
 from canimucal.model.layout import ModelContext, ParameterLayout, predict
-from canimucal.model.plan import builtin_plan
+from canimucal.model.vocabulary.plans import builtin_plan
 
 Array = NDArray[np.float64]
 

@@ -21,12 +21,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.errors import InputError
-from canimucal.io.calibration import PLANS, Calibration
-from canimucal.io.plans import BUILTIN_PLANS, DEFAULT_TOLERANCE_DEG
+from canimucal.io.calibration import Calibration
+from canimucal.io.plans import DEFAULT_TOLERANCE_DEG
 from canimucal.io.recording import HeaderValue, Recording, header_matrix
 from canimucal.model.layout import GyroSpec, JointSpec
-from canimucal.model.plan import VEHICLE_PRIOR_K_SIGMA, KPrior, builtin_plan, plan_prior
+from canimucal.model.plan import KPrior, plan_prior
 from canimucal.model.positions import Plan, PositionAverage
+from canimucal.model.vocabulary.plans import CUSTOM, PLANS, VEHICLE_PRIOR_K_SIGMA
 
 _MATCH_DEG = 0.05
 """Recorded angles within this of a plan's are that plan's poses."""
@@ -112,7 +113,7 @@ class SessionModel:
         ``--prior-k`` alone, with a plan that names no σ, holds K at 1 % (the vehicle
         plan's own value).
         """
-        plan = self.plan or Plan("custom", ())
+        plan = self.plan or Plan(CUSTOM, ())
         sigma = self.prior_k_sigma
         if sigma is None and self.factory_k is not None and plan.prior_k_sigma is None:
             sigma = VEHICLE_PRIOR_K_SIGMA
@@ -144,8 +145,9 @@ def session_model(rec: Recording, choice: ModelChoice) -> tuple[ModelChoice, Ses
     if choice.prior_k_sigma is not None and not choice.prior_k_sigma > 0:
         raise InputError(f"--prior-k-sigma must be > 0, got {choice.prior_k_sigma:g}")
     name = header.get("plan")
-    plan = builtin_plan(name) if isinstance(name, str) and name in BUILTIN_PLANS else None
-    plan_name = name if isinstance(name, str) and name in PLANS else None
+    entry = PLANS.get(name) if isinstance(name, str) else None
+    plan = None if entry is None else entry.plan
+    plan_name = None if entry is None else entry.name
     factory_k, source, sigma = (None, "factory K", choice.prior_k_sigma)
     if choice.prior_k:
         factory_k, source = read_factory_k(choice.prior_k), f"K from {Path(choice.prior_k).name}"
@@ -153,7 +155,7 @@ def session_model(rec: Recording, choice: ModelChoice) -> tuple[ModelChoice, Ses
         if sigma is not None:
             held = replace(held, rel_sigma=sigma, sigma_source="--prior-k-sigma")
         factory_k, sigma = held.mean, held.rel_sigma
-        source = held.describe(plan or Plan("custom", ()))
+        source = held.describe(plan or Plan(CUSTOM, ()))
     resolved = replace(
         choice,
         model=model,  # type: ignore[arg-type]

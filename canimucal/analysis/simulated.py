@@ -11,6 +11,7 @@ import numpy as np
 
 from canimucal.io.recording import Recording, recording_from_columns
 from canimucal.model.positions import Plan
+from canimucal.model.vocabulary.constants import COUNTER_MODULUS
 from canimucal.sim.imu import ImuSimulator
 from canimucal.sim.schedule import set_by_operator
 from canimucal.sim.truth import Truth
@@ -63,7 +64,7 @@ def simulate_plan_recording(
         t=np.concatenate([b.t_s for b in blocks]),
         accel=np.concatenate([b.accel for b in blocks]),
         gyro=np.concatenate([b.gyro for b in blocks]),
-        counter=np.arange(index.size) % 65536,
+        counter=np.arange(index.size) % COUNTER_MODULUS,
         position=index,
         alpha_deg=angles[:, 0],
         beta_deg=angles[:, 1],

@@ -46,6 +46,7 @@ from canimucal.model.noise import (
     noise_intervals,
 )
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
+from canimucal.model.vocabulary.effects import EFFECTS
 
 Array = NDArray[np.float64]
 
@@ -265,7 +266,7 @@ def static_findings(sa: StaticAnalysis) -> list[dict[str, object]]:
                     "effect": "bias_drift",
                     "sensor": name,
                     "size": float(np.max(q)),
-                    "units": "counts/√s",
+                    "units": EFFECTS["bias_drift"].unit,
                     "p_value": s.drift.p_value,
                     "evidence": f"slopes of {DRIFT_SEGMENTS} segments χ² = "
                     f"{s.drift.statistic:.1f} on {s.drift.df} dof; random walk q = "

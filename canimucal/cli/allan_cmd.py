@@ -38,7 +38,7 @@ def add_subparser(subparsers: Any) -> None:
         help="Allan deviation, noise terms and recommended averaging time",
         description="Overlapping Allan deviation of one long static file, or of the longest "
         "still stretch of a recording (one labelled position, or the longest static interval "
-        "found): the fitted white noise, bias instability and random walk with 95 %% "
+        "found): the fitted white noise, bias instability and random walk with 95 % "
         "intervals, a drift test, each axis's best averaging time and one for all axes with "
         "the limiting axis named.",
     )

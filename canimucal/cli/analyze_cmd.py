@@ -38,6 +38,8 @@ from canimucal.io.plans import plan_from_document, plan_to_dict, write_plan
 from canimucal.io.recording import Recording
 from canimucal.io.truth import write_truth
 from canimucal.model.positions import Plan
+from canimucal.model.vocabulary.effects import EFFECTS
+from canimucal.model.vocabulary.units import QUANTITIES
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -47,8 +49,10 @@ def add_subparser(subparsers: Any) -> None:
         help="show what the base model gets wrong on measured data, name the cause",
         description="Fit the base model (bias + diagonal scale + white noise) to measured "
         "data, show where it fails, test each candidate effect (nested-model tests, Holm "
-        "at 1 %%, leave-one-position-out cross-validation), extend the model and report "
-        "the gain.",
+        "at 1 %, leave-one-position-out cross-validation), extend the model and report "
+        "the gain. Candidate effects: "
+        + "; ".join(f"{e.name}, {e.wording}" for e in EFFECTS.values())
+        + ".",
     )
     p.add_argument("input", help="recording CSV, imu_tk accelerometer file or imucal CSV")
     p.add_argument("second", nargs="?", help="imu_tk gyro file, or imucal section JSON (optional)")
@@ -151,7 +155,9 @@ def _run_static(args: argparse.Namespace, rec: Recording, rows: NDArray[np.intp]
         "schema": ANALYSIS_SCHEMA,
         "sensors": {},
         "findings": static_findings(sa),
-        "untestable": [{"effect": e, "reason": STATIC_REASON} for e in STATIC_UNTESTABLE],
+        "untestable": [
+            {"effect": e.name, "reason": STATIC_REASON} for e in EFFECTS.values() if not e.one_pose
+        ],
         "ambiguous": [],
         "noise": noise,
     }
@@ -161,9 +167,6 @@ def _run_static(args: argparse.Namespace, rec: Recording, rows: NDArray[np.intp]
 
 
 STATIC_REASON = "one static pose: calibration terms need several positions"
-STATIC_UNTESTABLE = (
-    "base_tilt", "cross_axis", "scale_nonlinearity", "gyro_g_sensitivity", "axis_sign",
-)  # fmt: skip
 
 
 def report_text(a: Analysis, reference: Reference | None, replayed: list[ReplayRow] | None) -> str:
@@ -229,12 +232,15 @@ def _estimates(a: Analysis, ref: Reference | None) -> list[str]:
     head = "Base-model estimates" + (f" beside {ref.name}:" if ref else ":")
     out = [head]
     rows: list[tuple[str, str, float | None]] = []
+    units = {family: QUANTITIES[family].unit for family in ("accel.bias", "accel.K", "gyro.bias")}
     for i in range(3):
-        rows.append((f"accel.bias[{i}]", "counts", ref.accel_offsets[i] if ref else None))
+        rows.append(
+            (f"accel.bias[{i}]", units["accel.bias"], ref.accel_offsets[i] if ref else None)
+        )
     for i in range(3):
-        rows.append((f"accel.K[{i}][{i}]", "counts/(m/s²)", ref.accel_scales[i] if ref else None))
+        rows.append((f"accel.K[{i}][{i}]", units["accel.K"], ref.accel_scales[i] if ref else None))
     for i in range(3):
-        rows.append((f"gyro.bias[{i}]", "counts", ref.gyro_offsets[i] if ref else None))
+        rows.append((f"gyro.bias[{i}]", units["gyro.bias"], ref.gyro_offsets[i] if ref else None))
     # the Earth rate fitted as a nuisance (no latitude or orientation), at the nominal scale
     earth = "rad/s" if a.session.gyro_lsb_known else "counts"
     rows += [(name, earth, None) for name in (*EARTH_RATE_NAMES, EARTH_RATE_VERTICAL)]
@@ -252,7 +258,7 @@ def _estimates(a: Analysis, ref: Reference | None) -> list[str]:
         out.append(
             "  gyro scale factory diag("
             + ", ".join(f"{x:.0f}" for x in ref.gyro_scales)
-            + ") counts/(rad/s): not estimable from static data"
+            + f") {QUANTITIES['gyro.S'].unit}: not estimable from static data"
         )
     return out
 

@@ -30,10 +30,10 @@ import numpy as np
 
 from canimucal.cli.output import add_json_option, check_outputs, dumps, emit
 from canimucal.io.atomic import write_text_atomic
-from canimucal.io.plans import BUILTIN_PLANS, resolve_plan
+from canimucal.io.plans import resolve_plan
 from canimucal.io.truth import load_truth
-from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
+from canimucal.model.vocabulary.plans import CUSTOM, DEFAULT_PLAN, PLANS, builtin_names, plan_help
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.runtime.operator import run_automatic
@@ -46,14 +46,6 @@ from canimucal.sim.truth import Truth
 log = logging.getLogger(__name__)
 
 DEFAULT_TIME_SCALE = 20.0
-PLAN_TRUTH_LIMITS: dict[str, dict[str, float]] = {
-    "two": {"cross_axis_max": 0.0, "tilt_max_deg": 0.0},
-    "five": {"cross_axis_max": 0.0},
-    "vehicle": {"cross_axis_max": 0.0, "scale_error_max": 0.0173},
-}
-"""A random truth for these plans leaves out what they cannot determine (see spec_for_plan).
-
-The vehicle plan's scale errors are uniform in ±1.73 %: σ 1 %, its stated prior."""
 DEMO_GYRO_G_MAX = 0.5
 """With ``--gyro-g`` a random truth's G entries are uniform in ±this (counts per m/s²)."""
 
@@ -67,9 +59,7 @@ def add_subparser(subparsers: Any) -> None:
         "CAN bus, write the result into them and compare what they hold with the truth.",
     )
     p.add_argument("--headless", action="store_true", help="no TUI: an automatic operator")
-    p.add_argument(
-        "--plan", default="recommended", help="two, five, recommended, vehicle or a plan file"
-    )
+    p.add_argument("--plan", default=DEFAULT_PLAN, help=plan_help())
     p.add_argument("--truth", help="truth JSON for the simulated unit(s) (default: random)")
     p.add_argument("--seed", type=int, default=2026, help="random seed (truth and noise)")
     p.add_argument("--seconds", type=float, help="averaging seconds of every position")
@@ -110,7 +100,7 @@ def _truths(args: argparse.Namespace) -> list[Truth]:
         base = load_truth(args.truth).to_dict()
         return [Truth.from_dict({**base, "serial": base["serial"] + i}) for i in range(args.nodes)]
     rng = np.random.default_rng(args.seed)
-    limits: dict[str, float] = dict(PLAN_TRUTH_LIMITS.get(args.plan, {}))
+    limits = plan_truth_limits(args.plan)
     if args.gyro_g:
         limits.setdefault("gyro_g_max", DEMO_GYRO_G_MAX)
     if limits:
@@ -119,6 +109,26 @@ def _truths(args: argparse.Namespace) -> list[Truth]:
             file=sys.stderr,
         )
     return [Truth.random(rng, **limits) for _ in range(args.nodes)]
+
+
+def plan_truth_limits(name: str) -> dict[str, float]:
+    """Return what a random truth for plan ``name`` leaves out: what its positions cannot tell.
+
+    From the plan registry: a diagonal K, no cross-axis terms; no tilt, no base tilt; K held
+    at a prior of relative σ, no cross-axis terms and scale errors uniform in ±√3 σ (the
+    prior's own spread, to 0.1 ‰: ±1.73 % for the vehicle plan's σ of 1 %).
+    """
+    entry = PLANS.get(name)
+    limits: dict[str, float] = {}
+    if entry is None:
+        return limits
+    if entry.accel_k == "diag" or entry.holds_k_prior:
+        limits["cross_axis_max"] = 0.0
+    if entry.tilt == "none":
+        limits["tilt_max_deg"] = 0.0
+    if entry.plan is not None and entry.plan.prior_k_sigma is not None:
+        limits["scale_error_max"] = round(float(np.sqrt(3.0)) * entry.plan.prior_k_sigma, 4)
+    return limits
 
 
 def _check_numbers(args: argparse.Namespace) -> None:
@@ -134,8 +144,8 @@ def run(args: argparse.Namespace) -> int:
     """Run the demo and print the comparison of the read-back values with the truth."""
     check_outputs(args)
     _check_numbers(args)
-    plan = resolve_plan(args.plan, builtin_plan)
-    plan_name = plan.name if plan.name in BUILTIN_PLANS else "custom"
+    plan = resolve_plan(args.plan)
+    plan_name = plan.name if plan.name in builtin_names() else CUSTOM
     truths = _truths(args)
     out = Path(args.resume or args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -205,7 +215,7 @@ def _run_tui(
     source.resume = bool(args.resume)
     source.operator, source.site_name = args.operator, args.site
     source.gyro_g = args.gyro_g
-    custom = plan if plan_name == "custom" else None
+    custom = plan if plan_name == CUSTOM else None
     app = make_app(source, plan_name=plan_name, gyro=args.gyro, custom_plan=custom)
     try:
         app.run()

@@ -15,11 +15,18 @@ from canimucal.cli.spec_options import add_model_options, spec_from_args
 from canimucal.errors import InputError
 from canimucal.io.grouping import position_rows
 from canimucal.io.importers import load_any
-from canimucal.io.plans import BUILTIN_PLANS, plan_to_dict, resolve_plan
+from canimucal.io.plans import plan_to_dict, resolve_plan
 from canimucal.model.layout import JointSpec
-from canimucal.model.plan import BoundTable, builtin_plan, cramer_rao, plan_prior
+from canimucal.model.plan import BoundTable, cramer_rao, plan_prior
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, STANDARD_GRAVITY
+from canimucal.model.vocabulary.plans import (
+    DEFAULT_PLAN,
+    PLANS,
+    builtin_names,
+    builtin_plan,
+    plan_help,
+)
 from canimucal.procedure.averaging import (
     AveragingPolicy,
     averaged_sensors,
@@ -40,8 +47,8 @@ def add_subparser(subparsers: Any) -> None:
     )
     p.add_argument(
         "--plan",
-        default="recommended",
-        help="two, five, recommended, vehicle or a plan file (JSON/TOML)",
+        default=DEFAULT_PLAN,
+        help=plan_help() + " (JSON/TOML)",
     )
     p.add_argument(
         "--compare",
@@ -82,14 +89,14 @@ def run(args: argparse.Namespace) -> int:
     check_outputs(args)
     spec = spec_from_args(args)
     if args.compare:
-        plans = [builtin_plan(name) for name in BUILTIN_PLANS]
-        if args.plan not in BUILTIN_PLANS:
-            plans.append(resolve_plan(args.plan, builtin_plan))
+        plans = [builtin_plan(name) for name in builtin_names()]
+        if args.plan not in builtin_names():
+            plans.append(resolve_plan(args.plan))
         tables = [(plan, _table(args, _timed(args, plan), spec)) for plan in plans]
         compared = {"plans": [bound_document(t, p) for p, t in tables]}
         emit(args, compared, comparison_report(tables))
         return 0
-    plan = _timed(args, resolve_plan(args.plan, builtin_plan))
+    plan = _timed(args, resolve_plan(args.plan))
     table = _table(args, plan, spec)
     document = bound_document(table, plan)
     report = bound_report(table, plan)
@@ -184,8 +191,10 @@ def moves_report(bounds: GyroMoveBounds) -> str:
 def bound_document(table: BoundTable, plan: Plan) -> dict[str, Any]:
     """Return the JSON form of a bound table, with the plan's positions and operator time."""
     worst = table.worst_case_counts
+    entry = PLANS.get(table.plan)
     return {
         "plan": table.plan,
+        **({"description": entry.description} if entry is not None else {}),
         "total_seconds": plan.total_seconds,
         "operator_minutes": plan.operator_minutes,
         "positions": plan_to_dict(plan)["positions"],
@@ -229,9 +238,11 @@ def _spec_dict(table: BoundTable) -> dict[str, Any]:
 
 def bound_report(table: BoundTable, plan: Plan) -> str:
     """Format the bound table, the positions and the priors as text (fits 80 columns)."""
+    entry = PLANS.get(table.plan)
     lines = [
         f"plan {table.plan}: {plan.total_seconds:g} s of averaging in all, "
         f"{plan.operator_minutes:.0f} operator minutes",
+        *([entry.description] if entry is not None else []),
         "bounds at white noise 1 count/√Hz, K = I/LSB, zero tilt",
         *_position_lines(plan),
         f"{'parameter':<22}{'σ (own units)':>16} {'unit':<14}{'effect at 1 g':>14}",

@@ -26,8 +26,8 @@ from canimucal.io.atomic import per_node_path, refuse_existing
 from canimucal.io.plans import resolve_plan
 from canimucal.io.recording import HeaderValue
 from canimucal.io.recording_writer import RecordingWriter
-from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import DEFAULT_SECONDS, Plan, PlannedPosition
+from canimucal.model.vocabulary.plans import CUSTOM, plan_help
 from canimucal.sim.schedule import set_by_operator
 from canimucal.sim.truth import Truth
 
@@ -53,7 +53,7 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("output", help="recording CSV to write")
     what = p.add_mutually_exclusive_group(required=True)
     what.add_argument("--position", type=int, metavar="I", help="index of this position")
-    what.add_argument("--plan", metavar="P", help="two, five, recommended, vehicle or a plan file")
+    what.add_argument("--plan", metavar="P", help=plan_help())
     p.add_argument("--alpha-deg", type=float, help="tilt alpha of the position (deg)")
     p.add_argument("--beta-deg", type=float, help="tilt beta of the position (deg)")
     p.add_argument("--psi-deg", type=float, default=0.0, help="turn psi (deg, default 0)")
@@ -114,7 +114,7 @@ def check_args(args: argparse.Namespace) -> Plan:
     else:
         if args.append:
             raise InputError("--append records one position (--position), not a plan")
-        plan = resolve_plan(args.plan, builtin_plan)
+        plan = resolve_plan(args.plan)
         if args.seconds is not None:
             plan = plan.with_total_seconds(args.seconds * len(plan.positions))
     ids = node_ids(args)
@@ -135,7 +135,7 @@ def _single_position_plan(args: argparse.Namespace) -> Plan:
         raise InputError("--position needs --alpha-deg and --beta-deg")
     seconds = args.seconds if args.seconds is not None else DEFAULT_SECONDS
     alpha, beta, psi = np.deg2rad([args.alpha_deg, args.beta_deg, args.psi_deg])
-    return Plan("custom", (PlannedPosition(alpha, beta, psi, seconds=seconds),))
+    return Plan(CUSTOM, (PlannedPosition(alpha, beta, psi, seconds=seconds),))
 
 
 def header_for(

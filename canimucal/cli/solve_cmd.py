@@ -13,6 +13,7 @@ from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.cli.spec_options import add_model_options, choice_from_args
 from canimucal.io.calibration import RecordingRef, sha256_of
 from canimucal.io.importers import FORMATS, detect_format, load_any
+from canimucal.model.vocabulary.units import QUANTITIES
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -86,21 +87,28 @@ def solution_report(solution: Solution, g_source: str) -> str:
     """Every parameter with its σ, what was not determined, and the fit quality."""
     r = solution.record
     lines = [f"plan {r.plan}; g = {r.conditions.g if r.conditions else '?'} m/s² ({g_source})"]
-    lines += _vector_lines("accel bias (counts)", r.accel.bias, r.accel.bias_sigma)
-    lines += _matrix_lines("accel K (counts per m/s²)", r.accel.K, r.accel.K_sigma)
+    lines += _vector_lines(_label("accel.bias"), r.accel.bias, r.accel.bias_sigma)
+    lines += _matrix_lines(_label("accel.K"), r.accel.K, r.accel.K_sigma)
     if r.base_tilt_deg is not None:
-        t = r.base_tilt_deg
+        t, deg = r.base_tilt_deg, QUANTITIES["base_tilt"].shown_unit
         s = t.sigma or (None, None)
-        lines.append(f"base tilt: alpha0 {_pm(t.alpha0, s[0])} deg, beta0 {_pm(t.beta0, s[1])} deg")
+        lines.append(
+            f"base tilt: alpha0 {_pm(t.alpha0, s[0])} {deg}, beta0 {_pm(t.beta0, s[1])} {deg}"
+        )
     if r.gyro is not None:
-        lines += _vector_lines("gyro bias (counts)", r.gyro.bias, r.gyro.bias_sigma)
-        lines += _matrix_lines("gyro S (counts per rad/s)", r.gyro.S, r.gyro.S_sigma)
-        lines += _matrix_lines("gyro G (counts per m/s²)", r.gyro.G, r.gyro.G_sigma)
+        lines += _vector_lines(_label("gyro.bias"), r.gyro.bias, r.gyro.bias_sigma)
+        lines += _matrix_lines(_label("gyro.S"), r.gyro.S, r.gyro.S_sigma)
+        lines += _matrix_lines(_label("gyro.G"), r.gyro.G, r.gyro.G_sigma)
     for name, reason in solution.undetermined.items():
         lines.append(f"not determined: {name}: {reason}")
     if r.fit is not None and r.fit.rms is not None:
         lines.append(f"fit: rms {r.fit.rms:.3g} m/s² after correction, dof {r.fit.dof}")
     return "\n".join(lines) + "\n"
+
+
+def _label(family: str) -> str:
+    """``accel K (counts per m/s²)``: a parameter family in words, with its unit."""
+    return f"{family.replace('.', ' ')} ({QUANTITIES[family].unit_words})"
 
 
 def _pm(value: float | None, sigma: float | None) -> str:

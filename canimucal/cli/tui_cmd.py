@@ -19,12 +19,12 @@ import numpy as np
 from canimucal.cli.bus_options import add_bus_options, device_settings, node_ids
 from canimucal.errors import InputError
 from canimucal.io.mounting import BODY
-from canimucal.io.plans import BUILTIN_PLANS, resolve_plan
+from canimucal.io.plans import resolve_plan
 from canimucal.model.gravity import normal_gravity
 from canimucal.model.mounting import MountingMap
-from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import STANDARD_GRAVITY
+from canimucal.model.vocabulary.plans import CUSTOM, DEFAULT_PLAN, builtin_names, plan_help
 
 if TYPE_CHECKING:
     from canimucal.tui.source import DeviceSource
@@ -41,9 +41,7 @@ def add_subparser(subparsers: Any) -> None:
         "review the result and write it transactionally.",
     )
     add_bus_options(p)
-    p.add_argument(
-        "--plan", default="recommended", help="two, five, recommended, vehicle or a plan file"
-    )
+    p.add_argument("--plan", default=DEFAULT_PLAN, help=plan_help())
     p.add_argument("--gyro", choices=("mems", "nav"), default="mems", help="gyro grade")
     p.add_argument(
         "--gyro-g",
@@ -122,8 +120,8 @@ def _where(args: argparse.Namespace) -> str:
 
 def plan_choice(name_or_path: str) -> tuple[Plan, str]:
     """Return the plan ``--plan`` names and its name in the TUI (a built-in's, else custom)."""
-    plan = resolve_plan(name_or_path, builtin_plan)
-    return plan, plan.name if plan.name in BUILTIN_PLANS else "custom"
+    plan = resolve_plan(name_or_path)
+    return plan, plan.name if plan.name in builtin_names() else CUSTOM
 
 
 def device_source(args: argparse.Namespace) -> DeviceSource:
@@ -175,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
     if args.resume:  # a different plan or an unreadable recording: exit 2 before the TUI
         load_resume_state(args.resume, plan)
     source = device_source(args)
-    custom = plan if plan_name == "custom" else None
+    custom = plan if plan_name == CUSTOM else None
     app = make_app(source, plan_name=plan_name, gyro=args.gyro, custom_plan=custom)
     try:
         app.run()

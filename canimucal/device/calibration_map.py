@@ -32,9 +32,8 @@ from canimucal.io.calibration import (
     Tool,
     Vector,
 )
+from canimucal.model.vocabulary.plans import PLANS, plan_named_by
 from canimucal.version import __version__
-
-PLAN_NAMES = {code: name for name, code in od.PLAN_CODES.items()}
 
 
 def _inverse(matrix: NDArray[np.float64], name: str) -> NDArray[np.float64]:
@@ -70,7 +69,7 @@ def block_from_record(
         gyro_g=gyro.G_matrix(),
         base_tilt_rad=np.deg2rad([tilt.alpha0 or 0.0, tilt.beta0 or 0.0]),
         time_unix_s=_unix_time(record.created),
-        plan_code=od.PLAN_CODES[record.plan] if record.plan is not None else 0,
+        plan_code=PLANS.lookup(record.plan).device_code if record.plan is not None else 0,
         temp_c=_or_zero(record.conditions.temp_c if record.conditions else None),
         rms_ms2=_or_zero(record.fit.rms if record.fit else None),
     )
@@ -154,7 +153,7 @@ def record_from_block(
     alpha0, beta0 = np.rad2deg(np.asarray(block.base_tilt_rad, float))
     return Calibration(
         created=created,
-        plan=PLAN_NAMES.get(block.plan_code),
+        plan=plan_named_by(block.plan_code),
         tool=Tool(name="canimucal", version=__version__),
         device=Device(
             node_id=node_id,

@@ -35,6 +35,7 @@ from canimucal.device.stream import SampleLayout, SamplePairer, layout_from_mapp
 from canimucal.device.stream_consumer import StreamConsumer
 from canimucal.errors import DeviceError, DeviceSilentError, NoDeviceError, SdoAbort
 from canimucal.model.samples import SampleBlock, concat_blocks
+from canimucal.model.vocabulary.constants import OUTPUT_DATA_RATES_HZ
 from canimucal.untrusted import DEVICE_TEXT_MAX_BYTES, device_text
 
 logger = logging.getLogger(__name__)
@@ -230,8 +231,10 @@ class ImuClient:
 
     def set_output_data_rate(self, rate_hz: int) -> None:
         """Change the output data rate (only when the user asks: docs/design.md §4 quiet bus)."""
-        if rate_hz not in od.ODR_CHOICES_HZ:
-            raise ValueError(f"output data rate must be one of {od.ODR_CHOICES_HZ}, got {rate_hz}")
+        if rate_hz not in OUTPUT_DATA_RATES_HZ:
+            raise ValueError(
+                f"output data rate must be one of {OUTPUT_DATA_RATES_HZ}, got {rate_hz}"
+            )
         if self._original_odr is None:
             self._original_odr = self.output_data_rate()
         self.write_value(od.NOMINAL, 3, "u16", rate_hz)
@@ -271,10 +274,6 @@ class ImuClient:
         return CalibrationReadout(
             od.CalibrationBlock.from_objects(objects), valid, crc_stored, crc_ok, objects, read
         )
-
-    def store_calibration(self) -> None:
-        """Persist the calibration objects: 0x1010:04 = 'save'."""
-        self.store(od.STORE_CALIBRATION_SUB)
 
     def store_supported(self, sub: int) -> bool:
         """Tell whether 0x1010:``sub`` exists and reports "save on command" (bit 0).
@@ -468,11 +467,6 @@ class ImuClient:
         fault caused); negative: it is fast and re-sends counters (duplicates, not losses).
         """
         return self._stream.pairer.skew_ppm if self._stream is not None else None
-
-    @property
-    def consumer_cpu_s(self) -> float:
-        """CPU seconds the consumer thread has used (0 when not streaming)."""
-        return self._stream.cpu_s if self._stream is not None else 0.0
 
     @property
     def consumer_thread(self) -> threading.Thread | None:

@@ -12,13 +12,11 @@ import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
-ACCEL_RAW = 0x2000
-GYRO_RAW = 0x2001
-SAMPLE_INFO = 0x2002
-SIGNED_OBJECTS = {(ACCEL_RAW, 1), (ACCEL_RAW, 2), (ACCEL_RAW, 3), (GYRO_RAW, 1), (GYRO_RAW, 2)}
-SIGNED_OBJECTS |= {(GYRO_RAW, 3), (SAMPLE_INFO, 1)}
-COUNTER_BITS = 16
-"""The sample counter 0x2002:02 is UNSIGNED16; pairing wraps it at 2**16."""
+from canimucal.device.objects import ACCEL_RAW, GYRO_RAW, OBJECTS, SAMPLE_INFO
+from canimucal.model.vocabulary.constants import COUNTER_BITS
+
+SIGNED_OBJECTS = frozenset(o.key for o in OBJECTS if o.data_type == "i16")
+"""The raw outputs and the temperature are INTEGER16 (the object table's)."""
 TEMP_SCALE_C = 0.01
 """0x2002:01 is in 0.01 °C."""
 

@@ -39,6 +39,7 @@ from canimucal.device.pdo_layout import (
     layout_from_mapping,
 )
 from canimucal.model.samples import SampleBlock
+from canimucal.model.vocabulary.constants import COUNTER_MODULUS
 
 __all__ = [
     "MappedField",
@@ -50,7 +51,6 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-COUNTER_MODULUS = 65536
 STALL_GRACE_S = 1.0
 """When the stream stalls, a pending half is given up after max(2 periods, this) of CAN time.
 

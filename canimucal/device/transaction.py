@@ -58,7 +58,6 @@ logger = logging.getLogger(__name__)
 ObjectKey = tuple[int, int]
 VALID_KEY: ObjectKey = (od.CAL_INFO, od.CAL_VALID_SUB)
 CRC_KEY: ObjectKey = (od.CAL_INFO, od.CAL_CRC_SUB)
-STORE_KEY: ObjectKey = (od.STORE, od.STORE_CALIBRATION_SUB)
 STORE_SUB_CHOICES = (od.STORE_ALL_SUB, od.STORE_APP_SUB, od.STORE_CALIBRATION_SUB)
 _BACKUP_ATTEMPTS = 20
 

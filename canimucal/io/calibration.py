@@ -30,13 +30,11 @@ from canimucal import schema as cs
 from canimucal.errors import InputError, ModelError, SchemaError
 from canimucal.io.atomic import write_text_atomic
 from canimucal.model.positions import PositionAverage
+from canimucal.model.vocabulary.plans import PLANS
 from canimucal.version import __version__
 
 SCHEMA = "canimucal.calibration/1"
 """The only calibration schema this version reads and writes."""
-
-PLANS = ("two", "five", "recommended", "vehicle", "custom", "scalar")
-"""Allowed values of ``plan``."""
 
 Vector = tuple[float | None, ...]
 Matrix = tuple[Vector, ...]
@@ -253,7 +251,7 @@ class Calibration:
 
     schema: str = field(default=SCHEMA, metadata=cs.text(choices=(SCHEMA,)))
     created: str | None = field(default=None, metadata=cs.timestamp())
-    plan: str | None = field(default=None, metadata=cs.text(choices=PLANS))
+    plan: str | None = field(default=None, metadata=cs.text(choices=PLANS))  # the registry
     tool: Tool | None = field(default=None, metadata=cs.block(Tool))
     device: Device = field(metadata=cs.block(Device))
     conditions: Conditions | None = field(default=None, metadata=cs.block(Conditions))

@@ -20,11 +20,9 @@ from canimucal.errors import InputError
 from canimucal.io.recording import Recording
 from canimucal.model.positions import Pose, PositionAverage, average_position
 from canimucal.model.static import detect_static_intervals
+from canimucal.model.vocabulary.constants import COUNTER_MODULUS
 
 logger = logging.getLogger(__name__)
-
-COUNTER_MODULUS = 65536
-"""The sample counter 0x2002:02 is a U16 that wraps (docs/design.md §4)."""
 
 
 def position_labels(recording: Recording) -> list[int]:

@@ -7,8 +7,7 @@ turn its own tolerance (a vehicle turned on the spot). ``alpha_deg`` and ``beta_
 180° in magnitude (an upside-down pose of a measured six-position session is alpha = 180°);
 the turn ``psi_deg`` about the unit's own y axis at most 360° (the recommended plan turns the
 unit 0/90/180/270°).
-The built-in plans (``two``, ``five``, ``recommended``, ``vehicle``) live in
-:mod:`canimucal.model.plan`.
+The built-in plans live in the plan registry, :mod:`canimucal.model.vocabulary.plans`.
 """
 
 from __future__ import annotations
@@ -16,7 +15,6 @@ from __future__ import annotations
 import json
 import os
 import tomllib
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -25,10 +23,8 @@ import numpy as np
 from canimucal.errors import InputError, SchemaError
 from canimucal.io.atomic import write_text_atomic
 from canimucal.model.positions import DEFAULT_SECONDS, Plan, PlannedPosition
+from canimucal.model.vocabulary.plans import CUSTOM, builtin_names, builtin_plan
 from canimucal.schema import parse_json, read_number, read_text
-
-BUILTIN_PLANS = ("two", "five", "recommended", "vehicle")
-"""Plan names resolved by the model, not read from a file."""
 
 DEFAULT_TOLERANCE_DEG = 0.1
 """Angle-setting tolerance of a position that names none (docs/design.md §3)."""
@@ -65,7 +61,7 @@ def plan_from_document(document: Any, source: str = "plan") -> Plan:
     positions = document.get("positions")
     if not isinstance(positions, list) or not positions:
         raise InputError(f"{source}: 'positions' must be a non-empty list")
-    return Plan("custom", tuple(_position(p, i + 1, source) for i, p in enumerate(positions)))
+    return Plan(CUSTOM, tuple(_position(p, i + 1, source) for i, p in enumerate(positions)))
 
 
 def _position(entry: Any, number: int, source: str) -> PlannedPosition:
@@ -136,16 +132,16 @@ def write_plan(path: str | os.PathLike[str], plan: Plan, *, overwrite: bool) -> 
     return write_text_atomic(path, text, overwrite=overwrite)
 
 
-def resolve_plan(name_or_path: str | os.PathLike[str], builtin: Callable[[str], Plan]) -> Plan:
-    """Return a built-in plan by name (``two``, ``five``, ``recommended``), else read a file.
+def resolve_plan(name_or_path: str | os.PathLike[str]) -> Plan:
+    """Return a built-in plan by name (the plan registry's), else read a plan file.
 
     Built-in names win over a file of the same name (write ``./five`` for the file).
     """
-    if isinstance(name_or_path, str) and name_or_path in BUILTIN_PLANS:
-        return builtin(name_or_path)
+    names = builtin_names()
+    if isinstance(name_or_path, str) and name_or_path in names:
+        return builtin_plan(name_or_path)
     if not Path(name_or_path).is_file():
         raise InputError(
-            f"unknown plan {str(name_or_path)!r}: not one of {', '.join(BUILTIN_PLANS)} "
-            "and no such file"
+            f"unknown plan {str(name_or_path)!r}: not one of {', '.join(names)} and no such file"
         )
     return read_plan(name_or_path)

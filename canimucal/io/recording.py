@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from canimucal.errors import InputError
+from canimucal.model.vocabulary.constants import OUTPUT_DATA_RATES_HZ
 
 __all__ = [
     "COLUMNS",
@@ -39,8 +40,6 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-DEVICE_RATES_HZ = (50, 100, 200, 250, 500, 1000)
-"""Output data rates the IMU offers (0x2010:03); an inferred rate near one snaps to it."""
 
 # ------------------------------------------------------------------------------- recording
 
@@ -245,7 +244,7 @@ def _infer_rate(t: FloatArray, source: str) -> float:
         where = source or "recording"
         raise InputError(f"{where}: no sample_rate_hz header and t does not give one")
     rate = 1.0 / median
-    for device_rate in DEVICE_RATES_HZ:
+    for device_rate in OUTPUT_DATA_RATES_HZ:
         if abs(rate - device_rate) <= 0.005 * device_rate:
             return float(device_rate)
     return rate

@@ -21,12 +21,12 @@ from numpy.typing import NDArray
 from canimucal.errors import ModelError
 from canimucal.model.dcm_stack import dcm_stack
 from canimucal.model.frames import (
-    EARTH_RATE_RAD_S,
     TiltModel,
     earth_rate_level,
     specific_force_level,
 )
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
+from canimucal.model.vocabulary.units import quantity_of
 
 Array = NDArray[np.float64]
 AccelKSpec = Literal["diag", "full"]
@@ -150,10 +150,8 @@ class ParameterLayout:
         Biases 1; K and G entries g; tilt angles |k|·g; S entries Ω (their effect at the
         Earth rate). Used to normalise the Fisher information so units do not dominate.
         """
-        table = {"accel.bias": 1.0, "gyro.bias": 1.0, "accel.K": g, "gyro.G": g}
-        table["base_tilt"] = abs(k_counts_per_ms2) * g
-        table["gyro.S"] = EARTH_RATE_RAD_S
-        return np.array([table[n.split("[")[0] if "[" in n else "base_tilt"] for n in self.names])
+        k = abs(k_counts_per_ms2)
+        return np.array([quantity_of(n).effect_counts(g, k) for n in self.names])
 
     def pack(self, params: ModelParams) -> Array:
         """Inverse of :meth:`unpack`: theta from the model's matrices."""

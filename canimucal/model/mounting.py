@@ -35,8 +35,6 @@ from canimucal.model.positions import Pose
 
 Array = NDArray[np.float64]
 
-VEHICLE_AXES = ("forward", "left", "up")
-"""The vehicle frame, right-handed: forward × left = up."""
 _DIRECTIONS = {
     "forward": (0, 1.0),
     "back": (0, -1.0),

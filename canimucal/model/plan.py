@@ -27,8 +27,10 @@ from canimucal.model.layout import (
     angle_error_moments,
     predict,
 )
-from canimucal.model.positions import Plan, PlannedPosition
+from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, STANDARD_GRAVITY
+from canimucal.model.vocabulary.plans import DEFAULT_PLAN, builtin_plan
+from canimucal.model.vocabulary.units import quantity_of
 
 log = logging.getLogger(__name__)
 
@@ -172,98 +174,6 @@ def _undetermined_reason(names: Sequence[str], vec: Array, null: NDArray[np.bool
     return f"not identifiable from these positions (null direction carried by {who})"
 
 
-def _plan(name: str, degrees: Sequence[tuple[float, float, float]]) -> Plan:
-    return Plan(
-        name,
-        tuple(
-            PlannedPosition(
-                float(np.deg2rad(a)), float(np.deg2rad(b)), float(np.deg2rad(p)), seconds=30.0
-            )
-            for a, b, p in degrees
-        ),
-    )
-
-
-TWO = _plan("two", [(0, 0, 0), (45, 5, 0)])
-"""The paper's two positions (eq. 1-14): level and (45°, 5°); 30 s each, tolerance 0.1°."""
-
-FIVE = _plan("five", [(0, 0, 0), (22.5, 0, 0), (22.5, 2.5, 0), (45, 2.5, 0), (45, 5, 0)])
-"""The paper's five positions (eq. 15-34), degrees; 30 s each, tolerance 0.1°."""
-
-RECOMMENDED = _plan(
-    "recommended",
-    [(0, 0, 0), (45, 45, 0), (45, 45, 90), (0, 0, 90)]
-    + [(0, 0, 180), (45, 45, 180), (45, 45, 270), (0, 0, 270)],
-)
-"""Ours: two stands (level, and alpha = beta = 45°), the unit turned by psi 0/90/180/270° on each.
-
-Eight positions, 30 s each; the second stand is a double wedge (45° about z, then 45° about
-the new x: gravity 60° off the unit's y axis). The stands alternate: level, tilted, tilted,
-level, level, tilted, tilted, level (psi 0, 0, 90, 90, 180, 180, 270, 270), so that the
-moves turn about every body axis: the four stand changes, made at four different psi, turn
-about x and z, the turns on a stand about y. The gyro's full S is then identifiable from the
-moves (``plan --gyro moves``: σ 0.10–0.20 % of the scale on every entry at 1 count/√Hz and
-100 Hz); visiting each stand's four poses in a row turns about y only and leaves S's columns
-x and z not identifiable.
-
-The accelerometer's bounds depend on the poses, not their order. The level turns separate
-the x/z biases from the base tilt (the tilt reverses under a 180° turn, the biases do not);
-the tilted turns put ±0.5 g on x and z and -0.5 g on y, so bias, FULL K and the rigid tilt
-are identifiable and separable (smallest normalised eigenvalue ratio 0.014, largest
-|correlation| 0.96). Found with ``benchmarks/plan_search.py`` (exchange search over round
-poses; its best, 0.327 counts, needs mixed poses). At equal total averaging time (150 s,
-white noise 1 count/√Hz, k = 2048/g) the worst-case bound for bias + diagonal K + rigid tilt
-is 0.383 counts (K[1][1]) against FIVE's 4.21 counts (bias z, correlated -0.9996 with
-beta0): a ratio of 11.0; with the 0.1° angle tolerances included, 3.99 against 63.7 counts
-(16×). With the tolerances included, bias y and K[1][1] correlate at +0.9996 (every plan
-with tilts ≤ 45° sees f_y only in [-g, -g/2]); repeating the poses is what reduces that.
-"""
-
-
-VEHICLE_TILT_DEG = 10.0
-"""Largest tilt of the vehicle plan: a step ladder or ramp under one axle or one side."""
-VEHICLE_LEVEL_TOLERANCE_DEG = 0.2
-"""1σ of the vehicle's attitude when parked again on the same spot (floor unevenness)."""
-VEHICLE_TILT_TOLERANCE_DEG = 0.5
-"""1σ of a ladder tilt: the nominal 10° is set by eye and the wheelbase, not measured."""
-VEHICLE_TURN_TOLERANCE_DEG = 5.0
-"""1σ of a turn of the whole vehicle on the spot."""
-VEHICLE_PRIOR_K_SIGMA = 0.01
-"""Relative 1σ of the factory K the vehicle plan relies on (1 % of the nominal scale, on
-every entry: a datasheet's scale-factor tolerance and cross-axis sensitivity)."""
-
-
-def _vehicle_plan() -> Plan:
-    level, tilt = np.deg2rad(VEHICLE_LEVEL_TOLERANCE_DEG), np.deg2rad(VEHICLE_TILT_TOLERANCE_DEG)
-    turn, t = np.deg2rad(VEHICLE_TURN_TOLERANCE_DEG), np.deg2rad(VEHICLE_TILT_DEG)
-    positions = [
-        PlannedPosition(0.0, 0.0, float(psi), float(level), 60.0, psi_tolerance=float(turn))
-        for psi in np.deg2rad([0.0, 90.0, 180.0, 270.0])
-    ]
-    positions += [
-        PlannedPosition(float(a), float(b), 0.0, float(tilt), 60.0)
-        for a, b in ((t, 0.0), (-t, 0.0), (0.0, t), (0.0, -t))
-    ]
-    return Plan("vehicle", tuple(positions), prior_k_sigma=VEHICLE_PRIOR_K_SIGMA, setup_seconds=180)
-
-
-VEHICLE = _vehicle_plan()
-"""The whole vehicle, the unit bolted in: no tilt above 10°, nothing unbolted.
-
-Four level poses, the vehicle turned on the spot by psi 0/90/180/270° (1σ 5°; its level
-repeatable to 0.2° on the same spot), then four ladder poses: each end and each side raised
-by 10° (alpha ±10° about z, beta ±10° about x; 1σ 0.5°), 60 s each, 3 min of setting up each.
-The turns reverse the floor's slope under the unit, separating it (the base tilt) from the
-x/z biases. Every pose sees f_y within cos 10° = 0.985 of -g, so bias y and K_yy (and the
-x/z biases and the K entries driven by f_y) cannot be told apart: the plan holds K at the
-factory value with 1 % relative σ (a prior, stated in the bound table and the calibration),
-and the bias y is then known to about g·σ(K_yy).
-"""
-
-
-_BUILTIN = {"two": TWO, "five": FIVE, "recommended": RECOMMENDED, "vehicle": VEHICLE}
-
-
 def plan_prior(
     plan: Plan,
     spec: JointSpec,
@@ -337,14 +247,6 @@ class KPrior:
         return f"{self.mean_source}; σ {rel} of the nominal scale: {full.sigma_source}"
 
 
-def builtin_plan(name: str) -> Plan:
-    """Return the built-in plan ``two``, ``five``, ``recommended`` or ``vehicle``."""
-    try:
-        return _BUILTIN[name]
-    except KeyError:
-        raise ModelError(f"unknown plan {name!r}; built-in plans: {', '.join(_BUILTIN)}") from None
-
-
 def nominal_params(k_counts_per_ms2: float, gyro_lsb: float = DEFAULT_GYRO_LSB) -> ModelParams:
     """Return the point where bounds are evaluated: zero biases and tilt, K = k·I, nominal S."""
     zero = np.zeros(3)
@@ -404,16 +306,6 @@ def fisher_information(
         j = layout.index(name)
         fisher[j, j] += 1.0 / sigma**2
     return np.asarray(fisher)
-
-
-_UNITS = {
-    "accel.bias": "counts",
-    "accel.K": "counts/(m/s²)",
-    "base_tilt": "rad",
-    "gyro.bias": "counts",
-    "gyro.S": "counts/(rad/s)",
-    "gyro.G": "counts/(m/s²)",
-}
 
 
 @dataclass(frozen=True)
@@ -504,7 +396,7 @@ def cramer_rao(
     sep = analyse_information(fisher, layout.names, scales)
     rows = []
     for j, name in enumerate(layout.names):
-        unit = _UNITS[name.split("[")[0] if "[" in name else "base_tilt"]
+        unit = quantity_of(name).unit
         if name in sep.undetermined:
             rows.append(Bound(name, unit, None, None, sep.undetermined[name]))
             continue
@@ -515,7 +407,7 @@ def cramer_rao(
 
 
 def plan_bounds(
-    plan: Plan | str = "recommended",
+    plan: Plan | str = DEFAULT_PLAN,
     *,
     model: Literal["diag", "full"] = "diag",
     tilt: bool = True,

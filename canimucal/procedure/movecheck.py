@@ -29,8 +29,6 @@ from canimucal.model.positions import Pose
 
 Array = NDArray[np.float64]
 
-DEFAULT_MOVE_TOLERANCE_DEG = 15.0
-"""Largest attitude error (degrees) a checked move may show before calibration."""
 MAX_KEPT_MOVE_S = 600.0
 """Raw rows of a move longer than this (sample time) are not kept for the fit of S."""
 

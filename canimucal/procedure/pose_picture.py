@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from canimucal.model.frames import position_dcm
 from canimucal.model.mounting import DEFAULT_MOUNTING
 from canimucal.model.positions import Plan, Pose
+from canimucal.model.vocabulary.plans import worded_for_vehicle
 from canimucal.procedure.posecheck import describe_pose
 
 Array = NDArray[np.float64]
@@ -161,7 +162,7 @@ def field_guide(plans: Sequence[Plan]) -> tuple[str, dict[str, str]]:
                 + ".",
                 "",
             ]
-            if plan.name == "vehicle":
+            if worded_for_vehicle(plan.name):
                 words = _one_line(describe_pose(position, DEFAULT_MOUNTING))
                 lines += [f"For the vehicle: {words}.", ""]
     return "\n".join(lines).rstrip() + "\n", pictures

@@ -10,7 +10,7 @@ data re-read at level), and the warnings. Device text is escaped for Markdown an
 from __future__ import annotations
 
 import html
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -18,6 +18,8 @@ from canimucal.analysis.acceptance import AcceptanceLimits, AcceptanceReport
 from canimucal.device.client import Identity
 from canimucal.io.calibration import Calibration, Verification, calibration_to_dict
 from canimucal.model.mounting import MountingMap
+from canimucal.model.vocabulary.plans import PLANS
+from canimucal.model.vocabulary.units import QUANTITIES
 from canimucal.procedure.events import LevelChecked
 from canimucal.untrusted import markdown_text
 
@@ -26,8 +28,9 @@ K1_STATEMENT = (
     "distribution); for about 95 % multiply by 2 (k = 2)."
 )
 UNITS = (
-    "Units: biases in counts; K in counts per m/s²; S in counts per rad/s; base tilt in "
-    "degrees; |f| − g in m/s²."
+    "Units: "
+    + "; ".join(f"{q.family} in {q.unit_words}" for q in QUANTITIES.values())
+    + "; |f| − g in m/s²."
 )
 
 
@@ -110,18 +113,25 @@ def _matrix_rows(name: str, values: Any, sigmas: Any) -> list[str]:
     return rows
 
 
+def _label(family: str) -> str:
+    """``accel.K (counts per m/s²)``: a parameter family with its unit."""
+    return f"{family} ({QUANTITIES[family].unit_words})"
+
+
 def _values_table(d: dict[str, Any]) -> list[str]:
     accel, gyro = d["accel"], d.get("gyro") or {}
     lines = ["| parameter | value ± σ |", "|---|---|"]
-    lines += _vector_rows("accel.bias (counts)", accel.get("bias"), accel.get("bias_sigma"))
-    lines += _matrix_rows("accel.K (counts per m/s²)", accel.get("K"), accel.get("K_sigma"))
-    lines += _vector_rows("gyro.bias (counts)", gyro.get("bias"), gyro.get("bias_sigma"))
-    lines += _matrix_rows("gyro.S (counts per rad/s)", gyro.get("S"), gyro.get("S_sigma"))
+    lines += _vector_rows(_label("accel.bias"), accel.get("bias"), accel.get("bias_sigma"))
+    lines += _matrix_rows(_label("accel.K"), accel.get("K"), accel.get("K_sigma"))
+    lines += _vector_rows(_label("gyro.bias"), gyro.get("bias"), gyro.get("bias_sigma"))
+    lines += _matrix_rows(_label("gyro.S"), gyro.get("S"), gyro.get("S_sigma"))
+    lines += _matrix_rows(_label("gyro.G"), gyro.get("G"), gyro.get("G_sigma"))
     tilt = d.get("base_tilt_deg")
     if tilt:
         sig = tilt.get("sigma") or [None, None]
-        lines.append(f"| base tilt alpha0 (deg) | {_fmt(tilt.get('alpha0'), sig[0])} |")
-        lines.append(f"| base tilt beta0 (deg) | {_fmt(tilt.get('beta0'), sig[1])} |")
+        unit = QUANTITIES["base_tilt"].shown_unit
+        lines.append(f"| base tilt alpha0 ({unit}) | {_fmt(tilt.get('alpha0'), sig[0])} |")
+        lines.append(f"| base tilt beta0 ({unit}) | {_fmt(tilt.get('beta0'), sig[1])} |")
     return lines
 
 
@@ -200,6 +210,13 @@ def certificate_markdown(
     return "\n".join(lines) + "\n"
 
 
+def _plan_text(d: dict[str, Any], escape: Callable[[str], str]) -> str:
+    """``recommended (two stands turned four ways: …)``: the plan and its registry wording."""
+    name = str(d.get("plan", "unknown"))
+    entry = PLANS.get(name)
+    return escape(name) if entry is None else f"{escape(name)} ({escape(entry.description)})"
+
+
 def _head(d: dict[str, Any], identity: Identity, facts: SessionFacts) -> list[str]:
     cond = d.get("conditions") or {}
     fit = d.get("fit") or {}
@@ -214,7 +231,7 @@ def _head(d: dict[str, Any], identity: Identity, facts: SessionFacts) -> list[st
         f"product 0x{identity.product_code:08X}, revision 0x{identity.revision:08X}, "
         f"hardware {markdown_text(identity.hardware_version) or '—'}, "
         f"software {markdown_text(identity.software_version) or '—'}",
-        f"- Plan: {d.get('plan', 'unknown')}, {len(d.get('positions') or [])} positions",
+        f"- Plan: {_plan_text(d, markdown_text)}, {len(d.get('positions') or [])} positions",
         f"- Mounting: {markdown_text(facts.mounting) if facts.mounting else 'unit axes (bench)'}",
         f"- Conditions: g = {cond.get('g')} m/s², latitude {cond.get('latitude_deg')}°, "
         f"heading {cond.get('heading_deg')}°, temperature {cond.get('temp_c')} °C",
@@ -264,7 +281,7 @@ def certificate_html(
         ("Date (UTC)", e(str(d.get("created", "unknown")))),
         ("Operator", e(facts.operator) if facts.operator else "not given"),
         ("Site", e(facts.site) if facts.site else "not given"),
-        ("Plan", f"{e(str(d.get('plan', 'unknown')))}, {len(d.get('positions') or [])} positions"),
+        ("Plan", f"{_plan_text(d, e)}, {len(d.get('positions') or [])} positions"),
         ("Mounting", e(facts.mounting) if facts.mounting else "unit axes (bench)"),
         (
             "Conditions",

@@ -35,18 +35,17 @@ from numpy.typing import NDArray
 from canimucal.device.client import ImuClient
 from canimucal.device.events import NodeRebooted
 from canimucal.errors import DeviceError, InputError
-from canimucal.io.recording import DEVICE_RATES_HZ
 from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.model.samples import SampleBlock, concat_blocks
 from canimucal.model.sensor import STANDARD_GRAVITY
+from canimucal.model.vocabulary.constants import COUNTER_MODULUS, OUTPUT_DATA_RATES_HZ
 from canimucal.procedure.config import ProcedureConfig
 from canimucal.procedure.posecheck import PoseCheck, check_pose, measured_force, predicted_force
 from canimucal.sim.schedule import PoseTrajectory
 
 log = logging.getLogger(__name__)
 
-COUNTER_MODULUS = 65536
 POLL_S = 0.05
 """How long one wait for a block from one node may take."""
 DEFAULT_IDLE_TIMEOUT_S = 5.0
@@ -475,7 +474,7 @@ def _check_rate(track: _Track, block: SampleBlock) -> None:
 
 def _snap_rate(rate: float) -> float:
     """Return the device rate within 2 % of ``rate``, else ``rate`` itself."""
-    for device_rate in DEVICE_RATES_HZ:
+    for device_rate in OUTPUT_DATA_RATES_HZ:
         if abs(rate - device_rate) <= 0.02 * device_rate:
             return float(device_rate)
     return rate

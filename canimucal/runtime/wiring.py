@@ -36,8 +36,9 @@ from canimucal.io.atomic import per_node_path
 from canimucal.io.mounting import choose_mounting
 from canimucal.model.layout import GyroSpec, JointSpec
 from canimucal.model.mounting import MountingMap
-from canimucal.model.plan import VEHICLE_PRIOR_K_SIGMA, KPrior
+from canimucal.model.plan import KPrior
 from canimucal.model.positions import Plan
+from canimucal.model.vocabulary.plans import PLANS, VEHICLE_PRIOR_K_SIGMA, worded_for_vehicle
 from canimucal.procedure.machine import Procedure, ProcedureConfig
 from canimucal.runtime.resume import load_resume_state
 from canimucal.runtime.session import Session, device_of, recording_header
@@ -99,16 +100,16 @@ def demo_settings(
 def spec_for_plan(plan_name: str, gyro: str = "mems", gyro_g: bool = False) -> JointSpec:
     """Return the model each plan can determine (``gyro``: ``mems`` or ``nav``, checked).
 
-    two → bias + diagonal K; five → bias + diagonal K + base tilt; recommended and custom →
-    bias, full K and base tilt. ``gyro_g`` adds the gyro's g-sensitivity G (what the
-    positions cannot determine of it is held at zero and reported).
+    The plan registry's ``accel_k`` and ``tilt`` (two: diagonal K, no tilt; five: diagonal
+    K and base tilt; the others full K and base tilt); a name it does not hold gets full K
+    and base tilt. ``gyro_g`` adds the gyro's g-sensitivity G (what the positions cannot
+    determine of it is held at zero and reported).
     """
     grade = cast(GyroSpec, gyro)  # JointSpec checks the value
-    if plan_name == "two":
-        return JointSpec(accel_k="diag", tilt="none", gyro=grade, gyro_g=gyro_g)
-    if plan_name == "five":
-        return JointSpec(accel_k="diag", tilt="rigid", gyro=grade, gyro_g=gyro_g)
-    return JointSpec(accel_k="full", tilt="rigid", gyro=grade, gyro_g=gyro_g)
+    entry = PLANS.get(plan_name)
+    if entry is None:
+        return JointSpec(accel_k="full", tilt="rigid", gyro=grade, gyro_g=gyro_g)
+    return JointSpec(accel_k=entry.accel_k, tilt=entry.tilt, gyro=grade, gyro_g=gyro_g)
 
 
 def instruction_mounting(
@@ -120,7 +121,7 @@ def instruction_mounting(
     :func:`~canimucal.io.mounting.choose_mounting` (the map asked for, else the one saved for
     the first node's ``serial``, else the default); other plans in the unit's axes (a bench).
     """
-    if mount is None and plan_name != "vehicle":
+    if mount is None and not worded_for_vehicle(plan_name):
         return None, ""
     choice = choose_mounting(serial, mount, replace=replace_mount)
     log.info("%s", choice.note)

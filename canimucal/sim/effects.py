@@ -1,12 +1,13 @@
 """Hidden effects for the discrepancy tests: one effect of the vocabulary, sized in σ.
 
-:func:`hide_effect` returns a truth JSON document carrying one effect (docs/design.md §5
-vocabulary) on a random axis or entry, of a size drawn uniformly between ``low`` and
-``high`` times the σ of that entry's own estimate (``sigmas``, from
-:func:`canimucal.analysis.discrepancy.effect_sigmas` on a clean session of the same plan and
-noise). ``bias_drift`` is sized by the within-position slope it causes: a Wiener bias of
-intensity q gives slopes of rms ``√(6 q²/(5 T))`` over T seconds, set to ``k`` times the
-white-noise standard error of a slope. ``axis_sign`` inverts one accelerometer axis.
+:func:`hide_effect` returns a truth JSON document carrying one effect of the effect registry
+(docs/design.md §6), at the truth path the registry names, on a random axis or entry, of a
+size drawn uniformly between ``low`` and ``high`` times the σ of that entry's own estimate
+(``sigmas``, from :func:`canimucal.analysis.discrepancy.effect_sigmas` on a clean session
+of the same plan and noise). ``bias_drift`` is sized by the within-position slope it
+causes: a Wiener bias of intensity q gives slopes of rms ``√(6 q²/(5 T))`` over T seconds,
+set to ``k`` times the white-noise standard error of a slope. ``axis_sign`` inverts one
+accelerometer axis.
 
 Every session also follows a non-linear warm-up (:func:`warm_up_profile`), so that
 ``temperature_bias`` is testable and clean data see a changing temperature too.
@@ -14,6 +15,7 @@ Every session also follows a non-linear warm-up (:func:`warm_up_profile`), so th
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -22,28 +24,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.errors import InputError
+from canimucal.model.vocabulary.effects import EFFECTS
 
 Array = NDArray[np.float64]
-
-HIDDEN_EFFECTS = (
-    "base_tilt",
-    "cross_axis",
-    "scale_nonlinearity",
-    "temperature_bias",
-    "bias_drift",
-    "gyro_g_sensitivity",
-    "axis_sign",
-)
-"""Effects :func:`hide_effect` can inject (the docs/design.md §5 vocabulary)."""
-
-_KEYS = {
-    "base_tilt": "accel.base_tilt",
-    "cross_axis": "accel.cross_axis",
-    "scale_nonlinearity": "accel.scale_nonlinearity",
-    "temperature_bias": "accel.temperature_bias",
-    "gyro_g_sensitivity": "gyro.gyro_g_sensitivity",
-}
-_OFF = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))
 
 
 @dataclass(frozen=True)
@@ -94,8 +77,7 @@ def hide_effect(
     ``drift_reference`` = (white σ per sample in counts, sample rate Hz, seconds per
     position) sizes ``bias_drift``.
     """
-    if effect not in HIDDEN_EFFECTS:
-        raise InputError(f"unknown effect {effect!r}; choose from {', '.join(HIDDEN_EFFECTS)}")
+    entry = EFFECTS.lookup(effect)
     d: dict[str, Any] = {k: (dict(v) if isinstance(v, dict) else v) for k, v in base.items()}
     accel = d.setdefault("accel", {})
     k = float(rng.uniform(low, high))
@@ -112,35 +94,37 @@ def hide_effect(
         walk[axis] = q
         accel["random_walk"] = walk
         return d, HiddenEffect(effect, f"random_walk[{axis}]", q, k)
-    sig = np.asarray(sigmas[_KEYS[effect]], dtype=float)
+    sensor = entry.sensors[0]
+    sig = np.asarray(sigmas[f"{sensor}.{effect}"], dtype=float)
     choices = np.flatnonzero(np.isfinite(sig))
-    entry = int(rng.choice(choices))
-    size = float(rng.choice([-1.0, 1.0]) * k * sig[entry])
-    return d, _apply(d, effect, entry, size, k)
+    k_entry = int(rng.choice(choices))
+    size = float(rng.choice([-1.0, 1.0]) * k * sig[k_entry])
+    path = entry.truth_path(sensor, k_entry)
+    add_to_truth(d, path, size * entry.truth_per_unit, len(entry.labels))
+    return d, HiddenEffect(effect, entry.labels[k_entry], size, k)
 
 
-def _apply(d: dict[str, Any], effect: str, entry: int, size: float, k: float) -> HiddenEffect:
-    accel = d["accel"]
-    if effect == "base_tilt":
-        tilt = dict(d.get("base_tilt_deg", {"alpha0": 0.0, "beta0": 0.0}))
-        name = ("alpha0", "beta0")[entry]
-        tilt[name] = float(tilt.get(name, 0.0)) + float(np.rad2deg(size))
-        d["base_tilt_deg"] = tilt
-        return HiddenEffect(effect, name, size, k)
-    if effect == "cross_axis":
-        i, j = _OFF[entry]
-        kmat = np.array(accel["K"], dtype=float)
-        kmat[i, j] += size
-        accel["K"] = kmat.tolist()
-        return HiddenEffect(effect, f"K[{i}][{j}]", size, k)
-    if effect in ("scale_nonlinearity", "temperature_bias"):
-        key = "quadratic" if effect == "scale_nonlinearity" else "temp_coeff"
-        values = [0.0, 0.0, 0.0]
-        values[entry] = size
-        accel[key] = values
-        return HiddenEffect(effect, f"{key}[{entry}]", size, k)
-    gyro = d.setdefault("gyro", {})
-    gmat = np.zeros((3, 3))
-    gmat[entry // 3, entry % 3] = size
-    gyro["G"] = gmat.tolist()
-    return HiddenEffect(effect, f"G[{entry // 3}][{entry % 3}]", size, k)
+_PATH_STEP = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[\d+\])*)")
+
+
+def add_to_truth(doc: dict[str, Any], path: str, value: float, length: int = 3) -> None:
+    """Add ``value`` at ``path`` of the truth document ``doc`` (``accel.K[0][1]``, ...).
+
+    Objects on the way are copied before they change (``doc`` shares them with its base);
+    a missing number starts at 0, a missing list at ``length`` zeros.
+    """
+    *parents, leaf = path.split(".")
+    node = doc
+    for key in parents:
+        node[key] = dict(node.get(key, {}))
+        node = node[key]
+    match = _PATH_STEP.fullmatch(leaf)
+    if match is None:
+        raise InputError(f"bad truth path {path!r}")
+    key, indices = match.group(1), [int(i) for i in re.findall(r"\d+", match.group(2))]
+    if not indices:
+        node[key] = float(node.get(key, 0.0)) + value
+        return
+    array = np.array(node.get(key, np.zeros(length)), dtype=float)
+    array[tuple(indices)] += value
+    node[key] = array.tolist()

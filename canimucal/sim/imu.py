@@ -8,6 +8,10 @@ ladder is slow. Outputs in counts:
 - accelerometer ``U = b + K f + quadratic ⊙ f² + temp_coeff (T − T0) + r + m + n``
 - gyro ``V = B + S w + G f + temp_coeff (T − T0) + r + m + n``
 
+plus, for each effect of the truth's ``effects``, its model columns (the effect registry's
+``known``, :mod:`canimucal.model.vocabulary.effects`) at the sample's pose, specific force
+and ``T − T0``, times its coefficients.
+
 ``T0`` is the temperature at t = 0; ``r`` a Wiener bias (increment σ = q/√f_s per sample,
 so Var r(t) = q² t); ``m`` a first-order Gauss–Markov bias with stationary σ = B and
 correlation time T (stationary from the start); ``n`` white noise, input-referred density N
@@ -28,13 +32,13 @@ from scipy.signal import lfilter
 from canimucal.errors import InputError
 from canimucal.model.frames import earth_rate_level, position_dcm, specific_force_level
 from canimucal.model.positions import Plan, Pose
+from canimucal.model.vocabulary.constants import INT16_MAX, INT16_MIN, OUTPUT_DATA_RATES_HZ
+from canimucal.model.vocabulary.effects import EFFECTS, PoseInputs
 from canimucal.sim.schedule import PoseTrajectory
-from canimucal.sim.truth import SAMPLE_RATES_HZ, Truth
+from canimucal.sim.truth import Truth
 
 log = logging.getLogger(__name__)
 
-INT16_MIN = -32768
-INT16_MAX = 32767
 
 Array = NDArray[np.float64]
 
@@ -124,8 +128,8 @@ class ImuSimulator:
 
     def set_sample_rate(self, hz: float) -> None:
         """Change the output data rate from the next sample on (one of 50…1000 Hz)."""
-        if hz not in SAMPLE_RATES_HZ:
-            rates = ", ".join(map(str, SAMPLE_RATES_HZ))
+        if hz not in OUTPUT_DATA_RATES_HZ:
+            rates = ", ".join(map(str, OUTPUT_DATA_RATES_HZ))
             raise InputError(f"sample rate must be one of {rates} Hz, got {hz!r}")
         self._t0_s, self._k = self.time_s, 0
         self._set_rate(float(hz))
@@ -183,6 +187,7 @@ class ImuSimulator:
         z = self._rng.standard_normal((n, 18))  # one draw per block: split-invariant stream
         out = self._clean_output(traj.angles, traj.rates) + z[:, 12:] * self._white_sigma
         out += self._drifts(z[:, :12]) + np.outer(temp_c - self._temp0_c, self._temp_coeff)
+        out += self._registered_effects(traj.angles, temp_c)
         out = _quantize(out, self._steps)
         clipped = (out < INT16_MIN) | (out > INT16_MAX)
         out = np.clip(out, INT16_MIN, INT16_MAX)
@@ -235,6 +240,23 @@ class ImuSimulator:
         accel = acc.bias + f @ acc.K.T + acc.quadratic * f * f  # eq. (6) + quadratic term
         gyro = gyr.bias + w @ gyr.S.T + f @ gyr.G.T  # eq. (35) + g-sensitivity
         return np.hstack([accel, gyro])
+
+    def _registered_effects(self, angles: Array, temp_c: Array) -> Array:
+        """Return the counts ``(n, 6)`` of the truth's ``effects``: columns @ coefficients."""
+        out = np.zeros((angles.shape[0], 6))
+        if not self._truth.effects or not angles.shape[0]:
+            return out
+        f, _ = self._kinematics(angles, np.zeros_like(angles))
+        acc, gyr = self._truth.accel, self._truth.gyro
+        inputs = PoseInputs(
+            angles, f, self._truth.g, acc.K, gyr.S, self._w_level, 6, temp_c - self._temp0_c
+        )
+        for key, coefficients in self._truth.effects.items():
+            sensor, name = key.split(".", 1)
+            columns = EFFECTS[name].known(inputs, sensor)  # type: ignore[arg-type, misc]
+            if columns is not None:
+                out += columns @ coefficients
+        return out
 
     def _drifts(self, z: Array) -> Array:
         """Random-walk plus Gauss–Markov bias of the six channels from normals ``z`` (n, 12)."""

@@ -29,6 +29,8 @@ from canimucal.errors import SchemaError
 from canimucal.model.frames import TiltModel
 from canimucal.model.gravity import normal_gravity
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, AccelParams, GyroParams
+from canimucal.model.vocabulary.constants import INT16_SPAN, OUTPUT_DATA_RATES_HZ
+from canimucal.model.vocabulary.effects import EFFECTS
 from canimucal.schema import (
     fail,
     frozen_array,
@@ -53,7 +55,7 @@ _TOP_KEYS = tuple(
     "schema sample_rate_hz g latitude_deg height_m heading_deg serial tilt_model base_tilt_deg"
     " accel gyro temperature faults nmt_start heartbeat_ms store_delay_s store_pdo_mode"
     " storage_subs sync_pdos timer_skew_ppm"
-    " device_name hardware_version software_version".split()
+    " device_name hardware_version software_version effects".split()
 )
 NMT_STARTS = ("pre-operational", "operational")
 DEFAULT_STORAGE_SUBS = (1, 2, 3, 4)
@@ -147,6 +149,9 @@ class Truth:
     """0x1008, any text (tests present hostile names); 0x1009/0x100A likewise."""
     hardware_version: str = DEFAULT_HARDWARE_VERSION
     software_version: str = DEFAULT_SOFTWARE_VERSION
+    effects: Mapping[str, Vector] = field(default_factory=dict)
+    """Coefficients of effects the simulator applies through their columns, by
+    ``sensor.effect`` (:mod:`canimucal.model.vocabulary.effects`; its unit, in counts)."""
 
     @classmethod
     def from_dict(cls, d: Any) -> Truth:
@@ -165,8 +170,8 @@ class Truth:
         if d.get("schema", SCHEMA) != SCHEMA:
             fail("schema", f"must be {SCHEMA!r}")
         rate = read_number(d.get("sample_rate_hz", 200), "sample_rate_hz")
-        if rate not in SAMPLE_RATES_HZ:
-            fail("sample_rate_hz", f"must be one of {', '.join(map(str, SAMPLE_RATES_HZ))}")
+        if rate not in OUTPUT_DATA_RATES_HZ:
+            fail("sample_rate_hz", f"must be one of {', '.join(map(str, OUTPUT_DATA_RATES_HZ))}")
         lat_deg = read_number(d.get("latitude_deg", DEFAULT_LATITUDE_DEG), "latitude_deg")
         if abs(lat_deg) > 90.0:
             fail("latitude_deg", "must be within [-90, 90]")
@@ -206,6 +211,7 @@ class Truth:
             software_version=_text(
                 d.get("software_version", DEFAULT_SOFTWARE_VERSION), "software_version"
             ),
+            effects=_effects(d.get("effects", {})),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -242,6 +248,7 @@ class Truth:
             "faults": copy.deepcopy(dict(self.faults)),
             **self._behaviour_dict(),
             **identity,
+            **({"effects": effects_document(self.effects)} if self.effects else {}),
         }
 
     def _behaviour_dict(self) -> dict[str, Any]:
@@ -373,14 +380,12 @@ def _tilt_angle(tilt: Mapping[str, Any], key: str) -> float:
     return angle
 
 
-SAMPLE_RATES_HZ = (50, 100, 200, 250, 500, 1000)
-"""Output data rates the node accepts (0x2010:03)."""
 DEFAULT_ACCEL_NOISE_DENSITY = 1.5e-3
 """Default accelerometer white noise, input-referred, m/s²/√Hz (≈150 µg/√Hz)."""
 DEFAULT_GYRO_NOISE_DENSITY = 1.2e-4
 """Default gyro white noise, input-referred, rad/s/√Hz (≈0.007 °/s/√Hz)."""
 DEFAULT_CORRELATION_TIME_S = 100.0
-NOISE_LIMIT_COUNTS = 65536.0
+NOISE_LIMIT_COUNTS = float(INT16_SPAN)
 """Largest noise σ a truth may ask for, in counts (per sample at the fastest output data
 rate for white noise): beyond the INT16 span every sample saturates, and far beyond it the
 arithmetic overflows."""
@@ -421,12 +426,14 @@ def _common(obj: Mapping[str, Any], path: str, lsb0: float, noise0: float) -> di
 def _check_noise(common: Mapping[str, Any], scale: Vector, path: str) -> None:
     """Refuse noise no INT16 sensor can report (see :data:`NOISE_LIMIT_COUNTS`)."""
     with np.errstate(over="ignore"):  # an absurd density may overflow to inf: refused below
-        white = common["noise_density"] * np.abs(np.diag(scale)) * np.sqrt(max(SAMPLE_RATES_HZ))
+        white = (
+            common["noise_density"] * np.abs(np.diag(scale)) * np.sqrt(max(OUTPUT_DATA_RATES_HZ))
+        )
     if np.any(white > NOISE_LIMIT_COUNTS):
         fail(
             key_path(path, "noise_density"),
             f"gives a white-noise σ above {NOISE_LIMIT_COUNTS:g} counts per sample at "
-            f"{max(SAMPLE_RATES_HZ)} Hz",
+            f"{max(OUTPUT_DATA_RATES_HZ)} Hz",
         )
     for key in ("random_walk", "bias_instability"):
         if np.any(common[key] > NOISE_LIMIT_COUNTS):
@@ -522,6 +529,31 @@ class GyroTruth(_SensorTruth):
     def params(self) -> GyroParams:
         """Return the model's bias, S and G (no drifts, no noise)."""
         return GyroParams(np.array(self.bias), np.array(self.S), np.array(self.G))
+
+
+def _effects(obj: Any) -> dict[str, Vector]:
+    """Read ``effects``: ``{sensor: {effect: [a coefficient per entry]}}`` (the registry's)."""
+    known = [f"{s}.{e.name}" for e in EFFECTS.values() if e.generic_truth for s in e.sensors]
+    out = {}
+    for sensor, block in read_object(obj, "effects", ("accel", "gyro")).items():
+        if not isinstance(block, Mapping):
+            fail(f"effects.{sensor}", "must be a JSON object")
+        for name, values in block.items():
+            key, path = f"{sensor}.{name}", f"effects.{sensor}.{name}"
+            effect = EFFECTS.get(name)
+            if effect is None or key not in known:
+                fail(path, f"not an effect the simulator applies ({', '.join(known) or 'none'})")
+            out[key] = read_array(values, path, (len(effect.labels),))
+    return out
+
+
+def effects_document(effects: Mapping[str, ArrayLike]) -> dict[str, dict[str, list[float]]]:
+    """Return the truth JSON's ``effects`` object of coefficients by ``sensor.effect``."""
+    out: dict[str, dict[str, list[float]]] = {}
+    for key, values in effects.items():
+        sensor, name = key.split(".", 1)
+        out.setdefault(sensor, {})[name] = np.asarray(values, dtype=float).tolist()
+    return out
 
 
 def _nonneg(arr: Vector, path: str) -> Vector:

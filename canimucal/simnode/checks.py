@@ -20,11 +20,8 @@ log = logging.getLogger(__name__)
 
 ABORT_MAPPING = 0x06040041  # object cannot be mapped to the PDO
 ABORT_PDO_LENGTH = 0x06040042  # number and length of mapped objects exceed the PDO
-ABORT_PARAMETER = 0x06040043  # general parameter incompatibility
 
 ReadRaw = Callable[[int, int], bytes]
-
-_VALID_TRANS_TYPES = set(range(0, 241)) | {252, 253, 254, 255}
 
 
 def check_subindex_exists(node: LocalNode, index: int, sub: int) -> None:
@@ -53,12 +50,8 @@ def check_write(
     diagonal of an off-diagonal M/N entry and for PDO mapping checks).
     """
     check_subindex_exists(node, index, sub)
-    if (index, sub) in od.OBJECT_CODES:
-        _check_calibration(index, sub, data, read_raw, accel_lsb, gyro_lsb)
-    elif index == od.NOMINAL and sub == 3:
-        rate = struct.unpack("<H", data)[0]
-        _refuse_if(od.range_problems(index, sub, rate, accel_lsb, gyro_lsb))
-    elif index == od.STORE and struct.unpack("<I", data)[0] != od.SAVE_SIGNATURE:
+    _check_range(index, sub, data, read_raw, accel_lsb, gyro_lsb)
+    if index == od.STORE and struct.unpack("<I", data)[0] != od.SAVE_SIGNATURE:
         raise SdoAbortedError(od.ABORT_CANNOT_STORE)
     elif index == od.RESTORE and struct.unpack("<I", data)[0] != od.LOAD_SIGNATURE:
         raise SdoAbortedError(od.ABORT_CANNOT_STORE)
@@ -74,19 +67,20 @@ def _refuse_if(problem: str | None) -> None:
         raise SdoAbortedError(od.ABORT_VALUE_RANGE)
 
 
-def _check_calibration(
+def _check_range(
     index: int, sub: int, data: bytes, read_raw: ReadRaw, accel_lsb: float, gyro_lsb: float
 ) -> None:
-    value = od.decode(od.OBJECT_CODES[(index, sub)], data)
-    row_diagonal = None
-    if index in (od.ACCEL_CORRECTION, od.GYRO_CORRECTION) and not od.is_diagonal_sub(sub):
-        row_diagonal = od.decode("f32", read_raw(index, od.row_diagonal_sub(sub)))
+    """Refuse a value outside the object's rule in the object table (every object has one)."""
+    obj = od.object_at(index, sub)
+    if obj is None or obj.data_type == "vstr":  # sub 0 of an ARRAY or RECORD, or text
+        return
+    value = od.decode(obj.data_type, data)
+    diagonal_key = od.row_diagonal_key(obj)
+    row_diagonal = None if diagonal_key is None else od.decode("f32", read_raw(*diagonal_key))
     _refuse_if(od.range_problems(index, sub, value, accel_lsb, gyro_lsb, row_diagonal))
 
 
 def _check_tpdo_comm(sub: int, data: bytes) -> None:
-    if sub == 2 and data[0] not in _VALID_TRANS_TYPES:
-        raise SdoAbortedError(od.ABORT_VALUE_RANGE)
     if sub == 1 and struct.unpack("<I", data)[0] & 0x1FFFF800 and not data[3] & 0x20:
         # an 11-bit COB-ID must fit 0x001–0x7FF unless the 29-bit frame bit is set
         raise SdoAbortedError(od.ABORT_VALUE_RANGE)

@@ -85,11 +85,6 @@ class FaultStats:
     emergencies: int = 0
     error_frames: int = 0
 
-    @property
-    def dropped_total(self) -> int:
-        """TPDO frames dropped (random and burst), all COB-IDs."""
-        return sum(self.dropped.values())
-
     def count(self, what: str, *cob_ids: int) -> int:
         """Frames ``dropped``/``duplicated``/``delayed``/``truncated`` with these COB-IDs."""
         table: dict[int, int] = getattr(self, what)
@@ -272,12 +267,6 @@ class FaultInjector:
             return []
         self._fired.add(name)
         return [event]
-
-    @property
-    def heartbeat_suppressed(self) -> bool:
-        """Whether a heartbeat-loss window has begun and not yet ended."""
-        with self._lock:
-            return "hb_off" in self._fired and "hb_on" not in self._fired
 
     def serial_override(self) -> int | None:
         """Return the serial to report now (after a reboot with ``serial_after_reboot``) or None."""

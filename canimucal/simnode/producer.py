@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from canimucal.device import od
+from canimucal.model.vocabulary.constants import COUNTER_MODULUS, INT16_MAX, INT16_MIN
 from canimucal.sim.imu import ImuSimulator, SimBlock
 from canimucal.simnode.backlog import BACKLOG_LIMIT_FRAMES
 from canimucal.simnode.pdo import EventTimer, TpdoLayout
@@ -52,7 +53,6 @@ MIN_SLEEP_S = 0.001
 MAX_LAG_WALL_S = 0.1
 """A stall longer than this (wall time) is not caught up: the simulated clock slips."""
 MAX_SLEEP_S = 0.02
-INT16_MIN, INT16_MAX = -32768, 32767
 
 
 def _int16_rows(values: object) -> list[Any]:
@@ -265,7 +265,7 @@ class SampleProducer:
         return frames, ticks
 
     def _update_live(self, accel: list[int], gyro: list[int], temp: int, status: int) -> None:
-        self.counter = (self.counter + 1) & 0xFFFF  # 0x2002:02 wraps at 65536
+        self.counter = (self.counter + 1) % COUNTER_MODULUS  # 0x2002:02 wraps
         self.samples_produced += 1
         live = self.live
         live[(od.ACCEL_RAW, 1)], live[(od.ACCEL_RAW, 2)], live[(od.ACCEL_RAW, 3)] = accel

@@ -21,20 +21,20 @@ from pathlib import Path
 from textual.app import App
 from textual.binding import Binding
 
-from canimucal.io.plans import BUILTIN_PLANS
-from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
+from canimucal.model.vocabulary.plans import CUSTOM, DEFAULT_PLAN, builtin_names, builtin_plan
 from canimucal.procedure.averaging import AveragingPolicy, averaged_sensors, describe_rule
 from canimucal.procedure.machine import Phase
-from canimucal.tui.connection import ConnectionScreen
+from canimucal.signals import EXIT_INTERRUPTED
 from canimucal.tui.messages import PlanWanted, ProcedureEnded, ResultsReady, StartWanted
 from canimucal.tui.modals import ConfirmQuit
-from canimucal.tui.plan_screen import PlanScreen
-from canimucal.tui.position import PositionScreen
-from canimucal.tui.results import ResultsScreen
 from canimucal.tui.runner import SessionRunner
+from canimucal.tui.screens.connection import ConnectionScreen
+from canimucal.tui.screens.plan import PlanScreen
+from canimucal.tui.screens.position import PositionScreen
+from canimucal.tui.screens.results import ResultsScreen
+from canimucal.tui.screens.verification import VerificationScreen
 from canimucal.tui.source import SessionSource
-from canimucal.tui.verification import VerificationScreen
 
 logger = logging.getLogger(__name__)
 
@@ -42,10 +42,7 @@ RUNNER_STOP_TIMEOUT_S = 10.0
 WRITE_STOP_TIMEOUT_S = 60.0
 """How long quitting waits for a write in progress: it ends (verified, or rolled back) within
 its SDO and store timeouts, and the bus must not be closed under it."""
-BUILTIN = BUILTIN_PLANS
 EXIT_OK = 0
-EXIT_INTERRUPTED = 130
-"""Exit status of an interrupted session (docs/design.md §7: what was recorded so far is kept)."""
 
 
 class CalibrationApp(App[int]):
@@ -64,7 +61,7 @@ class CalibrationApp(App[int]):
         source: SessionSource,
         plans: Mapping[str, Plan],
         *,
-        plan_name: str = "recommended",
+        plan_name: str = DEFAULT_PLAN,
         gyro: str = "mems",
         autoconnect: bool = True,
     ) -> None:
@@ -172,7 +169,7 @@ class CalibrationApp(App[int]):
 def make_app(
     source: SessionSource,
     *,
-    plan_name: str = "recommended",
+    plan_name: str = DEFAULT_PLAN,
     gyro: str = "mems",
     custom_plan: Plan | None = None,
     autoconnect: bool = True,
@@ -183,9 +180,9 @@ def make_app(
     ``plan_name`` is the plan selected first. ``autoconnect=False`` leaves the connection
     screen waiting (tests inject the node statuses).
     """
-    plans: dict[str, Plan] = {name: builtin_plan(name) for name in BUILTIN}
+    plans: dict[str, Plan] = {name: builtin_plan(name) for name in builtin_names()}
     if custom_plan is not None:
-        plans["custom"] = custom_plan
+        plans[CUSTOM] = custom_plan
     if plan_name not in plans:
-        plan_name = "custom" if custom_plan is not None else "recommended"
+        plan_name = CUSTOM if custom_plan is not None else DEFAULT_PLAN
     return CalibrationApp(source, plans, plan_name=plan_name, gyro=gyro, autoconnect=autoconnect)

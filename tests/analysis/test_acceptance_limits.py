@@ -9,7 +9,7 @@ import pytest
 
 from canimucal.analysis.acceptance import AcceptanceLimits, acceptance_config_path, load_limits
 from canimucal.errors import InputError
-from canimucal.model.plan import builtin_plan
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.runtime.wiring import demo_settings, open_devices
 from canimucal.sim.truth import Truth
 

@@ -22,7 +22,7 @@ from canimucal.analysis.base_fit import EARTH_RATE_NAMES, fit_known
 from canimucal.analysis.data import SessionData
 from canimucal.analysis.discrepancy import analyse_discrepancy, effect_sigmas
 from canimucal.model.frames import earth_rate_level
-from canimucal.model.plan import RECOMMENDED
+from canimucal.model.vocabulary.plans import RECOMMENDED
 from canimucal.sim.effects import hide_effect
 from canimucal.sim.truth import Truth
 from tests.analysis.test_hidden_effects import clean_truth

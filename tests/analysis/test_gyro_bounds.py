@@ -9,8 +9,8 @@ import numpy as np
 
 from canimucal.analysis.gyro_bounds import gyro_move_bounds
 from canimucal.cli.main import main
-from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
+from canimucal.model.vocabulary.plans import builtin_plan
 from tests.support.moves import turns_plan
 
 

@@ -15,8 +15,8 @@ from canimucal.io.calibration import Device
 from canimucal.io.grouping import position_averages
 from canimucal.io.recording import Recording
 from canimucal.model.layout import JointSpec
-from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.sim.truth import Truth
 from tests.support.chi2_band import chi2_ratio_band, mahalanobis
 from tests.support.moves import TURN_POSES_DEG, turns_plan

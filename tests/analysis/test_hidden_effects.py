@@ -44,8 +44,9 @@ import pytest
 from canimucal.analysis.discrepancy import analyse_discrepancy, effect_sigmas
 from canimucal.analysis.session import session_from_recording
 from canimucal.analysis.simulated import simulate_plan_recording
-from canimucal.model.plan import RECOMMENDED
-from canimucal.sim.effects import HIDDEN_EFFECTS, hide_effect, warm_up_profile
+from canimucal.model.vocabulary.effects import EFFECTS
+from canimucal.model.vocabulary.plans import RECOMMENDED
+from canimucal.sim.effects import hide_effect, warm_up_profile
 from canimucal.sim.truth import Truth
 from tests.support.sessions import simulate_session
 
@@ -91,7 +92,7 @@ def test_clean_data_name_nothing() -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("effect", HIDDEN_EFFECTS)
+@pytest.mark.parametrize("effect", list(EFFECTS))
 def test_hidden_effect_is_named_exactly(effect: str) -> None:
     sigmas = reference_sigmas()
     misses, wrong = [], []

@@ -17,8 +17,8 @@ import pytest
 from canimucal.analysis.pose_scatter import fit_scatter
 from canimucal.model.joint import solve_joint
 from canimucal.model.layout import JointSpec
-from canimucal.model.plan import RECOMMENDED
 from canimucal.model.positions import Plan, PlannedPosition
+from canimucal.model.vocabulary.plans import RECOMMENDED
 from canimucal.sim.truth import Truth
 from tests.support.sessions import simulate_session
 

@@ -11,8 +11,8 @@ from canimucal.analysis.discrepancy import analyse_discrepancy, effect_sigmas
 from canimucal.analysis.report import analyse_recording, extended_truth, observed_poses
 from canimucal.analysis.simulated import simulate_plan_recording
 from canimucal.io.recording import recording_from_columns
-from canimucal.model.plan import RECOMMENDED
 from canimucal.model.positions import Plan, PlannedPosition
+from canimucal.model.vocabulary.plans import RECOMMENDED
 from canimucal.sim.effects import hide_effect, slope_random_walk, warm_up_profile
 from canimucal.sim.truth import Truth
 from tests.support.sessions import simulate_session

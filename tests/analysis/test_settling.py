@@ -18,7 +18,7 @@ from canimucal.analysis.simulated import simulate_plan_recording
 from canimucal.io.grouping import position_rows
 from canimucal.io.importers import load_any
 from canimucal.io.recording import Recording
-from canimucal.model.plan import RECOMMENDED
+from canimucal.model.vocabulary.plans import RECOMMENDED
 from canimucal.sim.effects import hide_effect
 from canimucal.sim.truth import Truth
 

@@ -16,7 +16,7 @@ import pytest
 from canimucal.analysis.simulated import simulate_plan_recording
 from canimucal.cli.main import main
 from canimucal.io.recording_writer import write_recording
-from canimucal.model.plan import builtin_plan
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.sim.truth import Truth
 
 TRUTH_SEED = 20261121

@@ -19,7 +19,7 @@ from canimucal.io.plans import read_plan
 from canimucal.io.recording_writer import write_recording
 from canimucal.io.truth import load_truth
 from canimucal.model.frames import EARTH_RATE_RAD_S
-from canimucal.model.plan import RECOMMENDED
+from canimucal.model.vocabulary.plans import RECOMMENDED
 from canimucal.procedure.warmup import DEFAULT_THRESHOLD_C_PER_MIN
 from canimucal.sim.effects import warm_up_profile
 from canimucal.sim.truth import Truth

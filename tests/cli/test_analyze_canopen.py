@@ -19,7 +19,7 @@ import pytest
 
 from canimucal.analysis.discrepancy import effect_sigmas
 from canimucal.cli.main import main
-from canimucal.model.plan import RECOMMENDED
+from canimucal.model.vocabulary.plans import RECOMMENDED
 from canimucal.sim.effects import hide_effect, warm_up_profile
 from canimucal.sim.truth import Truth
 from tests.support.sessions import simulate_session

@@ -65,7 +65,7 @@ def _check_node(out: Path, record: dict[str, Any], suffix: str, plan: str) -> No
     for text in (certificate, page):
         assert "k = 1" in text and "Warm-up" in text and "not required" in text
         assert "Written to the device" in text and "Operator" in text
-        assert "Units: biases in counts" in text
+        assert "Units: accel.bias in counts; accel.K in counts per m/s²" in text
     assert "Written to the device: yes" in certificate
     assert page.startswith("<!DOCTYPE html>") and "<script" not in page
 

@@ -309,7 +309,7 @@ def test_recorder_prompted_plan_follows_the_operator(tmp_path: Path) -> None:
 
     from canimucal.device.client import ImuClient
     from canimucal.io.recording_writer import RecordingWriter
-    from canimucal.model.plan import builtin_plan
+    from canimucal.model.vocabulary.plans import builtin_plan
     from canimucal.runtime.recorder import Recorder
     from canimucal.simnode.node import SimulatedImuNode
 
@@ -453,7 +453,7 @@ def test_record_prompted_refuses_a_pose_the_unit_is_not_at(tmp_path: Path) -> No
 
     from canimucal.device.client import ImuClient
     from canimucal.io.recording_writer import RecordingWriter
-    from canimucal.model.plan import builtin_plan
+    from canimucal.model.vocabulary.plans import builtin_plan
     from canimucal.runtime.recorder import Recorder
     from canimucal.simnode.node import SimulatedImuNode
 

@@ -30,7 +30,7 @@ from canimucal.analysis.simulated import simulate_plan_recording
 from canimucal.cli import demo_cmd
 from canimucal.cli.main import COMMANDS, main
 from canimucal.io.recording_writer import write_recording
-from canimucal.model.plan import builtin_plan
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.sim.truth import Truth
 from canimucal.simnode.node import SimulatedImuNode
 from tests.support.fuzzing import byte_mutations

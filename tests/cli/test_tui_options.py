@@ -13,7 +13,7 @@ from canimucal.cli.tui_cmd import device_source, plan_choice
 from canimucal.errors import InputError
 from canimucal.io.plans import plan_to_dict
 from canimucal.model.mounting import MountingMap
-from canimucal.model.plan import builtin_plan
+from canimucal.model.vocabulary.plans import builtin_plan
 
 
 def test_a_built_in_plan_keeps_its_name_and_a_file_is_custom(tmp_path: Path) -> None:

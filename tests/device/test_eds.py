@@ -3,95 +3,102 @@
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import canopen
 import numpy as np
 import pytest
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable, datatypes
 
-from canimucal.device import od
+from canimucal.device import objects, od
+from canimucal.device.objects import Nominal
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
 
 NODE_ID = 0x10
-U8, U16, U32 = datatypes.UNSIGNED8, datatypes.UNSIGNED16, datatypes.UNSIGNED32
-I16, R32, VSTR = datatypes.INTEGER16, datatypes.REAL32, datatypes.VISIBLE_STRING
-
-# docs/design.md §4: (index, subs, type, access, PDO mappable)
-TABLE = [
-    (0x1000, [0], U32, "ro", False),
-    (0x1001, [0], U8, "ro", True),
-    (0x1005, [0], U32, "rw", False),
-    (0x1008, [0], VSTR, "const", False),
-    (0x1014, [0], U32, "ro", False),
-    (0x1010, [1, 2, 3, 4], U32, "rw", False),
-    (0x1011, [1, 2, 3, 4], U32, "rw", False),
-    (0x1017, [0], U16, "rw", False),
-    (0x1018, [1, 2, 3, 4], U32, "ro", False),
-    (0x2000, [1, 2, 3], I16, "ro", True),
-    (0x2001, [1, 2, 3], I16, "ro", True),
-    (0x2002, [1], I16, "ro", True),
-    (0x2002, [2], U16, "ro", True),
-    (0x2002, [3], U8, "ro", True),
-    (0x2010, [1, 2], R32, "ro", False),
-    (0x2010, [3], U16, "rw", False),
-    (0x2100, [1, 2, 3], R32, "rw", False),
-    (0x2101, list(range(1, 10)), R32, "rw", False),
-    (0x2110, [1, 2, 3], R32, "rw", False),
-    (0x2111, list(range(1, 10)), R32, "rw", False),
-    (0x2112, list(range(1, 10)), R32, "rw", False),
-    (0x2120, [1, 2], R32, "rw", False),
-    (0x2121, [1], U32, "rw", False),
-    (0x2121, [2], U8, "rw", False),
-    (0x2121, [3, 4], R32, "rw", False),
-    (0x2121, [5], U8, "rw", False),
-    (0x2121, [6], U32, "rw", False),
-]
+NOMINAL = Nominal(DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB)
+TYPES = {
+    "u8": datatypes.UNSIGNED8,
+    "u16": datatypes.UNSIGNED16,
+    "u32": datatypes.UNSIGNED32,
+    "i16": datatypes.INTEGER16,
+    "f32": datatypes.REAL32,
+    "vstr": datatypes.VISIBLE_STRING,
+}
 
 
-@pytest.fixture(scope="module")
-def eds() -> canopen.ObjectDictionary:
-    return canopen.import_od(str(od.eds_path()), NODE_ID)
+@pytest.fixture(scope="module", params=["repository", "packaged"])
+def eds(request: pytest.FixtureRequest) -> canopen.ObjectDictionary:
+    """The EDS in eds/ and its packaged copy in canimucal/data/, as canopen loads them."""
+    path = od.eds_path() if request.param == "repository" else PACKAGED
+    return canopen.import_od(str(path), NODE_ID)
 
 
-def _var(eds: canopen.ObjectDictionary, index: int, sub: int) -> ODVariable:
-    entry = eds[index]
-    if isinstance(entry, ODVariable):
-        assert sub == 0
-        return entry
-    assert sub in entry.subindices, f"0x{index:04X}:{sub:02X} not defined"
-    return entry[sub]
+PACKAGED = Path(od.__file__).resolve().parent.parent / "data" / "canimucal_imu.eds"
 
 
-@pytest.mark.parametrize(("index", "subs", "data_type", "access", "pdo"), TABLE)
-def test_object_matches_design_table(
+def _variables(eds: canopen.ObjectDictionary) -> dict[tuple[int, int], ODVariable]:
+    """Every variable of the EDS but the "highest sub-index" sub 0 of an ARRAY or RECORD."""
+    out = {}
+    for entry in eds.values():
+        if isinstance(entry, ODVariable):
+            out[(entry.index, 0)] = entry
+            continue
+        out.update({(entry.index, s): v for s, v in entry.subindices.items() if s or _counted(v)})
+    return out
+
+
+def _counted(sub0: ODVariable) -> bool:
+    """A sub 0 that is an object of its own (a PDO map's number of mapped objects)."""
+    return sub0.name != "Highest sub-index supported"
+
+
+def _default(obj: objects.DeviceObject) -> object:
+    value = obj.default_value(NOMINAL)
+    if isinstance(value, str) and value.startswith("$NODEID+"):
+        return NODE_ID + int(value.removeprefix("$NODEID+"), 0)
+    return float(np.float32(value)) if obj.data_type == "f32" else value
+
+
+def test_every_object_of_the_table_is_in_the_eds_and_back(
     eds: canopen.ObjectDictionary,
-    index: int,
-    subs: list[int],
-    data_type: int,
-    access: str,
-    pdo: bool,
 ) -> None:
-    for sub in subs:
-        var = _var(eds, index, sub)
-        assert var.data_type == data_type, f"0x{index:04X}:{sub:02X}"
-        assert var.access_type == access, f"0x{index:04X}:{sub:02X}"
-        assert var.pdo_mappable == pdo, f"0x{index:04X}:{sub:02X}"
-    entry = eds[index]
-    if isinstance(entry, ODArray | ODRecord):
-        highest = entry[0]
-        assert highest.default == max(entry.subindices)
+    found = _variables(eds)
+    table = {o.key: o for o in objects.OBJECTS}
+    assert sorted(found) == sorted(table)
+    for key, obj in table.items():
+        var, where = found[key], od.format_key(*key)
+        assert var.name == obj.name, where
+        assert var.data_type == TYPES[obj.data_type], where
+        assert var.access_type == obj.access, where
+        assert var.pdo_mappable == obj.pdo, where
+        assert var.default == _default(obj), where
 
 
-def test_no_other_manufacturer_objects(eds: canopen.ObjectDictionary) -> None:
-    indices = {o.index for o in eds.values() if o.index >= 0x2000}
-    assert indices == {row[0] for row in TABLE if row[0] >= 0x2000}
+def test_every_group_of_the_table_is_in_the_eds_and_back(eds: canopen.ObjectDictionary) -> None:
+    groups = {g.index: g for g in objects.GROUPS}
+    found = {e.index: e for e in eds.values() if not isinstance(e, ODVariable)}
+    assert sorted(found) == sorted(groups)
+    for index, group in groups.items():
+        entry = found[index]
+        assert entry.name == group.name
+        assert isinstance(entry, ODArray if group.kind == "array" else ODRecord)
+        if not _counted(entry[0]):
+            assert entry[0].default == max(s for s in entry.subindices)
+
+
+def test_every_object_carries_a_range_rule() -> None:
+    """A row without a rule cannot be written: the field has no default."""
+    with pytest.raises(TypeError, match="valid"):
+        objects.DeviceObject(0x2200, 1, "new", "f32", "rw", 0.0)  # type: ignore[call-arg]
+    assert all(isinstance(o.valid, objects.RangeRule) for o in objects.OBJECTS)
+    assert od.range_problems(0x2200, 1, 0.0, DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB) is not None
 
 
 def test_calibration_defaults_are_factory(eds: canopen.ObjectDictionary) -> None:
     factory = od.factory_block(DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB).to_objects()
     for (index, sub), value in factory.items():
-        assert _var(eds, index, sub).default == value, f"0x{index:04X}:{sub:02X}"
-    assert _var(eds, 0x2121, 5).default == 0
+        assert _variables(eds)[(index, sub)].default == value, f"0x{index:04X}:{sub:02X}"
+    assert _variables(eds)[(0x2121, 5)].default == 0
     assert eds[0x2010][1].default == float(np.float32(DEFAULT_ACCEL_LSB))
     assert eds[0x2010][2].default == float(np.float32(DEFAULT_GYRO_LSB))
     assert eds[0x2010][3].default == 200

@@ -35,6 +35,7 @@ from canimucal.device.transaction import (
 )
 from canimucal.errors import DeviceError, InputError, RollbackIncompleteError
 from canimucal.io.calibration import Calibration, calibration_to_dict, read_calibration
+from canimucal.model.vocabulary.plans import PLANS
 from canimucal.schema import to_plain
 from tests.support.nodes import DeviceUnderTest, node_on
 
@@ -143,7 +144,7 @@ def test_block_from_record_inverts_and_fills_nominal() -> None:
     )
     assert block.accel_bias[2] == 0.0  # null: nominal
     assert block.base_tilt_rad[0] == pytest.approx(np.deg2rad(0.3))
-    assert block.plan_code == od.PLAN_CODES["five"]
+    assert block.plan_code == PLANS["five"].device_code
     assert block.time_unix_s == int(datetime(2026, 3, 4, 5, 6, 7, tzinfo=UTC).timestamp())
     assert (block.temp_c, block.rms_ms2) == (23.5, 0.0012)
     d["gyro"]["S"] = None

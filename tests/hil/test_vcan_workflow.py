@@ -23,8 +23,8 @@ from canimucal.io.calibration import read_calibration
 from canimucal.io.plans import write_plan
 from canimucal.io.recording import read_recording
 from canimucal.io.truth import write_truth
-from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.schema import to_plain
 from canimucal.sim.truth import Truth
 

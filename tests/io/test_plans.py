@@ -11,6 +11,7 @@ import pytest
 from canimucal.errors import InputError
 from canimucal.io.plans import plan_to_dict, read_plan, resolve_plan, write_plan
 from canimucal.model.positions import Plan, PlannedPosition
+from canimucal.model.vocabulary.plans import builtin_plan
 
 JSON_PLAN = """{"positions": [
   {"alpha_deg": 0, "beta_deg": 0},
@@ -146,23 +147,9 @@ def test_malformed_plan_is_an_input_error(tmp_path: Path, name: str, text: str, 
 
 
 def test_resolve_builtin_names_and_files(tmp_path: Path) -> None:
-    asked: list[str] = []
-
-    def builtin(name: str) -> Plan:
-        asked.append(name)
-        return Plan(name, (PlannedPosition(0.0, 0.0),))
-
-    assert resolve_plan("five", builtin).name == "five"
-    assert asked == ["five"]
+    assert resolve_plan("five") is builtin_plan("five")
     path = _write(tmp_path, "mine.toml", TOML_PLAN)
-    assert resolve_plan(str(path), builtin).name == "custom"
-    assert resolve_plan(path, builtin).name == "custom"
+    assert resolve_plan(str(path)).name == "custom"
+    assert resolve_plan(path).name == "custom"
     with pytest.raises(InputError, match="unknown plan 'six': not one of two, five, recommended"):
-        resolve_plan("six", builtin)
-    assert asked == ["five"]
-
-
-def test_resolve_with_the_model_builtins() -> None:
-    plan_module = pytest.importorskip("canimucal.model.plan")
-    plan = resolve_plan("five", plan_module.builtin_plan)
-    assert len(plan.positions) == 5
+        resolve_plan("six")

@@ -31,9 +31,10 @@ from canimucal.model.layout import (
     nominal_theta,
     predict,
 )
-from canimucal.model.plan import FIVE, RECOMMENDED, cramer_rao
+from canimucal.model.plan import cramer_rao
 from canimucal.model.positions import Plan, PlannedPosition, PositionAverage
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, AccelParams, GyroParams
+from canimucal.model.vocabulary.plans import FIVE, RECOMMENDED
 from canimucal.sim.averages import simulate_averages
 from tests.support.chi2_band import chi2_ratio_band
 

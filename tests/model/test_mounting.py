@@ -15,8 +15,8 @@ from canimucal.model.mounting import (
     start_frame,
     vehicle_attitude,
 )
-from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Pose
+from canimucal.model.vocabulary.plans import builtin_names, builtin_plan
 from tests.support.mounts import all_proper_maps
 
 
@@ -71,7 +71,7 @@ def test_default_map_reads_the_vehicle_plan_as_turns_and_ladder_tilts() -> None:
         assert attitude.left_up_deg == pytest.approx(left, abs=1e-9)
 
 
-@pytest.mark.parametrize("plan", ["two", "five", "recommended", "vehicle"])
+@pytest.mark.parametrize("plan", builtin_names())
 def test_attitude_composes_back_to_the_pose_under_every_map(plan: str) -> None:
     for mounting in all_proper_maps():
         for pose in builtin_plan(plan).positions:

@@ -10,9 +10,10 @@ import pytest
 from canimucal.model import moves as mv
 from canimucal.model.frames import earth_rate_level, position_dcm
 from canimucal.model.sensor import DEFAULT_GYRO_LSB
+from canimucal.model.vocabulary.constants import OUTPUT_DATA_RATES_HZ
 from canimucal.sim.imu import ImuSimulator
 from canimucal.sim.schedule import min_jerk
-from canimucal.sim.truth import SAMPLE_RATES_HZ, Truth
+from canimucal.sim.truth import Truth
 from tests.support.chi2_band import chi2_ratio_band, mahalanobis
 from tests.support.moves import TURN_POSES_DEG
 
@@ -112,7 +113,7 @@ def test_integration_error_is_second_order_on_the_simulator() -> None:
     """A two-axis minimum-jerk move with a turn, at every rate the IMU offers."""
     errors = {}
     p0, p1 = np.deg2rad([10.0, 20.0, 0.0]), np.deg2rad([-80.0, 60.0, 90.0])
-    for fs in SAMPLE_RATES_HZ:
+    for fs in OUTPUT_DATA_RATES_HZ:
         truth = _noise_free_truth(fs, seed=3)
         sim = ImuSimulator(truth, seed=0)
         sim.set_pose(*p0, transient_s=0.0)

@@ -7,17 +7,10 @@ import pytest
 
 from canimucal.errors import ModelError
 from canimucal.model.layout import JointSpec, ParameterLayout
-from canimucal.model.plan import (
-    FIVE,
-    RECOMMENDED,
-    TWO,
-    analyse_information,
-    builtin_plan,
-    cramer_rao,
-    fisher_information,
-)
+from canimucal.model.plan import analyse_information, cramer_rao, fisher_information
 from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, AccelParams
+from canimucal.model.vocabulary.plans import FIVE, RECOMMENDED, TWO, builtin_plan
 from canimucal.sim.averages import simulate_averages
 
 G = 9.80665

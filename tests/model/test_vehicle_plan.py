@@ -14,8 +14,9 @@ import pytest
 from canimucal.errors import ModelError
 from canimucal.model.joint import solve_joint
 from canimucal.model.layout import JointSpec
-from canimucal.model.plan import VEHICLE, builtin_plan, cramer_rao, plan_prior
+from canimucal.model.plan import cramer_rao, plan_prior
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, AccelParams
+from canimucal.model.vocabulary.plans import VEHICLE, builtin_plan
 from canimucal.sim.averages import simulate_averages
 
 G = 9.80665

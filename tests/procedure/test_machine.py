@@ -12,9 +12,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan, PlannedPosition, Pose
 from canimucal.model.samples import SampleBlock
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase
 from canimucal.sim.truth import Truth

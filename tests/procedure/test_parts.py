@@ -79,7 +79,7 @@ def test_warmup_slope_and_threshold() -> None:
 
 
 def test_acceptance_limits_name_what_failed(diag_truth: object) -> None:
-    from canimucal.model.plan import builtin_plan
+    from canimucal.model.vocabulary.plans import builtin_plan
     from canimucal.procedure import events as ev
     from tests.support.procedure_bench import Bench, of
 

@@ -8,9 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from canimucal.io.plans import BUILTIN_PLANS
-from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Pose
+from canimucal.model.vocabulary.plans import builtin_names, builtin_plan
 from canimucal.procedure.pose_picture import body_axes_in_level, field_guide, pose_svg, to_screen
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
@@ -53,11 +52,11 @@ def test_device_free_text_is_escaped() -> None:
 
 def test_committed_field_guide_is_current() -> None:
     """docs/field-guide.md and its pictures are what scripts/make_field_guide.py writes."""
-    markdown, pictures = field_guide([builtin_plan(name) for name in BUILTIN_PLANS])
+    markdown, pictures = field_guide([builtin_plan(name) for name in builtin_names()])
     assert (DOCS / "field-guide.md").read_text(encoding="utf-8") == markdown
     for name, svg in pictures.items():
         assert (DOCS / "field-guide" / name).read_text(encoding="utf-8") == svg, name
     linked = set(re.findall(r"\(field-guide/([^)]+\.svg)\)", markdown))
     assert linked == set(pictures)
-    assert len(pictures) == sum(len(builtin_plan(n).positions) for n in BUILTIN_PLANS)
+    assert len(pictures) == sum(len(builtin_plan(n).positions) for n in builtin_names())
     assert "held at the factory K" in markdown  # the vehicle plan states its prior

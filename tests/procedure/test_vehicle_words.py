@@ -9,8 +9,8 @@ import pytest
 
 from canimucal.model.frames import position_dcm
 from canimucal.model.mounting import DEFAULT_MOUNTING, MountingMap, VehicleAttitude, attitude_dcm
-from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Pose
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.procedure.posecheck import describe_pose
 from tests.support.mounts import all_proper_maps
 

@@ -17,7 +17,7 @@ from canimucal.device import od
 from canimucal.errors import DeviceError
 from canimucal.io.recording import read_recording
 from canimucal.io.recording_writer import RecordingWriter
-from canimucal.model.plan import builtin_plan
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.procedure.machine import Phase
@@ -244,7 +244,7 @@ def test_record_flags_a_position_interrupted_by_a_reboot(tmp_path: Path) -> None
 
 
 def test_the_position_screen_tells_each_device_event() -> None:
-    from canimucal.tui.position import notice_text
+    from canimucal.tui.screens.position import notice_text
 
     event = ev.DeviceEventReported(NODE, "heartbeat_lost", "node 16: no heartbeat for 0.3 s")
     assert notice_text(event) == "[b]heartbeat lost[/b]: node 16: no heartbeat for 0.3 s"

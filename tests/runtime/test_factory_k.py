@@ -15,8 +15,9 @@ from canimucal.device.factory_k import device_k
 from canimucal.errors import DeviceError, InputError
 from canimucal.io.calibration import read_calibration
 from canimucal.io.recording import normalise_header, read_recording
-from canimucal.model.plan import builtin_plan, plan_prior
+from canimucal.model.plan import plan_prior
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.runtime.operator import run_automatic
 from canimucal.runtime.wiring import DeviceSettings, SimSettings, open_devices

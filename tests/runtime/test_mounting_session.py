@@ -10,7 +10,7 @@ import pytest
 from canimucal.errors import InputError
 from canimucal.io.mounting import load_mounting, save_mounting
 from canimucal.model.mounting import DEFAULT_MOUNTING, MountingMap
-from canimucal.model.plan import builtin_plan
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.procedure import events as ev
 from canimucal.runtime.wiring import demo_settings, instruction_mounting, open_devices
 from canimucal.sim.truth import Truth

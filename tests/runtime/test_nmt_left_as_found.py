@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from canimucal.model.plan import builtin_plan
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.runtime.wiring import demo_settings, open_devices
 from canimucal.sim.truth import Truth

@@ -17,7 +17,7 @@ import pytest
 
 from canimucal.cli.main import main
 from canimucal.io.recording import read_recording
-from canimucal.model.plan import builtin_plan
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.runtime.readback_check import readback_deviations
 from canimucal.runtime.resume import load_resume_state
 from canimucal.sim.truth import Truth

@@ -10,7 +10,7 @@ import pytest
 from canimucal.errors import DeviceError
 from canimucal.io.calibration import read_calibration
 from canimucal.io.recording import read_recording
-from canimucal.model.plan import builtin_plan
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.procedure.machine import Phase

@@ -23,6 +23,7 @@ from canimucal.errors import InputError, NoDeviceError
 from canimucal.model.frames import earth_rate_level, position_dcm, specific_force_level
 from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
+from canimucal.model.vocabulary.plans import PLANS
 from canimucal.sim.truth import Truth
 from canimucal.simnode.node import SimulatedImuNode
 
@@ -415,7 +416,7 @@ def test_crc_and_firmware_semantics(
         gyro_g=np.array(truth.gyro.G),
         base_tilt_rad=np.array([truth.alpha0, truth.beta0]),
         time_unix_s=1_700_000_000,
-        plan_code=od.PLAN_CODES["five"],
+        plan_code=PLANS["five"].device_code,
         temp_c=25.0,
         rms_ms2=0.01,
     )

@@ -10,6 +10,7 @@ import numpy as np
 from canimucal.device import od
 from canimucal.device.client import CalibrationReadout
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB
+from canimucal.model.vocabulary.plans import PLANS
 from canimucal.simnode.store import STATE_SCHEMA
 
 
@@ -23,7 +24,7 @@ def calibration_block(m: np.ndarray) -> od.CalibrationBlock:
         gyro_correction=base.gyro_correction,
         gyro_g=base.gyro_g,
         base_tilt_rad=base.base_tilt_rad,
-        plan_code=od.PLAN_CODES["recommended"],
+        plan_code=PLANS["recommended"].device_code,
     )
 
 

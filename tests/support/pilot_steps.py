@@ -10,9 +10,9 @@ from collections.abc import Iterable
 
 from canimucal.procedure.machine import Phase
 from canimucal.tui.modals import ConfirmWrite
-from canimucal.tui.position import PositionScreen
-from canimucal.tui.results import ResultsScreen
-from canimucal.tui.verification import VerificationScreen
+from canimucal.tui.screens.position import PositionScreen
+from canimucal.tui.screens.results import ResultsScreen
+from canimucal.tui.screens.verification import VerificationScreen
 
 
 async def until(pilot, condition, what: str, timeout_s: float = 30.0) -> None:  # type: ignore[no-untyped-def]

@@ -16,9 +16,9 @@ from canimucal.device.client import CalibrationReadout, Identity
 from canimucal.device.od import factory_block
 from canimucal.errors import InputError, NoDeviceError
 from canimucal.model.mounting import MountingMap
-from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.procedure import events as ev
 from canimucal.runtime.session import Session, device_of
 from canimucal.runtime.wiring import spec_for_plan
@@ -65,7 +65,9 @@ class FakeSource:
         self.closed += 1
 
 
-def solved_event(plan_name: str = "five", seed: int = 5, seconds: float = 30.0) -> ev.Solved:
+def solved_event(
+    plan_name: str = "five", seed: int = 5, seconds: float = 30.0, gyro: str = "mems"
+) -> ev.Solved:
     """A real solve of simulated averages (no CAN): what the procedure emits after 'solve'."""
     rng = np.random.default_rng(seed)
     truth = Truth.random(rng, cross_axis_max=0.0)
@@ -83,7 +85,7 @@ def solved_event(plan_name: str = "five", seed: int = 5, seconds: float = 30.0) 
         gyro_noise_density=3.0,
     )
     site = SiteConditions(g=G, latitude=truth.latitude, heading=truth.heading)
-    spec = spec_for_plan(plan_name, "mems")
+    spec = spec_for_plan(plan_name, gyro)
     solution = solve_positions(
         averages, spec, site, device_of(0x10, node_status().identity), plan_name=plan_name
     )

@@ -9,7 +9,7 @@ import pytest
 
 from canimucal.device.busload import BusLoad
 from canimucal.tui.app import make_app
-from canimucal.tui.connection import ConnectionScreen, LinkState
+from canimucal.tui.screens.connection import ConnectionScreen, LinkState
 from canimucal.tui.source import Heartbeat
 from tests.support.tui_fakes import FakeSource, screen_text
 

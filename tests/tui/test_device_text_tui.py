@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from canimucal.tui.app import make_app
-from canimucal.tui.connection import ConnectionScreen
+from canimucal.tui.screens.connection import ConnectionScreen
 from tests.support.tui_fakes import FakeSource, node_status, screen_text
 
 pytestmark = pytest.mark.asyncio

@@ -19,7 +19,7 @@ from canimucal.procedure.machine import Phase
 from canimucal.runtime.readback_check import readback_deviations
 from canimucal.sim.truth import Truth
 from canimucal.tui.app import make_app
-from canimucal.tui.position import PositionScreen
+from canimucal.tui.screens.position import PositionScreen
 from canimucal.tui.source import demo_source
 from tests.support.pilot_steps import measure_positions, press, until, write_and_verify
 

@@ -19,15 +19,16 @@ from canimucal.io.calibration import Calibration
 from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase
 from canimucal.runtime.session import SessionCommand
+from canimucal.signals import EXIT_INTERRUPTED
 from canimucal.sim.truth import Truth
-from canimucal.tui.app import EXIT_INTERRUPTED, EXIT_OK, CalibrationApp, make_app
-from canimucal.tui.connection import ConnectionScreen
+from canimucal.tui.app import EXIT_OK, CalibrationApp, make_app
 from canimucal.tui.messages import EventsArrived
 from canimucal.tui.modals import ConfirmQuit, ConfirmSkip
-from canimucal.tui.position import PositionScreen
 from canimucal.tui.runner import Command
+from canimucal.tui.screens.connection import ConnectionScreen
+from canimucal.tui.screens.position import PositionScreen
+from canimucal.tui.screens.verification import VerificationScreen
 from canimucal.tui.source import demo_source
-from canimucal.tui.verification import VerificationScreen
 from tests.support.pilot_steps import measure_positions, press, until, write
 from tests.support.tui_fakes import FakeSource, node_status, screen_text
 

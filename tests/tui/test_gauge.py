@@ -12,7 +12,7 @@ from rich.text import Text
 from canimucal.procedure.machine import Phase
 from canimucal.sim.truth import Truth
 from canimucal.tui.app import make_app
-from canimucal.tui.position import PositionScreen
+from canimucal.tui.screens.position import PositionScreen
 from canimucal.tui.source import demo_source
 from canimucal.tui.text import DRAW_COLS, TARGET_MARK, UNIT_MARK, pose_drawing
 from tests.support.pilot_steps import press, until

@@ -9,12 +9,12 @@ from textual.geometry import Region
 from textual.widgets import Static
 
 from canimucal.model.mounting import DEFAULT_MOUNTING, MountingMap
-from canimucal.model.plan import builtin_plan
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.procedure import events as ev
 from canimucal.procedure.posecheck import describe_pose
 from canimucal.tui.app import make_app
 from canimucal.tui.messages import EventsArrived
-from canimucal.tui.position import PositionScreen
+from canimucal.tui.screens.position import PositionScreen
 from tests.support.tui_fakes import FakeSource, node_status
 
 pytestmark = pytest.mark.asyncio

@@ -13,8 +13,8 @@ from canimucal.procedure.machine import Phase
 from canimucal.sim.truth import Truth
 from canimucal.tui.app import make_app
 from canimucal.tui.modals import MountModal
-from canimucal.tui.plan_screen import PlanScreen
-from canimucal.tui.position import PositionScreen
+from canimucal.tui.screens.plan import PlanScreen
+from canimucal.tui.screens.position import PositionScreen
 from canimucal.tui.source import demo_source
 from tests.support.pilot_steps import press, until
 from tests.support.tui_fakes import SERIAL, FakeSource, node_status, screen_text

@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from canimucal.model.plan import builtin_plan
+from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.runtime.readback_check import readback_deviations
 from canimucal.runtime.resume import load_resume_state
 from canimucal.sim.truth import Truth
 from canimucal.tui.app import make_app
-from canimucal.tui.position import PositionScreen
+from canimucal.tui.screens.position import PositionScreen
 from canimucal.tui.source import demo_source
 from tests.support.interrupt import assert_kept, run_interrupted
 from tests.support.pilot_steps import measure_positions, press, until, write_and_verify

@@ -12,13 +12,13 @@ from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase
 from canimucal.runtime.session import WriteOptions
 from canimucal.tui.app import CalibrationApp, make_app
-from canimucal.tui.connection import ConnectionScreen, LinkState
 from canimucal.tui.messages import EventsArrived
 from canimucal.tui.modals import ConfirmWrite, ErrorModal
-from canimucal.tui.plan_screen import PlanScreen
-from canimucal.tui.position import PHASE_WORDS, PositionScreen, ScreenPhase, SessionState
-from canimucal.tui.results import ResultsScreen
-from canimucal.tui.verification import VerificationScreen
+from canimucal.tui.screens.connection import ConnectionScreen, LinkState
+from canimucal.tui.screens.plan import PlanScreen
+from canimucal.tui.screens.position import PHASE_WORDS, PositionScreen, ScreenPhase, SessionState
+from canimucal.tui.screens.results import ResultsScreen
+from canimucal.tui.screens.verification import VerificationScreen
 from tests.support.tui_fakes import FakeSource, live, node_status, screen_text, solved_event
 
 SIZE = (80, 24)

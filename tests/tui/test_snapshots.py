@@ -16,12 +16,12 @@ from canimucal.model.positions import PlannedPosition
 from canimucal.procedure import events as ev
 from canimucal.procedure.events import Phase
 from canimucal.tui.app import make_app
-from canimucal.tui.connection import ConnectionScreen
 from canimucal.tui.messages import EventsArrived
 from canimucal.tui.modals import ConfirmWrite, ErrorModal
-from canimucal.tui.plan_screen import PlanScreen
-from canimucal.tui.position import PositionScreen
-from canimucal.tui.results import ResultsScreen
+from canimucal.tui.screens.connection import ConnectionScreen
+from canimucal.tui.screens.plan import PlanScreen
+from canimucal.tui.screens.position import PositionScreen
+from canimucal.tui.screens.results import ResultsScreen
 from tests.support.tui_fakes import FakeSource, live, node_status, solved_event
 
 SIZE = (80, 24)

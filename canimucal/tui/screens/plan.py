@@ -22,14 +22,13 @@ from canimucal.io.mounting import BODY, load_mounting
 from canimucal.model.mounting import DEFAULT_MOUNTING, MountingMap
 from canimucal.model.plan import BoundTable, cramer_rao
 from canimucal.model.positions import Plan
+from canimucal.model.vocabulary.plans import DEFAULT_PLAN, PLANS, worded_for_vehicle
 from canimucal.runtime.wiring import spec_for_plan
 from canimucal.tui.messages import StartWanted
 from canimucal.tui.modals import MountModal
 from canimucal.tui.source import NodeStatus
 from canimucal.tui.text import bound_rows, findings_text
 from canimucal.tui.widgets import passive_table
-
-PLAN_KEYS = {"2": "two", "5": "five", "r": "recommended", "v": "vehicle", "u": "custom"}
 
 
 def bound_table(plan_name: str, plan: Plan, accel_lsb: float) -> BoundTable:
@@ -39,24 +38,20 @@ def bound_table(plan_name: str, plan: Plan, accel_lsb: float) -> BoundTable:
 
 
 class PlanScreen(Screen[None]):
-    """Plan choice (2, 5, r, v, u), gyro grade (g), mount (m), start (enter).
+    """Plan choice (each plan's key in the plan registry), gyro grade (g), mount (m), start.
 
     ``plans`` are the plans on offer by name; ``plan_name``, ``gyro`` and ``mount`` (from
     ``--mount``) the first choice.
     """
 
-    BINDINGS = [
-        Binding("enter", "start", "Start"),
-        Binding("2", "plan('two')", "Two"),
-        Binding("5", "plan('five')", "Five"),
-        Binding("r", "plan('recommended')", "Recommended"),
-        Binding("v", "plan('vehicle')", "Vehicle"),
-        Binding("u", "plan('custom')", "Custom"),
+    BINDINGS = [Binding("enter", "start", "Start")]
+    OTHER_BINDINGS = (
         Binding("g", "gyro", "Gyro grade"),
         Binding("m", "mount", "Mount", show=False),  # the summary names it: the footer is full
         Binding("escape", "back", "Back"),
-    ]
-    plan_name = reactive("recommended", bindings=True)
+    )
+    """Bound after the plans' keys, so that the footer lists the plans first."""
+    plan_name = reactive(DEFAULT_PLAN, bindings=True)
     gyro = reactive("mems")
 
     def __init__(
@@ -64,17 +59,23 @@ class PlanScreen(Screen[None]):
         statuses: list[NodeStatus],
         plans: Mapping[str, Plan],
         *,
-        plan_name: str = "recommended",
+        plan_name: str = DEFAULT_PLAN,
         gyro: str = "mems",
         mount: MountingMap | str | None = None,
         averaging: str = "",
     ) -> None:
         super().__init__()
+        for entry in PLANS.values():  # the registry's keys, read when the screen is built
+            if entry.tui_key is not None:
+                name = entry.name
+                self._bindings.bind(entry.tui_key, f"plan('{name}')", name.capitalize())
+        for b in self.OTHER_BINDINGS:  # as App.bind does: this screen's own bindings map
+            self._bindings.bind(b.key, b.action, b.description, show=b.show)
         self.averaging = averaging
         """The procedure's averaging rule in words (:func:`.describe_rule`): shown, not chosen."""
         self.statuses = statuses
         self.plans = dict(plans)
-        self.first_choice = (plan_name if plan_name in self.plans else "recommended", gyro)
+        self.first_choice = (plan_name if plan_name in self.plans else DEFAULT_PLAN, gyro)
         self.mount_map = mount
         self.mount_chosen = False
 
@@ -139,7 +140,8 @@ class PlanScreen(Screen[None]):
 
     def instructions_line(self) -> str:
         """Say how the instructions will be worded (module doc), in one line at 80 columns."""
-        if self.mount_map == BODY or (self.mount_map is None and self.plan_name != "vehicle"):
+        vehicle = worded_for_vehicle(self.plan_name)
+        if self.mount_map == BODY or (self.mount_map is None and not vehicle):
             return "instructions in the unit's own axes · m words them for a vehicle"
         if isinstance(self.mount_map, MountingMap):
             return f"vehicle wording: mount {self.mount_map.text()} · m changes it"

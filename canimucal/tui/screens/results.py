@@ -14,6 +14,7 @@ from textual.screen import Screen
 from textual.widgets import DataTable, Footer, Static
 
 from canimucal.analysis.calibrate import Solution
+from canimucal.model.vocabulary.units import quantity_of
 from canimucal.procedure import events as ev
 from canimucal.runtime.session import SessionCommand, WriteOptions
 from canimucal.tui.modals import ConfirmWrite
@@ -26,7 +27,7 @@ RESIDUAL_AXES = ("ax", "ay", "az", "gx", "gy", "gz")
 
 
 def parameter_rows(solution: Solution, device: dict[str, float]) -> list[tuple[str, str, str, str]]:
-    """Rows: parameter, value ± σ, unit, the device's current value (tilt in degrees)."""
+    """Rows: parameter, value ± σ, unit, the device's current value (the file's units)."""
     joint = solution.joint
     if joint is None:
         return []
@@ -34,10 +35,8 @@ def parameter_rows(solution: Solution, device: dict[str, float]) -> list[tuple[s
     rows = []
     for k, name in enumerate(joint.names):
         now = device.get(name)
-        unit = "counts" if "bias" in name else "counts/(m/s²)"
-        scale = 1.0
-        if name.startswith("base_tilt"):
-            unit, scale = "deg", float(np.rad2deg(1.0))
+        quantity = quantity_of(name)  # the units registry's, not guessed from the name
+        unit, scale = quantity.shown_unit, quantity.file_per_unit
         now_text = "—" if now is None else f"{now * scale:.6g}"
         if name in joint.undetermined:
             rows.append((name, "held nominal (undetermined)", unit, now_text))
