@@ -251,6 +251,10 @@ uint32_t imu_cal_block_crc(const imu_cal_t* cal) {
     return crc;
 }
 
+uint8_t imu_cal_valid(const imu_cal_t* cal) {
+    return *(const uint8_t*)cal->value[OBJ_VALID];
+}
+
 uint8_t imu_cal_refresh(imu_cal_t* cal) {
     uint32_t stored;
     memcpy(&stored, cal->value[OBJ_CRC], sizeof stored);

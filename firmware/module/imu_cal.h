@@ -129,6 +129,9 @@ uint32_t imu_cal_crc32(uint32_t crc, const uint8_t* data, size_t len);
 /* The CRC of the block's current values (docs/design.md §4 order). */
 uint32_t imu_cal_block_crc(const imu_cal_t* cal);
 
+/* The valid flag (0x2121:05) as held now. */
+uint8_t imu_cal_valid(const imu_cal_t* cal);
+
 /* Re-check the gate: active = (valid == 1 and the stored CRC equals the values' CRC). Call at
  * boot, after the stored block was loaded; imu_cal_write() calls it after every change. */
 uint8_t imu_cal_refresh(imu_cal_t* cal);

@@ -21,6 +21,7 @@ TABLE = [
     (0x1000, [0], U32, "ro", False),
     (0x1001, [0], U8, "ro", True),
     (0x1005, [0], U32, "rw", False),
+    (0x1006, [0], U32, "rw", False),
     (0x1008, [0], VSTR, "const", False),
     (0x1014, [0], U32, "ro", False),
     (0x1010, [1, 2, 3, 4], U32, "rw", False),
@@ -34,6 +35,7 @@ TABLE = [
     (0x2002, [3], U8, "ro", True),
     (0x2010, [1, 2], R32, "ro", False),
     (0x2010, [3], U16, "rw", False),
+    (0x2011, [0], U8, "ro", False),
     (0x2100, [1, 2, 3], R32, "rw", False),
     (0x2101, list(range(1, 10)), R32, "rw", False),
     (0x2110, [1, 2, 3], R32, "rw", False),
@@ -109,8 +111,9 @@ def test_crc_test_vector(eds: canopen.ObjectDictionary) -> None:
 @pytest.mark.parametrize(
     ("number", "cob_base", "timer_ms", "mapping"),
     [
-        (1, 0x180, 5, [0x20000110, 0x20000210, 0x20000310, 0x20020210]),
-        (2, 0x280, 5, [0x20010110, 0x20010210, 0x20010310, 0x20020210]),
+        # TPDO1/2 on data-ready: event timer 0 (a timer beside it sends samples twice)
+        (1, 0x180, 0, [0x20000110, 0x20000210, 0x20000310, 0x20020210]),
+        (2, 0x280, 0, [0x20010110, 0x20010210, 0x20010310, 0x20020210]),
         (3, 0x380, 100, [0x20020110, 0x20020210, 0x20020308]),
     ],
 )

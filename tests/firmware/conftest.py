@@ -3,12 +3,14 @@
 ``make test`` compiles the module's core with gcc and runs its C unit tests and the
 differential tests against the Python side. Without gcc these tests skip with the reason
 (``.ci/run`` installs gcc and libc6-dev, so CI never skips them). Sources of CANopenNode are
-not in the repo: tests that need them use ``../shared/third_party`` by path and skip when it
-is absent (a clone without the shared tree).
+not in the repo: tests that need them use ``../shared/third_party`` by path (or
+``$CANIMUCAL_SHARED_DIR/third_party``) and skip when it is absent (a clone without the shared
+tree).
 """
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 from collections.abc import Callable, Sequence
@@ -19,7 +21,8 @@ import pytest
 PROJECT = Path(__file__).resolve().parents[2]
 FIRMWARE = PROJECT / "firmware"
 MODULE = FIRMWARE / "module"
-THIRD_PARTY = PROJECT.parent / "shared" / "third_party"
+SHARED = Path(os.environ.get("CANIMUCAL_SHARED_DIR") or PROJECT.parent / "shared")
+THIRD_PARTY = SHARED / "third_party"
 CANOPENNODE = THIRD_PARTY / "CANopenNode"
 CANOPENLINUX = THIRD_PARTY / "CANopenLinux"
 STRICT = ["-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Werror"]

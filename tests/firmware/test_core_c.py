@@ -133,7 +133,9 @@ def test_crc32_equals_zlib(lib: ctypes.CDLL, seed: int) -> None:
     assert crc != 0
 
 
-def _random_block(rng: np.random.Generator, accel_lsb: float, gyro_lsb: float) -> od.CalibrationBlock:
+def _random_block(
+    rng: np.random.Generator, accel_lsb: float, gyro_lsb: float
+) -> od.CalibrationBlock:
     def matrix(lsb: float) -> np.ndarray:
         m = np.diag(rng.uniform(0.6, 1.4, 3) * lsb * rng.choice([-1.0, 1.0], 3))
         # off-diagonals of at most 0.05 |diagonal|: the device checks each against the
