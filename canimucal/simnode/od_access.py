@@ -22,6 +22,7 @@ from canopen.objectdictionary.datatypes import SIGNED_TYPES
 from canopen.sdo.exceptions import SdoAbortedError
 
 from canimucal.device import od
+from canimucal.device.storage_sub import CALIBRATION_STORE
 from canimucal.sim.truth import Truth
 from canimucal.simnode.checks import check_subindex_exists, check_write
 from canimucal.simnode.pdo import TpdoLayout, read_layout
@@ -105,6 +106,10 @@ class ObjectAccess:
                 return self._live().get((index, subindex), None)
         if index in (od.STORE, od.RESTORE) and subindex >= 1:
             return 1  # CiA 301: the device saves / restores on command
+        if index == CALIBRATION_STORE:  # what the node says stores its calibration
+            if self._truth.documented_store_sub is None:
+                raise SdoAbortedError(od.ABORT_NO_OBJECT)  # firmware before issue 24
+            return self._truth.documented_store_sub
         return None
 
     def on_write(self, index: int, subindex: int, data: bytes, **_: Any) -> None:
