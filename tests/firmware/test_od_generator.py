@@ -87,6 +87,16 @@ def test_generated_od_and_glue_compile_warning_free(generated: Path, compile_c: 
     compile_c([MODULE / "imu_cal_co.c"], "imu_cal_co.o", flags, link=False)
 
 
+def test_stock_canopennode_builds_on_the_generated_od(generated: Path, compile_c: Compile) -> None:
+    """CANopen.c, the stack's own user of ``OD.h``, with only the module's overrides.
+
+    The EDS before issue 24 fails here: SYNC needs 0x1006, which it lacked (issue case 4).
+    """
+    compile_c(
+        [CANOPENNODE / "CANopen.c"], "CANopen.o", _includes(generated), link=False, strict=False
+    )
+
+
 def test_generated_od_holds_the_eds(generated: Path, compile_c: Compile) -> None:
     """Every object, sub-index, access, PDO flag and default as python-canopen reads the EDS."""
     source = generated / "dump.c"
