@@ -29,6 +29,9 @@ ERROR_REGISTER_BITS = (
 """CiA 301 error register (0x1001) bits."""
 EMCY_LISTED = 3
 """The latest EMCY frames named in the message."""
+HEARTBEAT_WINDOW_S = 2.0
+"""How long to wait for a new heartbeat: one arriving now says the node is alive, and where."""
+POLL_S = 0.02
 
 
 def refused_start(client: ImuClient) -> str | None:
@@ -37,8 +40,8 @@ def refused_start(client: ImuClient) -> str | None:
     ``"node 16 stays pre-operational after start: error register 0x01 (generic), EMCY
     0x5000 'device hardware' at 12:00:01: the node refuses to start ..."``.
     """
-    if client.node_state != "PRE-OPERATIONAL":
-        return None
+    if _next_heartbeat_state(client) != "PRE-OPERATIONAL":
+        return None  # running, silent (stopped, unplugged) or without a heartbeat
     seen = [_register(client)]
     emergencies = list(client.heartbeat.recent_emergencies)[-EMCY_LISTED:]
     if emergencies:
@@ -50,6 +53,17 @@ def refused_start(client: ImuClient) -> str | None:
         "refuses to start (CANopenNode returns to PRE-OPERATIONAL while its error register is "
         "set; docs/firmware.md §5)"
     )
+
+
+def _next_heartbeat_state(client: ImuClient) -> str | None:
+    """Wait for the next heartbeat (:data:`HEARTBEAT_WINDOW_S`); return its state, else None."""
+    before = client.heartbeat.last_time_s
+    deadline = time.monotonic() + HEARTBEAT_WINDOW_S
+    while time.monotonic() < deadline:
+        if client.heartbeat.last_time_s != before:
+            return client.heartbeat.state
+        time.sleep(POLL_S)
+    return None
 
 
 def _register(client: ImuClient) -> str:
