@@ -32,8 +32,8 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q -m "not vcan"
 
 lint: $(STAMP)
-	$(BIN)/ruff check canimucal tests benchmarks
-	$(BIN)/ruff format --check canimucal tests benchmarks
+	$(BIN)/ruff check canimucal tests benchmarks firmware/tools
+	$(BIN)/ruff format --check canimucal tests benchmarks firmware/tools
 	$(BIN)/mypy
 	$(BIN)/lint-imports
 

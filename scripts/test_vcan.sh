@@ -7,12 +7,17 @@
 # Outside CI it may skip (exit 0) with the reason; with CI=true it must run them and fails if
 # it cannot, or if any test skipped or none passed. Last line: "vcan: N passed, M failed".
 #
-# Environment: PYTHON (default .venv/bin/python), CANVM_DIR (default ../shared/tools/canvm),
-# CANIMUCAL_VCAN (default vcan0), VM_TIMEOUT (default 1500 s), PYTEST_ADDOPTS.
+# The reference firmware's node (tests/hil/test_vcan_firmware.py) is built first, on the host,
+# statically against SHARED_DIR/third_party (make -C firmware node), so it runs in the VM too.
+#
+# Environment: PYTHON (default .venv/bin/python), SHARED_DIR (default ../shared), CANVM_DIR
+# (default $SHARED_DIR/tools/canvm), CANIMUCAL_VCAN (default vcan0), VM_TIMEOUT (default
+# 1500 s), PYTEST_ADDOPTS.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-.venv/bin/python}
-CANVM=${CANVM_DIR:-../shared/tools/canvm}
+SHARED=${SHARED_DIR:-../shared}
+CANVM=${CANVM_DIR:-$SHARED/tools/canvm}
 VCAN=${CANIMUCAL_VCAN:-vcan0}
 IS_CI=false
 case "${CI:-}" in true|1|yes) IS_CI=true;; esac
@@ -45,6 +50,12 @@ PYEOF
 }
 
 [ -x "$PY" ] || give_up "no Python at $PY (run make venv)"
+SHARED_ABS=$(cd "$SHARED" 2>/dev/null && pwd) || give_up "no shared tree at $SHARED (SHARED_DIR)"
+if ! make -s -C firmware node SHARED_DIR="$SHARED_ABS" PYTHON=python3 >"$LOG" 2>&1; then
+  cat "$LOG"
+  give_up "the reference firmware's node did not build (make -C firmware node)"
+fi
+echo "vcan: reference node built: firmware/build/imu_node"
 if native_ok; then
   echo "vcan: running natively on $VCAN"
   CANIMUCAL_VCAN=$VCAN "$PY" "${PYTEST[@]}" 2>&1 | tee "$LOG"

@@ -258,15 +258,24 @@ def _refused(index: int, why: str) -> None:
     print(f"position {index} refused, not recorded: {why}; set the pose again", flush=True)
 
 
+SECOND_TRIGGER_ADVICE = (
+    "the node sends its samples twice (a second send trigger, e.g. a TPDO event timer beside "
+    "data-ready sending: set 0x1800:05 and 0x1801:05 to 0, docs/firmware.md §4)"
+)
+
+
 def report(tallies: list[NodeTally], paths: list[Path]) -> str:
     """Rows, labelled rows, losses and the TPDO timer skew per node."""
     lines = []
     for tally, path in zip(tallies, paths, strict=True):
         skew = "not measured" if tally.skew_ppm is None else f"{tally.skew_ppm:+.0f} ppm"
+        if tally.second_trigger:
+            skew = f"not measured: {SECOND_TRIGGER_ADVICE}"
+        sends = f", {tally.duplicate_sends} duplicate sends" if tally.duplicate_sends else ""
         lines.append(
             f"node {tally.node_id}: wrote {tally.rows} rows to {path} ({tally.labelled} in "
             f"positions); lost {tally.lost_samples} samples, {tally.lost_accel} accel and "
-            f"{tally.lost_gyro} gyro halves; {tally.duplicates} duplicate, {tally.late} late; "
-            f"timer skew {skew}"
+            f"{tally.lost_gyro} gyro halves; {tally.duplicates} duplicate, {tally.late} late"
+            f"{sends}; timer skew {skew}"
         )
     return "\n".join(lines) + "\n"

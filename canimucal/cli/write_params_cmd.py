@@ -20,6 +20,7 @@ from canimucal.io.calibration import Calibration, read_calibration
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
 
 if TYPE_CHECKING:
+    from canimucal.device.client import ImuClient
     from canimucal.device.transaction import WriteReport
 
 
@@ -33,7 +34,11 @@ def add_subparser(subparsers: Any) -> None:
     )
     p.add_argument("calibration", help="calibration JSON (solve's output or a backup)")
     p.add_argument("--dry-run", action="store_true", help="print the planned writes only")
-    p.add_argument("--no-store", action="store_true", help="do not store (0x1010:04)")
+    p.add_argument(
+        "--no-store",
+        action="store_true",
+        help="do not store (0x1010 with the sub-index the node names in 0x2011)",
+    )
     p.add_argument("--force", action="store_true", help="write even if the device serial differs")
     p.add_argument(
         "--no-check",
@@ -46,8 +51,16 @@ def add_subparser(subparsers: Any) -> None:
         type=int,
         choices=(1, 3, 4),
         default=None,
-        help="0x1010 sub-index to store with (default: 4 if the node has it, else 1; "
-        "3 only on request, with a warning)",
+        help="0x1010 sub-index to store with (default: the one the node names in 0x2011, "
+        "else 1; another only where the node names none; 3 with a warning)",
+    )
+    p.add_argument(
+        "--verify-after-restart",
+        action="store_true",
+        help="after the store, reset the node (NMT reset node), wait for its boot-up and read "
+        "valid and CRC back: proves flash holds the set. RISK: the node restarts, stops "
+        "sending meanwhile and loses every value it did not store, and the other nodes see it "
+        "reboot; for a bench or commissioning, not a vehicle in service",
     )
     p.add_argument(
         "--store-timeout-s",
@@ -92,6 +105,8 @@ def run(args: argparse.Namespace) -> int:
 
     record = check_file(args.calibration, no_check=args.no_check)
     store_timeout_s = _store_timeout(args.store_timeout_s)
+    if args.verify_after_restart and (args.no_store or args.dry_run):
+        raise InputError("--verify-after-restart needs a store: not with --no-store or --dry-run")
     with open_from_args(args) as session:
         for client in session.clients.values():
             result = write_calibration_transaction(
@@ -105,7 +120,21 @@ def run(args: argparse.Namespace) -> int:
                 store_timeout_s=store_timeout_s,
             )
             print(report(result, client.node_id), end="")
+            if args.verify_after_restart:
+                print(_verify(client, result), flush=True)
     return 0
+
+
+def _verify(client: ImuClient, result: WriteReport) -> str:
+    """Restart the node and check what it kept (:mod:`canimucal.device.restart_check`)."""
+    from canimucal.device.restart_check import verify_after_restart
+
+    check = verify_after_restart(client, result.crc, result.valid)
+    valid = "valid" if result.valid else "valid = 0 (as written)"
+    return (
+        f"node {client.node_id}: verified after a restart: {valid}, CRC 0x{result.crc:08X} "
+        f"(boot-up {check.boot_s:.1f} s after NMT reset node)"
+    )
 
 
 def _store_timeout(value: float) -> float:

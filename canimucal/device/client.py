@@ -41,6 +41,7 @@ from canimucal.untrusted import DEVICE_TEXT_MAX_BYTES, device_text
 logger = logging.getLogger(__name__)
 
 NMT_START = 0x01
+NMT_RESET_NODE = 0x81
 SKEW_NOTICE_PPM = 1000.0
 """Event-timer skew worth a warning when streaming stops (one sample in a thousand)."""
 DEFAULT_STORE_TIMEOUT_S = 10.0
@@ -378,6 +379,14 @@ class ImuClient:
         self._nmt_sent = False
         logger.info("node %d left %s", self.node_id, found.state)
 
+    def reset_node(self) -> None:
+        """NMT reset node to the target node only; :meth:`close` puts it back as found.
+
+        The node restarts: unsaved values are lost and it boots with what it stored.
+        """
+        self.observe_nmt_state()
+        self._nmt(NMT_RESET_NODE)
+
     def _nmt(self, command: int) -> None:
         """NMT command to the target node only; a failing bus is a DeviceError."""
         self._nmt_sent = True
@@ -443,7 +452,14 @@ class ImuClient:
         if stream is None:
             return
         skew = stream.pairer.skew_ppm
-        if skew is not None and abs(skew) >= SKEW_NOTICE_PPM:
+        if stream.pairer.second_trigger:
+            logger.warning(
+                "node %d sends samples twice (duplicate sends, not a clock): a second send "
+                "trigger, e.g. a TPDO event timer beside data-ready sending; set 0x1800:05 and "
+                "0x1801:05 to 0 (docs/firmware.md §4)",
+                self.node_id,
+            )
+        elif skew is not None and abs(skew) >= SKEW_NOTICE_PPM:
             logger.warning(
                 "node %d: TPDO event timer %+.0f ppm off the sensor clock: the device %s",
                 self.node_id,
@@ -467,6 +483,11 @@ class ImuClient:
         fault caused); negative: it is fast and re-sends counters (duplicates, not losses).
         """
         return self._stream.pairer.skew_ppm if self._stream is not None else None
+
+    @property
+    def second_send_trigger(self) -> bool:
+        """Whether the node sends its samples twice while streaming (duplicate sends, not skew)."""
+        return self._stream is not None and self._stream.pairer.second_trigger
 
     @property
     def consumer_thread(self) -> threading.Thread | None:

@@ -11,6 +11,7 @@ import logging
 import queue
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 
 import can
@@ -20,6 +21,8 @@ logger = logging.getLogger(__name__)
 
 EMCY_BASE = 0x80
 HEARTBEAT_BASE = 0x700
+EMCY_KEPT = 8
+"""The last EMCY frames a :class:`NodeMonitor` keeps (for a diagnosis such as a refused start)."""
 
 EMCY_TEXT = {
     0x0000: "error reset or no error",
@@ -140,6 +143,8 @@ class NodeMonitor(can.Listener):
         self.state_code: int | None = None
         self.boots = 0
         self.emergencies = 0
+        self.recent_emergencies: deque[EmergencyReceived] = deque(maxlen=EMCY_KEPT)
+        """The last EMCY frames, oldest first."""
         self.bus_errors = 0
         self._last_mono = 0.0
         self._lost = False
@@ -181,6 +186,7 @@ class NodeMonitor(can.Listener):
             timestamp,
         )
         self.emergencies += 1
+        self.recent_emergencies.append(event)
         logger.warning("node %d emergency: %s", self.node_id, event.text)
         self.events.put(event)
 

@@ -42,6 +42,7 @@ _INTEGER_SPAN: Mapping[str, tuple[int, int]] = {
 DEVICE_TYPE = 0x1000
 ERROR_REGISTER = 0x1001
 SYNC_COB_ID = 0x1005
+COMM_CYCLE_PERIOD = 0x1006
 DEVICE_NAME = 0x1008
 HARDWARE_VERSION = 0x1009
 SOFTWARE_VERSION = 0x100A
@@ -57,6 +58,7 @@ ACCEL_RAW = 0x2000
 GYRO_RAW = 0x2001
 SAMPLE_INFO = 0x2002  # sub 1 temperature (0.01 °C), 2 counter, 3 status
 NOMINAL = 0x2010  # sub 1 accel LSB, 2 gyro LSB (REAL32, signed), 3 output data rate Hz
+CALIBRATION_STORE_SUB = 0x2011  # the 0x1010/0x1011 sub-index that saves the calibration block
 
 ACCEL_BIAS = 0x2100
 ACCEL_CORRECTION = 0x2101
@@ -312,6 +314,8 @@ def _communication() -> list[DeviceObject]:
         DeviceObject(DEVICE_TYPE, 0, "Device type", u32, ro, 0, TYPE_RANGE),
         DeviceObject(ERROR_REGISTER, 0, "Error register", u8, ro, 0, TYPE_RANGE, pdo=True),
         DeviceObject(SYNC_COB_ID, 0, "COB-ID SYNC message", u32, rw, 0x80, TYPE_RANGE),
+        DeviceObject(COMM_CYCLE_PERIOD, 0, "Communication cycle period (us)", u32, rw, 0,
+                     TYPE_RANGE, "µs"),
         DeviceObject(DEVICE_NAME, 0, "Manufacturer device name", "vstr", "const",
                      "canimucal IMU", TYPE_RANGE),
         DeviceObject(HARDWARE_VERSION, 0, "Manufacturer hardware version", "vstr", "const",
@@ -331,7 +335,7 @@ def _communication() -> list[DeviceObject]:
     identity = ("Vendor-ID", "Product code", "Revision number", "Serial number")
     for s, (name, default) in enumerate(zip(identity, (0, 0, 0x10000, 0), strict=True), start=1):
         out.append(DeviceObject(IDENTITY, s, name, u32, ro, default, TYPE_RANGE))
-    for n, (index, timer_ms) in enumerate(zip(TPDO_COMM, (5, 5, 100), strict=True)):
+    for n, (index, timer_ms) in enumerate(zip(TPDO_COMM, (0, 0, 100), strict=True)):
         out += [
             DeviceObject(index, 1, "COB-ID used by TPDO", u32, rw,
                          f"$NODEID+0x{0x180 + 0x100 * n:X}", TYPE_RANGE),
@@ -376,6 +380,8 @@ def _application() -> list[DeviceObject]:
                      lambda n: n.gyro_lsb, TYPE_RANGE, "rad/s per count"),
         DeviceObject(NOMINAL, 3, f"Output data rate (Hz: {rates})", "u16", "rw", 200,
                      OneOf("output data rate (Hz)", lambda: OUTPUT_DATA_RATES_HZ), "Hz"),
+        DeviceObject(CALIBRATION_STORE_SUB, 0, "Calibration store sub-index (0x1010 and 0x1011)",
+                     "u8", "ro", 4, TYPE_RANGE),
     ]  # fmt: skip
     bias = Magnitude(BIAS_LIMIT_COUNTS, "counts")
     tilt = Magnitude(TILT_LIMIT_RAD, "rad")

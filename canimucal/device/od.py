@@ -32,6 +32,8 @@ from canimucal.device.objects import (  # noqa: F401  (the indices, as od.X for 
     CAL_TEMP_SUB,
     CAL_TIME_SUB,
     CAL_VALID_SUB,
+    CALIBRATION_STORE_SUB,
+    COMM_CYCLE_PERIOD,
     CRC_OBJECTS,
     DEVICE_NAME,
     DEVICE_TYPE,

@@ -8,7 +8,12 @@ everything here runs on the consumer thread. Rules:
   has arrived — or, when no frame is waiting to be processed, in CAN time.
 - Counter gaps (both halves missing) are lost samples; the counter wraps at 65536.
 - A second copy of a half is a duplicate, a half arriving after its sample was given up is
-  late: both are counted and dropped, never hidden.
+  late: both are counted and dropped, never hidden. A duplicate that repeats its sample's
+  payload exactly is also a *duplicate send*: the node sent the same frame again.
+- Duplicate sends of more than :data:`SECOND_TRIGGER_SHARE` of the samples are a second
+  send trigger (an event timer beside data-ready sending), not a clock: no clock runs 5 %
+  off, so :attr:`SamplePairer.skew_ppm` is then None and :attr:`SamplePairer.second_trigger`
+  says why (issue 24, case 3).
 - Pairing starts at the first TPDO1, so a stream joined mid-sample does not count a loss.
 - A TPDO event timer that runs off the sensor clock re-sends a counter (timer fast: both
   halves again, counted as duplicates, never as a loss) or skips one (timer slow: counted
@@ -59,6 +64,10 @@ on a loaded 2-core host gave up 22 halves whose partners were only delayed (coun
 late, nothing hidden, but lost). While frames flow, the counter rule decides, not this."""
 RECENT_WINDOW = 1024
 """How many finalized counters are remembered to tell duplicates from late halves."""
+SECOND_TRIGGER_SHARE = 0.05
+"""TPDO1 duplicate sends per sample above which they are a second send trigger, not skew."""
+SECOND_TRIGGER_MIN_SAMPLES = 200
+"""Samples seen before the share is judged (as the skew: 200 intervals)."""
 
 
 MALFORMED_LOG_EVERY = 1000
@@ -83,6 +92,10 @@ class _Tally:
     duplicates: int = 0
     late: int = 0
     malformed: int = 0
+    duplicate_sends: int = 0
+
+
+Xyz = tuple[int, int, int]
 
 
 class SamplePairer:
@@ -108,7 +121,7 @@ class SamplePairer:
         self._gyro_pick = layout.picks(layout.gyro, GYRO_RAW)
         self._info_pos = self._info_positions(layout.info)
         self._pending: dict[int, _Pending] = {}
-        self._recent: dict[int, tuple[bool, bool]] = {}
+        self._recent: dict[int, tuple[Xyz | None, Xyz | None]] = {}
         self._recent_order: deque[int] = deque()
         self._newest: int | None = None
         self._rows: list[tuple[float, int, tuple[float, ...], tuple[float, ...]]] = []
@@ -120,6 +133,8 @@ class SamplePairer:
         self._skew_first: tuple[float, int] | None = None  # (CAN time, seq) of a TPDO1
         self._skew_last: tuple[float, int] | None = None
         self._skew_intervals = 0
+        self._samples_seen = 0  # counters started since the stream (re)started
+        self._accel_resends = 0  # TPDO1 duplicate sends over the same span
 
     @staticmethod
     def _info_positions(info: PdoLayout | None) -> tuple[int | None, int | None]:
@@ -177,13 +192,14 @@ class SamplePairer:
         entry = self._pending.get(seq)
         if entry is None:
             if seq <= self._newest:
-                self._old_half(seq, is_accel)
+                self._old_half(seq, is_accel, xyz)
                 return
             self._advance(seq)
             arrival = t if self.clock is None else self.clock()
             entry = self._pending[seq] = _Pending(seq, arrival=arrival)
-        if (entry.accel if is_accel else entry.gyro) is not None:
-            self._tally.duplicates += 1
+        first = entry.accel if is_accel else entry.gyro
+        if first is not None:
+            self._duplicate(is_accel, first == xyz)
             return
         if is_accel:
             entry.accel, entry.t_accel = xyz, t
@@ -228,6 +244,8 @@ class SamplePairer:
         """
         if self._skew_first is None or self._skew_last is None or self._skew_intervals < 200:
             return None
+        if self.second_trigger:
+            return None  # duplicate sends are no clock (module doc)
         advanced = self._skew_last[1] - self._skew_first[1]
         return (advanced / self._skew_intervals - 1.0) * 1e6
 
@@ -239,23 +257,43 @@ class SamplePairer:
             delta -= COUNTER_MODULUS
         return newest + delta
 
-    def _old_half(self, seq: int, is_accel: bool) -> None:
+    def _old_half(self, seq: int, is_accel: bool, xyz: Xyz) -> None:
         halves = self._recent.get(seq)
-        if halves is not None and halves[0 if is_accel else 1]:
-            self._tally.duplicates += 1
+        first = None if halves is None else halves[0 if is_accel else 1]
+        if first is not None:
+            self._duplicate(is_accel, first == xyz)
         else:
             self._tally.late += 1
+
+    def _duplicate(self, is_accel: bool, same_payload: bool) -> None:
+        """Count a second copy of a half; the same payload again is a duplicate send."""
+        self._tally.duplicates += 1
+        if same_payload:
+            self._tally.duplicate_sends += 1
+            self._accel_resends += is_accel
+
+    @property
+    def second_trigger(self) -> bool:
+        """Whether the node sends samples twice: TPDO1 duplicate sends above the share.
+
+        Judged once :data:`SECOND_TRIGGER_MIN_SAMPLES` samples were seen (module doc).
+        """
+        seen = self._samples_seen
+        return seen >= SECOND_TRIGGER_MIN_SAMPLES and (
+            self._accel_resends > SECOND_TRIGGER_SHARE * seen
+        )
 
     def _advance(self, seq: int) -> None:
         """Start a new counter: the ones skipped are lost samples (both halves)."""
         assert self._newest is not None
         for missing in range(self._newest + 1, seq):
             self._tally.lost_samples += 1
-            self._remember(missing, False, False)
+            self._remember(missing, None, None)
+        self._samples_seen += seq - self._newest
         self._newest = seq
 
-    def _remember(self, seq: int, has_accel: bool, has_gyro: bool) -> None:
-        self._recent[seq] = (has_accel, has_gyro)
+    def _remember(self, seq: int, accel: Xyz | None, gyro: Xyz | None) -> None:
+        self._recent[seq] = (accel, gyro)
         self._recent_order.append(seq)
         while len(self._recent_order) > RECENT_WINDOW:
             self._recent.pop(self._recent_order.popleft(), None)
@@ -283,7 +321,7 @@ class SamplePairer:
         accel: tuple[float, ...] = entry.accel if entry.accel is not None else nan3
         gyro: tuple[float, ...] = entry.gyro if entry.gyro is not None else nan3
         self._rows.append((t, entry.seq % COUNTER_MODULUS, accel, gyro))
-        self._remember(entry.seq, entry.accel is not None, entry.gyro is not None)
+        self._remember(entry.seq, entry.accel, entry.gyro)
 
     def restart(self) -> None:
         """Restart after a reboot: give up pending halves and pair afresh (counters restart)."""
@@ -291,6 +329,7 @@ class SamplePairer:
         self._newest = None
         self._skew_first = self._skew_last = None
         self._skew_intervals = 0
+        self._samples_seen = self._accel_resends = 0
         self._recent.clear()
         self._recent_order.clear()
 
@@ -343,4 +382,5 @@ def _block(
         tally.duplicates,
         tally.late,
         tally.malformed,
+        tally.duplicate_sends,
     )

@@ -9,9 +9,10 @@ the backup is written back (valid last) and verified; if that fails too, valid i
 at all possible and :class:`RollbackIncompleteError` names the backup. Never valid = 1 over a
 mixed set.
 
-The store (DESIGN §9 "Device behaviour") uses 0x1010:04 when the node offers it, else
-0x1010:01 after the client undid its own RAM changes, 0x1010:03 only when asked (with a
-warning: CiA 301 gives sub 3 to 0x6000–0x9FFF). It is sent once with its own timeout: a node
+The store (DESIGN §9 "Device behaviour") uses the 0x1010 sub-index the node documents for its
+calibration (0x2011, :mod:`canimucal.device.storage_sub`), else 0x1010:01 after the client
+undid its own RAM changes; 0x1010:03 only when asked (with a warning: CiA 301 gives sub 3 to
+0x6000–0x9FFF). It is sent once with its own timeout: a node
 may erase flash inside its SDO handler for seconds, and a retried 'save' stores twice. On a
 store timeout nothing is rolled back (RAM holds a verified set; flash is unknown): the block
 is read again and :class:`StoreNotConfirmedError` says what RAM holds.
@@ -40,6 +41,7 @@ from canimucal.device.client import (
     Identity,
     ImuClient,
 )
+from canimucal.device.storage_sub import choose_store_sub
 from canimucal.errors import (
     DeviceError,
     ForeignSdoClientError,
@@ -58,7 +60,6 @@ logger = logging.getLogger(__name__)
 ObjectKey = tuple[int, int]
 VALID_KEY: ObjectKey = (od.CAL_INFO, od.CAL_VALID_SUB)
 CRC_KEY: ObjectKey = (od.CAL_INFO, od.CAL_CRC_SUB)
-STORE_SUB_CHOICES = (od.STORE_ALL_SUB, od.STORE_APP_SUB, od.STORE_CALIBRATION_SUB)
 _BACKUP_ATTEMPTS = 20
 
 
@@ -140,36 +141,6 @@ class StoreNotConfirmedError(DeviceError):
     """The store got no answer in time; nothing rolled back (exit 3, DESIGN §9)."""
 
     title = "Store not confirmed"
-
-
-def choose_store_sub(client: ImuClient, requested: int | None) -> int:
-    """Pick the 0x1010 sub-index to store with (DESIGN §9): 4 if offered, else 1; 3 if asked.
-
-    Checked before anything is written: a node that offers neither is refused up front
-    (:class:`DeviceError`, nothing written).
-    """
-    if requested is not None:
-        if requested not in STORE_SUB_CHOICES:
-            raise InputError(f"--store-sub must be one of {STORE_SUB_CHOICES}, got {requested}")
-        if requested == od.STORE_APP_SUB:
-            logger.warning(
-                "storing with 0x1010:03 as asked: CiA 301 defines it for 0x6000-0x9FFF, "
-                "so this node must map the calibration there"
-            )
-        if not client.store_supported(requested):
-            raise DeviceError(
-                f"node {client.node_id} has no 0x1010:{requested:02X}; nothing written"
-            )
-        return requested
-    if client.store_supported(od.STORE_CALIBRATION_SUB):
-        return od.STORE_CALIBRATION_SUB
-    if client.store_supported(od.STORE_ALL_SUB):
-        logger.info("node has no 0x1010:04; storing every parameter with 0x1010:01")
-        return od.STORE_ALL_SUB
-    raise DeviceError(
-        f"node {client.node_id} offers neither 0x1010:04 nor 0x1010:01 (save on command); "
-        "nothing written (use --no-store to write RAM only, or --store-sub 3)"
-    )
 
 
 def _target(

@@ -20,7 +20,8 @@ class SampleBlock:
     ``t`` is the CAN timestamp of TPDO2 (TPDO1's when TPDO2 was lost); ``accel``/``gyro`` are
     raw counts with NaN rows for a lost half. The counts cover what was finalized into this
     block: ``lost_samples`` counter gaps (both halves missing), ``duplicates`` and ``late``
-    halves dropped, ``malformed`` frames (wrong length) dropped.
+    halves dropped, ``malformed`` frames (wrong length) dropped. ``duplicate_sends`` are the
+    duplicates that repeat their sample exactly (the node sent the same frame again).
     """
 
     t: NDArray[np.float64]
@@ -35,6 +36,7 @@ class SampleBlock:
     duplicates: int
     late: int
     malformed: int = 0
+    duplicate_sends: int = 0
 
     @property
     def suspect(self) -> bool:
@@ -83,4 +85,5 @@ def concat_blocks(blocks: Sequence[SampleBlock]) -> SampleBlock:
         sum(b.duplicates for b in blocks),
         sum(b.late for b in blocks),
         sum(b.malformed for b in blocks),
+        sum(b.duplicate_sends for b in blocks),
     )

@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 
 from canimucal.device.client import ImuClient
 from canimucal.device.events import NodeRebooted
+from canimucal.device.start_check import refused_start
 from canimucal.errors import DeviceError, InputError
 from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.positions import Plan, PlannedPosition
@@ -84,10 +85,14 @@ class NodeTally:
     lost_gyro: int = 0
     duplicates: int = 0
     late: int = 0
+    duplicate_sends: int = 0
+    """Duplicates that repeated their sample exactly: the node sent the frame again."""
     reboots: int = 0
     skew_ppm: float | None = None
     """The node's TPDO event timer against its sample clock, ppm (the client's latest
     estimate, :attr:`~canimucal.device.client.ImuClient.skew_ppm`); None: not measured."""
+    second_trigger: bool = False
+    """The node sent its samples twice (duplicate sends, no clock): no skew is claimed."""
 
     def add(self, block: SampleBlock) -> None:
         """Add a block's loss counts."""
@@ -96,6 +101,7 @@ class NodeTally:
         self.lost_gyro += block.lost_gyro
         self.duplicates += block.duplicates
         self.late += block.late
+        self.duplicate_sends += block.duplicate_sends
 
 
 class _Track:
@@ -356,7 +362,10 @@ class Recorder:
             self._flush(track, labeller)
 
     def _stalled(self, track: _Track) -> str:
-        """Say that a node gave no sample, and why when its frames did not fit the mapping."""
+        """Say that a node gave no sample, and why (a refused start, frames of a bad mapping)."""
+        refused = refused_start(track.client)
+        if refused is not None:
+            return refused
         message = f"node {track.client.node_id} sent no sample for {self._idle_timeout_s:g} s"
         if track.malformed:
             message += (
@@ -429,8 +438,11 @@ class Recorder:
 
 def _note_skew(track: _Track) -> None:
     """Keep the client's latest skew estimate (a reboot restarts it: the last one stays)."""
+    if track.client.second_send_trigger:
+        track.tally.second_trigger = True
+        track.tally.skew_ppm = None
     skew = track.client.skew_ppm
-    if skew is not None:
+    if skew is not None and not track.tally.second_trigger:
         track.tally.skew_ppm = skew
 
 

@@ -39,6 +39,7 @@ from canimucal.device.events import (
     NodeRebooted,
     SerialChanged,
 )
+from canimucal.device.start_check import refused_start
 from canimucal.device.transaction import write_calibration_transaction
 from canimucal.errors import CanimucalError, DeviceError
 from canimucal.io.calibration import (
@@ -172,9 +173,10 @@ class Session:
             if block is not None:
                 self._last_block_s[node_id] = now
             elif now - self._last_block_s.get(node_id, now) > self.silence_timeout_s:
+                why = refused_start(link.client)
                 raise DeviceError(
-                    f"node {node_id} sent no samples for {self.silence_timeout_s:g} s; "
-                    "what was recorded is kept"
+                    (why or f"node {node_id} sent no samples for {self.silence_timeout_s:g} s")
+                    + "; what was recorded is kept"
                 )
             while block is not None:
                 out += self.procedure.feed(node_id, block)

@@ -54,7 +54,8 @@ DEFAULT_SOFTWARE_VERSION = "sim 1"
 _TOP_KEYS = tuple(
     "schema sample_rate_hz g latitude_deg height_m heading_deg serial tilt_model base_tilt_deg"
     " accel gyro temperature faults nmt_start heartbeat_ms store_delay_s store_pdo_mode"
-    " storage_subs sync_pdos timer_skew_ppm"
+    " storage_subs sync_pdos timer_skew_ppm calibration_store_sub documented_store_sub"
+    " second_send_ms refuses_start"
     " device_name hardware_version software_version effects".split()
 )
 NMT_STARTS = ("pre-operational", "operational")
@@ -145,6 +146,18 @@ class Truth:
     timer_skew_ppm: float = 0.0
     """TPDO event timers run this far off the sample clock (+: slow, counters skipped;
     −: fast, counters sent twice), as on an MCU whose timer and sensor have two clocks."""
+    calibration_store_sub: int = 4
+    """The 0x1010/0x1011 sub-index whose 'save'/'load' covers the calibration group."""
+    documented_store_sub: int | None = 4
+    """What 0x2011 says stores the calibration (None: no 0x2011, as firmware before issue
+    24); a firmware may be wrong. Without the key: ``calibration_store_sub`` when the node
+    has that sub-index, else 1."""
+    second_send_ms: float = 0.0
+    """TPDO1/2 go out a second time this long after each sample: a second send trigger (an
+    event timer beside data-ready sending). 0: off."""
+    refuses_start: bool = False
+    """Boot with EMCY 0x5000 and error register 0x01, and stay PRE-OPERATIONAL after an NMT
+    start (CANopenNode's stock error-register rule on a blank storage)."""
     device_name: str = DEFAULT_DEVICE_NAME
     """0x1008, any text (tests present hostile names); 0x1009/0x100A likewise."""
     hardware_version: str = DEFAULT_HARDWARE_VERSION
@@ -268,6 +281,16 @@ class Truth:
             out["sync_pdos"] = True
         if self.timer_skew_ppm:
             out["timer_skew_ppm"] = self.timer_skew_ppm
+        if self.calibration_store_sub != 4:
+            out["calibration_store_sub"] = self.calibration_store_sub
+        if self.documented_store_sub != _documented_default(
+            self.calibration_store_sub, self.storage_subs
+        ):
+            out["documented_store_sub"] = self.documented_store_sub
+        if self.second_send_ms:
+            out["second_send_ms"] = self.second_send_ms
+        if self.refuses_start:
+            out["refuses_start"] = True
         return out
 
     @classmethod
@@ -347,7 +370,39 @@ def _device_behaviour(d: Mapping[str, Any]) -> dict[str, Any]:
     if not ok or len(set(subs)) != len(subs):
         fail("storage_subs", "must be a list of distinct sub-indices 1..127 (e.g. [1, 2, 3])")
     out["storage_subs"] = tuple(sorted(subs))
+    out.update(_firmware_behaviour(d, out["storage_subs"]))
     return out
+
+
+def _sub_index(value: Any, key: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 127:
+        fail(key, "must be a sub-index 1..127")
+    return int(value)
+
+
+def _documented_default(store_sub: int, storage_subs: tuple[int, ...]) -> int:
+    """Return 0x2011's default: the calibration's sub-index, or 1 when the node lacks it."""
+    return store_sub if store_sub in storage_subs else 1
+
+
+def _firmware_behaviour(d: Mapping[str, Any], storage_subs: tuple[int, ...]) -> dict[str, Any]:
+    """Read the keys of issue 24's firmware habits: store sub-index, second send, start refusal."""
+    store_sub = _sub_index(d.get("calibration_store_sub", 4), "calibration_store_sub")
+    documented = d.get("documented_store_sub", _documented_default(store_sub, storage_subs))
+    if documented is not None:
+        documented = _sub_index(documented, "documented_store_sub")
+    second = read_number(d.get("second_send_ms", 0.0), "second_send_ms")
+    if not 0.0 <= second < 1000.0:
+        fail("second_send_ms", "must be within [0, 1000) ms (0: off)")
+    refuses = d.get("refuses_start", False)
+    if not isinstance(refuses, bool):
+        fail("refuses_start", "must be true or false")
+    return {
+        "calibration_store_sub": store_sub,
+        "documented_store_sub": documented,
+        "second_send_ms": second,
+        "refuses_start": refuses,
+    }
 
 
 def _text(value: Any, key: str) -> str:

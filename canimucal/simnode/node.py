@@ -82,7 +82,7 @@ class SimulatedImuNode:
         if not eds.is_file():
             raise InputError(f"object dictionary not found: {eds}")
         self._node = ImuLocalNode(self.node_id, canopen.import_od(str(eds), self.node_id))
-        self._store = NonVolatileStore(state_file)
+        self._store = NonVolatileStore(state_file, self.truth.calibration_store_sub)
         self._simulator = ImuSimulator(self.truth, seed=seed)
         self._gate = TpdoGate(self.truth.store_pdo_mode, self._send_now)
         self._access = ObjectAccess(
@@ -105,6 +105,7 @@ class SimulatedImuNode:
             on_time=lambda t_s: self._fault_actions.on_sim_time(t_s),
             backlog=VirtualBusBacklog(self._network.bus),
             timer_skew_ppm=self.truth.timer_skew_ppm,
+            second_send_ms=self.truth.second_send_ms,
             before_sending=self._start_pending_plan,
         )
         self._fault_actions = FaultActions(
@@ -298,6 +299,8 @@ class SimulatedImuNode:
                     nmt.start_heartbeat(period_ms)
         finally:
             self._booting = False
+        if self.truth.refuses_start:  # a blank storage reported at boot, as CANopenNode does
+            self._fault_actions.send_emergency(0x5000, 0x01)
         if self._started:
             self._producer.set_rate(self._odr_hz())
 
@@ -333,6 +336,9 @@ class SimulatedImuNode:
         elif command == NMT_RESET_COMM:
             self._node.nmt.stop_heartbeat()
             self._boot(reload=od.STORE_COMM_SUB)
+        elif command == NMT_START and self.truth.refuses_start:
+            # CANopenNode's stock rule: back to PRE-OPERATIONAL while the error register is set
+            self._node.nmt.state = "PRE-OPERATIONAL"
         elif command == NMT_START:
             with self._lock:
                 self._start_pending_plan()
@@ -360,6 +366,8 @@ class SimulatedImuNode:
         return int(self.od_value(od.NOMINAL, 3))
 
     def _operational(self) -> bool:
+        if self.truth.refuses_start:
+            return False
         return not self._booting and self._node.nmt.state == "OPERATIONAL"
 
     def _send(self, cob_id: int, data: bytes) -> None:

@@ -105,6 +105,10 @@ class ObjectAccess:
                 return self._live().get((index, subindex), None)
         if index in (od.STORE, od.RESTORE) and subindex >= 1:
             return 1  # CiA 301: the device saves / restores on command
+        if index == od.CALIBRATION_STORE_SUB:  # what the node says stores its calibration
+            if self._truth.documented_store_sub is None:
+                raise SdoAbortedError(od.ABORT_NO_OBJECT)  # firmware before issue 24
+            return self._truth.documented_store_sub
         return None
 
     def on_write(self, index: int, subindex: int, data: bytes, **_: Any) -> None:

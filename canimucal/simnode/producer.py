@@ -14,6 +14,10 @@ Event-driven TPDOs (transmission type 254/255) follow their event timers in simu
 SYNC-driven ones (1..240) are sent from :meth:`SampleProducer.on_sync`. Nothing is sent unless
 the node is OPERATIONAL.
 
+With ``second_send_ms`` TPDO1 and TPDO2 go out once more that long after each sample, the
+same frame: a second send trigger, as an event timer beside data-ready sending is in
+CANopenNode (issue 24, case 3).
+
 With ``timer_skew_ppm`` the event timers run on a clock of their own, that many ppm slow
 (+) or fast (−) against the sample clock, as on an MCU whose timer and sensor do not share an
 oscillator: each tick sends the newest sample at its own time, between samples, so a slow
@@ -83,6 +87,7 @@ class SampleProducer:
         on_time: Callable[[float], None] | None = None,
         backlog: Callable[[], int] | None = None,
         timer_skew_ppm: float = 0.0,
+        second_send_ms: float = 0.0,
         before_sending: Callable[[], None] | None = None,
     ) -> None:
         self.simulator = simulator
@@ -96,6 +101,8 @@ class SampleProducer:
         self._on_time = on_time
         self._backlog = backlog
         self.timer_skew_ppm = float(timer_skew_ppm)
+        self.second_send_s = float(second_send_ms) / 1000.0
+        """TPDO1/2 again this long (simulated s) after each sample: a second send trigger."""
         self._timed: list[tuple[float, int, int, bytes]] = []  # (wall time, seq, COB-ID, data)
         self._timed_seq = itertools.count()
         self.clock_slip_s = 0.0
@@ -160,7 +167,7 @@ class SampleProducer:
                 if frames and self._operational():
                     for cob_id, data in frames:
                         self._send(cob_id, data)
-                if self.timer_skew_ppm:
+                if self.timer_skew_ppm or self.second_send_s:
                     next_tick = self._send_timed()
                     if next_tick is not None:
                         wait_s = min(wait_s, next_tick)
@@ -261,7 +268,10 @@ class SampleProducer:
                         data = layout.pack(self.live)
                         ticks.extend((i, offset, layout.cob_id, data) for offset in offsets)
                 elif timer.due(t_s, layout.event_timer_ms / 1000.0):
-                    frames.append((layout.cob_id, layout.pack(self.live)))
+                    data = layout.pack(self.live)
+                    frames.append((layout.cob_id, data))
+                    if self.second_send_s and layout.number in (1, 2):
+                        ticks.append((i, self.second_send_s, layout.cob_id, data))
         return frames, ticks
 
     def _update_live(self, accel: list[int], gyro: list[int], temp: int, status: int) -> None:

@@ -69,29 +69,37 @@ def factory_values(truth: Truth, comm_odr_hz: int | None = None) -> dict[Key, by
     return values
 
 
-def group_of(key: Key) -> int | None:
-    """Store group (0x1010 sub-index 2, 3 or 4) an object belongs to, None if not stored."""
+def group_of(key: Key, calibration_sub: int = od.STORE_CALIBRATION_SUB) -> int | None:
+    """Store group (0x1010 sub-index) an object belongs to, None if not stored.
+
+    Communication parameters 2, application parameters 3, the calibration ``calibration_sub``
+    (4 unless the truth's ``calibration_store_sub`` says otherwise).
+    """
     index = key[0]
     if index in COMM_PARAMETERS:
         return od.STORE_COMM_SUB
     if key in APP_PARAMETERS:
         return od.STORE_APP_SUB
     if key in od.OBJECT_CODES:
-        return od.STORE_CALIBRATION_SUB
+        return calibration_sub
     return None
 
 
-def in_group(key: Key, store_sub: int) -> bool:
+def in_group(key: Key, store_sub: int, calibration_sub: int = od.STORE_CALIBRATION_SUB) -> bool:
     """Whether 0x1010/0x1011 sub-index ``store_sub`` covers object ``key`` (sub 1 = all)."""
-    group = group_of(key)
+    group = group_of(key, calibration_sub)
     return group is not None and store_sub in (od.STORE_ALL_SUB, group)
 
 
 class NonVolatileStore:
     """Stored object values, optionally persisted to a JSON ``state_file``."""
 
-    def __init__(self, state_file: Path | None = None) -> None:
+    def __init__(
+        self, state_file: Path | None = None, calibration_sub: int = od.STORE_CALIBRATION_SUB
+    ) -> None:
         self.state_file = None if state_file is None else Path(state_file)
+        self.calibration_sub = calibration_sub
+        """The 0x1010 sub-index whose 'save' covers the calibration group."""
         self._lock = threading.Lock()
         self._values: dict[Key, bytes] = {}
         self.log: list[int] = []
@@ -107,7 +115,9 @@ class NonVolatileStore:
 
     def store(self, objects: Mapping[Key, bytes], store_sub: int) -> None:
         """Persist the objects of group ``store_sub`` among ``objects`` (0x1010 'save')."""
-        chosen = {k: bytes(v) for k, v in objects.items() if in_group(k, store_sub)}
+        chosen = {
+            k: bytes(v) for k, v in objects.items() if in_group(k, store_sub, self.calibration_sub)
+        }
         with self._lock:
             self._values.update(chosen)
             self._flush()
@@ -117,7 +127,7 @@ class NonVolatileStore:
     def forget(self, store_sub: int) -> None:
         """Drop the stored objects of a group: defaults apply at the next reset (0x1011)."""
         with self._lock:
-            dropped = [k for k in self._values if in_group(k, store_sub)]
+            dropped = [k for k in self._values if in_group(k, store_sub, self.calibration_sub)]
             for key in dropped:
                 del self._values[key]
             self._flush()

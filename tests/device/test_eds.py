@@ -116,8 +116,9 @@ def test_crc_test_vector(eds: canopen.ObjectDictionary) -> None:
 @pytest.mark.parametrize(
     ("number", "cob_base", "timer_ms", "mapping"),
     [
-        (1, 0x180, 5, [0x20000110, 0x20000210, 0x20000310, 0x20020210]),
-        (2, 0x280, 5, [0x20010110, 0x20010210, 0x20010310, 0x20020210]),
+        # TPDO1/2 on data-ready: event timer 0 (a timer beside it sends samples twice)
+        (1, 0x180, 0, [0x20000110, 0x20000210, 0x20000310, 0x20020210]),
+        (2, 0x280, 0, [0x20010110, 0x20010210, 0x20010310, 0x20020210]),
         (3, 0x380, 100, [0x20020110, 0x20020210, 0x20020308]),
     ],
 )

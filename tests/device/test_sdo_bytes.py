@@ -104,6 +104,7 @@ def test_transactional_write_byte_script(
         + [upload(od.DEVICE_NAME, 0)]
         + [upload(od.HARDWARE_VERSION, 0), upload(od.SOFTWARE_VERSION, 0)]  # 0x1009, 0x100A
         + [upload(od.NOMINAL, 1), upload(od.NOMINAL, 2)]
+        + [upload(0x2011, 0)]  # which 0x1010 sub-index stores the calibration (issue 24)
         + [upload(od.STORE, 4)]  # 0x1010:04 offered ("save on command")? Before any write
         + [upload(i, s) for i, s, _ in od.CALIBRATION_OBJECTS]  # step 3: the backup
         + [bytes.fromhex("2f21210500000000")]  # step 4: valid = 0, first write

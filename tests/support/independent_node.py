@@ -372,6 +372,8 @@ class IndependentImuNode:
         nominal[2] = Variable(DT.REAL32, "ro", b.gyro_lsb, name="Nominal gyro LSB")
         nominal[3] = Variable(DT.UNSIGNED16, "rw", b.odr_hz, name="Output data rate")
         od[NOMINAL] = nominal
+        store_sub = 4 if 4 in b.storage_subs else 1  # 0x2011: where the calibration is stored
+        od[0x2011] = Variable(DT.UNSIGNED8, "ro", store_sub, name="Calibration store sub-index")
         od.validate_callbacks[(NOMINAL, 3)].add(self._range_check(NOMINAL, 3))
         od.update_callbacks[(NOMINAL, 3)].add(self._on_odr)
         for index, n, name in (

@@ -37,6 +37,10 @@ SIM_TRUTH_KEYS = (
     "store_pdo_mode",
     "sync_pdos",
     "timer_skew_ppm",
+    "calibration_store_sub",
+    "documented_store_sub",
+    "second_send_ms",
+    "refuses_start",
 )
 """Behaviours the simulated node takes from its truth JSON."""
 
