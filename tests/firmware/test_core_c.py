@@ -222,7 +222,10 @@ def test_range_decisions_equal_python(lib: ctypes.CDLL, seed: int) -> None:
     for index, sub, code in od.CALIBRATION_OBJECTS:
         lsb = accel_lsb if index == od.ACCEL_CORRECTION else gyro_lsb
         row_diagonal = None
-        if index in (od.ACCEL_CORRECTION, od.GYRO_CORRECTION) and not od.row_diagonal_sub(sub) == sub:
+        if (
+            index in (od.ACCEL_CORRECTION, od.GYRO_CORRECTION)
+            and not od.row_diagonal_sub(sub) == sub
+        ):
             row_diagonal = od.decode("f32", core.read(index, od.row_diagonal_sub(sub)))
         diag = row_diagonal if row_diagonal is not None else lsb
         if code == "f32":
