@@ -7,7 +7,7 @@
 
 Parameters the plan cannot determine (held at nominal) are not checked; the report names them.
 The limits come from ``$XDG_CONFIG_HOME/canimucal/acceptance.toml`` (else
-``~/.config/canimucal/acceptance.toml``; DESIGN §9), with the keys of
+``~/.config/canimucal/acceptance.toml``; docs/design.md §3), with the keys of
 :class:`AcceptanceLimits`, each optional; the built-in defaults when the file is absent. A
 table ``[plan.NAME]`` with the same keys overrides them for the sessions and recordings of
 plan NAME: the vehicle plan holds K at a 1 % prior, so its bias σ cannot go below ~10 mg and

@@ -1,4 +1,4 @@
-"""Which model to solve, and the model a recording's session solved (DESIGN §9 header keys).
+"""Which model to solve, and the model a recording's session solved (docs/design.md §10).
 
 A session writes ``plan``, ``model``, ``tilt``, ``gyro`` and ``tolerance_deg`` into its
 recording (and ``gyro_g: true`` when it estimated the gyro's G). An option given (a flag,

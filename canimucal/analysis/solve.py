@@ -159,7 +159,7 @@ def _pose_sigmas(
 
 
 MIN_DOF = 10
-"""Below this many residual degrees of freedom `solve` warns (DESIGN §9)."""
+"""Below this many residual degrees of freedom `solve` warns (docs/design.md §10)."""
 
 
 def _few_dof(solution: Solution) -> tuple[str, ...]:

@@ -82,7 +82,7 @@ class EmergencyReceived:
 
     @property
     def interrupts(self) -> bool:
-        """Whether it interrupts the attempt in progress (DESIGN §9).
+        """Whether it interrupts the attempt in progress (docs/design.md §9).
 
         No for 0x0000 (error reset; CANopenNode also sends it for a CAN bus warning) and
         for 0x81xx/0x82xx (communication: overrun, error passive, heartbeat, protocol);

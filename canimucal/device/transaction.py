@@ -9,7 +9,7 @@ the backup is written back (valid last) and verified; if that fails too, valid i
 at all possible and :class:`RollbackIncompleteError` names the backup. Never valid = 1 over a
 mixed set.
 
-The store (DESIGN §9 "Device behaviour") uses 0x1010:04 when the node offers it, else
+The store (docs/design.md §9 "Device behaviour") uses 0x1010:04 when the node offers it, else
 0x1010:01 after the client undid its own RAM changes, 0x1010:03 only when asked (with a
 warning: CiA 301 gives sub 3 to 0x6000–0x9FFF). It is sent once with its own timeout: a node
 may erase flash inside its SDO handler for seconds, and a retried 'save' stores twice. On a
@@ -138,13 +138,13 @@ def plan_writes(
 
 
 class StoreNotConfirmedError(DeviceError):
-    """The store got no answer in time; nothing rolled back (exit 3, DESIGN §9)."""
+    """The store got no answer in time; nothing rolled back (exit 3, docs/design.md §9)."""
 
     title = "Store not confirmed"
 
 
 def choose_store_sub(client: ImuClient, requested: int | None) -> int:
-    """Pick the 0x1010 sub-index to store with (DESIGN §9): 4 if offered, else 1; 3 if asked.
+    """Pick the 0x1010 sub-index to store with (docs/design.md §9): 4 if offered, else 1, 3 asked.
 
     Checked before anything is written: a node that offers neither is refused up front
     (:class:`DeviceError`, nothing written).
@@ -300,7 +300,7 @@ def _store(client: ImuClient, write: PlannedWrite, timeout_s: float, boots: int)
 
 
 def _store_timeout_message(client: ImuClient, timeout_s: float, boots: int) -> str:
-    """DESIGN §9's message, with what a fresh read of the block shows."""
+    """Word the docs/design.md §9 message, with what a fresh read of the block shows."""
     head = f"store not confirmed in {timeout_s:g} s"
     tail = "what flash holds is known only after a power cycle"
     if client.boots != boots:

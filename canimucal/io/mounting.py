@@ -1,6 +1,6 @@
 """Mounting maps saved per unit: ``$XDG_CONFIG_HOME/canimucal/mounting/<serial>.toml``.
 
-The file holds the vehicle direction of each unit axis (DESIGN §9)::
+The file holds the vehicle direction of each unit axis (docs/design.md §5)::
 
     x = "forward"
     y = "down"

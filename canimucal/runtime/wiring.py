@@ -291,7 +291,7 @@ class Devices:
             config["k_priors"] = resumed.k_priors  # the prior the first part held
         else:
             config["k_priors"] = self.k_priors(plan, prior_k, prior_k_sigma)
-        config.setdefault("limits", load_limits(plan=plan_name))  # acceptance.toml (DESIGN §9)
+        config.setdefault("limits", load_limits(plan=plan_name))  # docs/design.md §3
         cfg = ProcedureConfig(
             plan=plan,
             node_ids=tuple(self.clients),

@@ -1,4 +1,4 @@
-"""The public API of ``canimucal`` (DESIGN §9) against the command line on the same recording.
+"""The public API of ``canimucal`` (docs/design.md §1) against the CLI on the same recording.
 
 The README's three lines are run as written; their calibration must equal the JSON of
 ``canimucal solve PATH --model full --tilt --json -`` in every numeric field, to the last digit.

@@ -1,4 +1,4 @@
-"""The prior on K a plan holds comes from the device when no file is given (DESIGN §9)."""
+"""The prior on K a plan holds comes from the device when no file is given (docs/design.md §3)."""
 
 from __future__ import annotations
 
