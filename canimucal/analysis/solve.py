@@ -124,7 +124,9 @@ def solve_recording(
             )
     else:
         if choice.gyro == "moves" and position_labels(rec):
-            raise InputError("--gyro moves needs labelled positions with angles")
+            raise InputError(
+                "gyro='moves' needs labelled positions with angles", options=("gyro='moves'",)
+            )
         solution = solve_scalar(
             _unknown_pose_averages(rec),
             site,

@@ -14,6 +14,7 @@ import traceback
 from collections.abc import Sequence
 
 from canimucal.errors import CanimucalError
+from canimucal.flag_words import worded_for_flags
 from canimucal.signals import (
     EXIT_INTERRUPTED,
     EXIT_TERMINATED,
@@ -164,5 +165,5 @@ def _interrupted(interrupt: KeyboardInterrupt, verb: str | None) -> int:
 def _report(error: BaseException, debug: bool, prefix: str = "") -> None:
     if debug:
         traceback.print_exception(error, file=sys.stderr)
-    message = " ".join(str(error).split()) or type(error).__name__
+    message = " ".join(worded_for_flags(error).split()) or type(error).__name__
     print(f"error: {prefix}{message}", file=sys.stderr)

@@ -151,7 +151,10 @@ def choose_store_sub(client: ImuClient, requested: int | None) -> int:
     """
     if requested is not None:
         if requested not in STORE_SUB_CHOICES:
-            raise InputError(f"--store-sub must be one of {STORE_SUB_CHOICES}, got {requested}")
+            raise InputError(
+                f"store_sub must be one of {STORE_SUB_CHOICES}, got {requested}",
+                options=("store_sub",),
+            )
         if requested == od.STORE_APP_SUB:
             logger.warning(
                 "storing with 0x1010:03 as asked: CiA 301 defines it for 0x6000-0x9FFF, "
@@ -169,7 +172,8 @@ def choose_store_sub(client: ImuClient, requested: int | None) -> int:
         return od.STORE_ALL_SUB
     raise DeviceError(
         f"node {client.node_id} offers neither 0x1010:04 nor 0x1010:01 (save on command); "
-        "nothing written (use --no-store to write RAM only, or --store-sub 3)"
+        "nothing written (use store=False to write RAM only, or store_sub=3)",
+        options=("store=False", "store_sub=3"),
     )
 
 
@@ -205,7 +209,8 @@ def _check_serial(identity: Identity, record: Calibration, force: bool) -> bool:
     if not force:
         raise DeviceError(
             f"device serial {identity.serial} differs from the calibration file's {wanted}; "
-            "nothing written (use --force to write anyway)"
+            "nothing written (use force=True to write anyway)",
+            options=("force=True",),
         )
     logger.warning("writing serial %d's calibration to device %d (forced)", wanted, identity.serial)
     return True

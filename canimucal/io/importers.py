@@ -90,7 +90,8 @@ def detect_format(path: _PathLike) -> Format:
         return "imutk"
     raise InputError(
         f"{path}: unknown format (not a canimucal recording, an imu_tk 't x y z' file or an "
-        "imucal CSV); name it with --format"
+        "imucal CSV); name it with format=",
+        options=("format=",),
     )
 
 
@@ -155,7 +156,10 @@ def read_imucal(
 ) -> Recording:
     """Read imucal's session CSV and section JSON (module doc)."""
     if sample_rate_hz is None or not np.isfinite(sample_rate_hz) or sample_rate_hz <= 0:
-        raise InputError(f"{csv_path}: an imucal CSV has no time column; give --sample-rate-hz")
+        raise InputError(
+            f"{csv_path}: an imucal CSV has no time column; give sample_rate_hz",
+            options=("sample_rate_hz",),
+        )
     first = _head(csv_path, 1024).splitlines()[0] if _head(csv_path, 1024) else ""
     names = tuple(c.strip() for c in first.split(","))
     if names != IMUCAL_COLUMNS:

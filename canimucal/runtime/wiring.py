@@ -181,9 +181,9 @@ class Devices:
             others = sorted(census.heard - {nid})
             if others:
                 heard = ", ".join(f"{n} (0x{n:02X})" for n in others)
-                hint = f"heartbeating on {self.where}: node {heard}; check --node-id"
-            else:
-                hint = f"no node is heartbeating on {self.where}: check power, wiring, bit rate"
+                hint = f"heartbeating on {self.where}: node {heard}; check node_ids"
+                raise NoDeviceError(f"{exc}; {hint}", options=("node_ids",)) from exc
+            hint = f"no node is heartbeating on {self.where}: check power, wiring, bit rate"
             raise NoDeviceError(f"{exc}; {hint}") from exc
 
     def _network(self, bus: can.BusABC) -> canopen.Network:
@@ -332,7 +332,9 @@ class Devices:
         read) when no prior is held.
         """
         if prior_k_sigma is not None and not (np.isfinite(prior_k_sigma) and prior_k_sigma > 0):
-            raise InputError(f"--prior-k-sigma must be > 0, got {prior_k_sigma:g}")
+            raise InputError(
+                f"prior_k_sigma must be > 0, got {prior_k_sigma:g}", options=("prior_k_sigma",)
+            )
         sigma, whence = prior_k_sigma, "--prior-k-sigma" if prior_k_sigma is not None else None
         if sigma is None and prior_k and plan.prior_k_sigma is None:
             sigma, whence = VEHICLE_PRIOR_K_SIGMA, "the default of --prior-k (no σ given)"

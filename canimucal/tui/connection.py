@@ -12,6 +12,7 @@ from textual.screen import Screen
 from textual.widgets import DataTable, Footer, Static
 
 from canimucal.errors import CanimucalError
+from canimucal.flag_words import worded_for_flags
 from canimucal.tui.messages import ConnectFailed, NodesFound, PlanWanted
 from canimucal.tui.modals import ErrorModal
 from canimucal.tui.source import NodeStatus, SessionSource
@@ -86,7 +87,7 @@ class ConnectionScreen(Screen[None]):
         try:
             statuses = self.source.connect()
         except CanimucalError as exc:
-            self.post_message(ConnectFailed(exc.title, " ".join(str(exc).split())))
+            self.post_message(ConnectFailed(exc.title, " ".join(worded_for_flags(exc).split())))
             return
         except Exception as exc:  # a bug, still shown in the modal
             self.post_message(ConnectFailed("Internal error", f"internal error: {exc}"))

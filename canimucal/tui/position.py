@@ -25,6 +25,7 @@ from textual.screen import Screen
 from textual.widgets import Footer, ProgressBar, Sparkline, Static
 
 from canimucal.errors import CanimucalError
+from canimucal.flag_words import worded_for_flags
 from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase
 from canimucal.runtime.session import SessionCommand, WriteOptions
@@ -150,7 +151,7 @@ class PositionScreen(Screen[None]):
         try:
             self.runner = self.open_runner()
         except CanimucalError as exc:
-            self.post_message(EventsArrived([ev.ProcedureFailed(str(exc), exc.title)]))
+            self.post_message(EventsArrived([ev.ProcedureFailed(worded_for_flags(exc), exc.title)]))
             return
         note = self.runner.session.procedure.config.mounting_note  # how the words are framed
         if note:

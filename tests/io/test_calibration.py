@@ -210,7 +210,7 @@ def test_unreadable_file(tmp_path: Path) -> None:
 def test_write_refuses_to_overwrite(tmp_path: Path) -> None:
     record = read_calibration(json.dumps(full_document()))
     path = write_calibration(tmp_path / "c.json", record, overwrite=False)
-    with pytest.raises(InputError, match="exists; use --overwrite"):
+    with pytest.raises(InputError, match="exists; use overwrite=True"):
         write_calibration(path, record, overwrite=False)
 
 

@@ -88,7 +88,7 @@ def test_imucal_rotation_sections_become_known_turns(tmp_path: Path) -> None:
 
 def test_imucal_needs_a_sample_rate(tmp_path: Path) -> None:
     csv, sections = _imucal(tmp_path)
-    with pytest.raises(InputError, match="sample-rate"):
+    with pytest.raises(InputError, match="give sample_rate_hz"):
         read_imucal(csv, sections, None)
 
 

@@ -230,8 +230,8 @@ def test_erratum_40_41_s33_numbers_at_45_5() -> None:
 
 
 def test_erratum_frame_paper_gyro_axes_are_left_handed() -> None:
-    # In East-North-Up coordinates: the paper's (x East, y Up, z North) against ours (docs/design.md §2)
-    # (x East, y Down, z North).
+    # In East-North-Up coordinates: the paper's (x East, y Up, z North) against ours
+    # (x East, y Down, z North; docs/design.md §2).
     east, north, up = np.eye(3)
     assert np.cross(east, up) == pytest.approx(-north)  # paper's: x × y = −z, left-handed
     assert np.cross(east, -up) == pytest.approx(north)  # ours: right-handed
