@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from canimucal.cli.output import add_json_option, check_outputs, dumps, emit
+from canimucal.cli.user_config import user_acceptance
 from canimucal.io.atomic import write_text_atomic
 from canimucal.io.plans import BUILTIN_PLANS, resolve_plan
 from canimucal.io.truth import load_truth
@@ -153,6 +154,7 @@ def run(args: argparse.Namespace) -> int:
             plan,
             out,
             plan_name=plan_name,
+            limits=user_acceptance().limits(plan_name),
             gyro=args.gyro,
             gyro_g=args.gyro_g,
             averaging=policy,
@@ -202,6 +204,7 @@ def _run_tui(
     source = demo_source(truths, out, time_scale=args.time_scale, seed=args.seed + 1)
     source.seconds = seconds
     source.verify_seconds = min(seconds, 10.0) if seconds else 10.0
+    source.acceptance = user_acceptance()
     source.resume = bool(args.resume)
     source.operator, source.site_name = args.operator, args.site
     source.gyro_g = args.gyro_g

@@ -52,6 +52,7 @@ from canimucal.errors import (
 from canimucal.io.atomic import unique_path, write_text_atomic
 from canimucal.io.calibration import Calibration, calibration_to_json
 from canimucal.signals import deferred_signals
+from canimucal.user_dirs import state_dir
 
 logger = logging.getLogger(__name__)
 
@@ -99,11 +100,12 @@ class WriteReport:
     """The valid flag written last: 0 for a backup that was invalid or whose CRC mismatched."""
 
 
-def default_backup_dir(environ: Mapping[str, str] | None = None) -> Path:
-    """``$XDG_STATE_HOME/canimucal/backups``, else ``~/.local/state/canimucal/backups``."""
-    env = os.environ if environ is None else environ
-    state = env.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
-    return Path(state) / "canimucal" / "backups"
+def default_backup_dir() -> Path:
+    """Return ``backups/`` in canimucal's state directory (:mod:`canimucal.user_dirs`).
+
+    On Linux ``$XDG_STATE_HOME/canimucal/backups``, else ``~/.local/state/canimucal/backups``.
+    """
+    return state_dir() / "backups"
 
 
 def _planned(index: int, sub: int, code: str, value: float | int) -> PlannedWrite:

@@ -25,7 +25,6 @@ import can
 import canopen
 import numpy as np
 
-from canimucal.analysis.acceptance import load_limits
 from canimucal.analysis.calibrate import SiteConditions
 from canimucal.analysis.session_model import read_factory_k
 from canimucal.device.bus import BusSettings, describe, open_bus
@@ -266,7 +265,9 @@ class Devices:
         choose how instructions are worded (:func:`instruction_mounting`). ``prior_k`` (a file)
         and ``prior_k_sigma`` set the prior on K
         (:meth:`k_priors`); a resumed session without them keeps the prior its recordings
-        say the first part held. ``config`` goes to :class:`ProcedureConfig`.
+        say the first part held. ``config`` goes to :class:`ProcedureConfig`; without
+        ``limits`` there the session judges against the built-in acceptance limits (the shells
+        pass the user's, docs/design.md §3).
         """
         identities = identities or self.identities()
         if backup_dir is None and self.sim_nodes:
@@ -291,7 +292,6 @@ class Devices:
             config["k_priors"] = resumed.k_priors  # the prior the first part held
         else:
             config["k_priors"] = self.k_priors(plan, prior_k, prior_k_sigma)
-        config.setdefault("limits", load_limits(plan=plan_name))  # docs/design.md §3
         cfg = ProcedureConfig(
             plan=plan,
             node_ids=tuple(self.clients),
