@@ -181,6 +181,16 @@ def bus_error_text(exc: BaseException, config: Mapping[str, Any]) -> str:
     return reason
 
 
+def abort_text(code: int) -> str:
+    """Return ``"0x06090030 value range of parameter exceeded"``, in canopen's words.
+
+    The text is canopen's own table of CiA 301 abort codes (``SdoAbortedError.CODES``),
+    first letter lowered to fit the sentence it ends; a code it lacks is "unknown abort code".
+    """
+    text = SdoAbortedError.CODES.get(code, "unknown abort code")
+    return f"0x{code:08X} {text[:1].lower()}{text[1:]}"
+
+
 class SdoChannel:
     """Raw SDO upload/download with the retry policy and error mapping.
 
@@ -255,7 +265,7 @@ class SdoChannel:
             try:
                 self._sdo.download(index, sub, data)
             except SdoAbortedError as exc:
-                text = od.abort_text(int(exc.code))
+                text = abort_text(int(exc.code))
                 raise SdoAbort(f"device refused write of {name}: {text}", int(exc.code)) from exc
             except SdoCommunicationError as exc:
                 raise StoreTimeoutError(
@@ -275,7 +285,7 @@ class SdoChannel:
                 with self._lock:
                     return op()
             except SdoAbortedError as exc:
-                text = od.abort_text(int(exc.code))
+                text = abort_text(int(exc.code))
                 raise SdoAbort(f"device refused {what} of {name}: {text}", int(exc.code)) from exc
             except (SdoCommunicationError, can.CanError) as exc:
                 if self._boots is not None and self._boots() != boots:

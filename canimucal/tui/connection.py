@@ -17,7 +17,7 @@ from canimucal.tui.messages import ConnectFailed, NodesFound, PlanWanted
 from canimucal.tui.modals import ErrorModal
 from canimucal.tui.source import NodeStatus, SessionSource
 from canimucal.tui.text import calibration_summary
-from canimucal.tui.widgets import passive_table
+from canimucal.tui.widgets import PlainStatic, passive_table
 
 HEARTBEAT_REFRESH_S = 1.0
 STATE_WORDS = {"PRE-OPERATIONAL": "pre-op", "OPERATIONAL": "op", "STOPPED": "stopped"}
@@ -51,16 +51,16 @@ class ConnectionScreen(Screen[None]):
         """Title, bus, node table, status line."""
         yield Static("canimucal · connection", classes="screen-title")
         # device text and bus names are shown as they are, never parsed as markup
-        yield Static(f"bus: {self.source.description}", id="bus", markup=False)
+        yield PlainStatic(f"bus: {self.source.description}", id="bus")
         yield passive_table(id="nodes", zebra_stripes=True)
-        yield Static("connecting…", id="status", markup=False)
+        yield PlainStatic("connecting…", id="status")
         yield Footer()
 
     def on_mount(self) -> None:
         """Cache widgets, start connecting, refresh heartbeats every second."""
         self.table = self.query_one("#nodes", DataTable)
-        self.status = self.query_one("#status", Static)
-        self.bus = self.query_one("#bus", Static)
+        self.status = self.query_one("#status", PlainStatic)
+        self.bus = self.query_one("#bus", PlainStatic)
         for column in COLUMNS:
             self.table.add_column(column, key=column)
         self.set_interval(HEARTBEAT_REFRESH_S, self.refresh_heartbeats)
