@@ -46,6 +46,9 @@ from canimucal.sim.truth import Truth
 
 log = logging.getLogger(__name__)
 
+DEMO_NODES_SCHEMA = "canimucal.demo-nodes/1"
+"""``demo --nodes N --json`` with N > 1: ``nodes`` maps each node id to its calibration JSON
+(one node: the calibration JSON itself)."""
 DEFAULT_TIME_SCALE = 20.0
 PLAN_TRUTH_LIMITS: dict[str, dict[str, float]] = {
     "two": {"cross_axis_max": 0.0, "tilt_max_deg": 0.0},
@@ -172,7 +175,8 @@ def run(args: argparse.Namespace) -> int:
         history = run_automatic(session, write_anyway=True, deadline_s=_deadline_s(plan, args))
         truth_by_node = dict(rig.truths)
     documents, report = _results(session, history, truth_by_node, out)
-    document: Any = next(iter(documents.values())) if len(documents) == 1 else documents
+    several = {"schema": DEMO_NODES_SCHEMA, "nodes": documents}
+    document: Any = next(iter(documents.values())) if len(documents) == 1 else several
     emit(args, document, report)
     return 0 if all("readback" in d for d in documents.values()) else 3
 

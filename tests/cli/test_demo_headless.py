@@ -121,7 +121,9 @@ def test_headless_demo_with_two_nodes_gives_one_result_per_node(
     argv = ["demo", "--headless", "--seconds", "4", "--time-scale", "10", "--plan", "five"]
     result = cli([*argv, "--nodes", "2", "--out", out, "--json", "-"])
     assert result.code == 0, result.err
-    documents = json.loads(result.out)
+    several = json.loads(result.out)
+    assert several["schema"] == "canimucal.demo-nodes/1"
+    documents = several["nodes"]
     assert set(documents) == {"16", "17"}
     serials = {documents[n]["device"]["serial"] for n in documents}
     assert len(serials) == 2
