@@ -92,7 +92,7 @@ def read_acceptance_config(path: Path) -> AcceptanceConfig:
     if not path.is_file():
         return AcceptanceConfig()
     try:
-        document = tomllib.loads(path.read_text(encoding="utf-8"))
+        document = tomllib.loads(path.read_text(encoding="utf-8-sig"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise InputError(f"{path}: cannot read the acceptance limits ({exc})") from None
     plans = document.pop("plan", {})

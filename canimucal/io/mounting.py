@@ -44,7 +44,7 @@ def mounting_path(serial: int, config: Path | None = None) -> Path:
 def read_mounting(path: Path) -> MountingMap:
     """Read a saved map (:class:`InputError` naming the file when it is not one)."""
     try:
-        document = tomllib.loads(path.read_text(encoding="utf-8"))
+        document = tomllib.loads(path.read_text(encoding="utf-8-sig"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise InputError(f"{path}: cannot read the mounting map ({exc})") from None
     unknown = sorted(set(document) - {"x", "y", "z"})

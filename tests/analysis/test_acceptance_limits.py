@@ -56,6 +56,12 @@ def test_a_plan_table_overrides_the_top_level_limits_for_that_plan_only(tmp_path
     assert limits_for(None, "vehicle") == default  # nothing given: the built-in limits
 
 
+def test_a_byte_order_mark_is_skipped(tmp_path: Path) -> None:
+    path = tmp_path / "acceptance.toml"
+    path.write_bytes(b"\xef\xbb\xbf" + VEHICLE_LIMITS.encode())
+    assert read_acceptance_config(path).limits("vehicle").max_bias_sigma_mg == 15.0
+
+
 def test_no_file_is_the_built_in_limits(tmp_path: Path) -> None:
     config = read_acceptance_config(tmp_path / "absent.toml")
     assert config == AcceptanceConfig() and config.limits("vehicle") == AcceptanceLimits()

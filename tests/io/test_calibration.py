@@ -101,6 +101,12 @@ def test_full_document_round_trips_key_for_key(tmp_path: Path) -> None:
     assert list(json.loads(text)) == list(full_document())  # the contract's key order
 
 
+def test_a_byte_order_mark_before_the_json_is_skipped(tmp_path: Path) -> None:
+    path = tmp_path / "cal.json"
+    path.write_bytes(b"\xef\xbb\xbf" + json.dumps(full_document()).encode())
+    assert calibration_to_dict(read_calibration(path)) == full_document()
+
+
 def test_objects_keep_their_int_or_float_type() -> None:
     record = read_calibration(json.dumps(full_document()))
     assert record.objects is not None
