@@ -233,6 +233,10 @@ class NodeMonitor(can.Listener):
         )
         self._thread.start()
 
+    def stop(self) -> None:
+        """Stop listening: the watchdog ends (python-can's Listener interface)."""
+        self.unwatch()
+
     def unwatch(self) -> None:
         """Stop the watchdog thread."""
         self._stop.set()
