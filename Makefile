@@ -7,7 +7,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 DEMO_OUT ?= demo-out
 
-.PHONY: all venv demo test test-vcan lint bench clean
+.PHONY: all venv demo test test-vcan lowest lint bench clean
 
 all: test
 
@@ -37,11 +37,22 @@ lint: $(STAMP)
 	$(BIN)/mypy
 	$(BIN)/lint-imports
 
+# The dependency bounds CI proves: the lowest versions pyproject.toml allows
+# (.ci/lowest-constraints.txt) in a venv of their own, and the tests that exercise them:
+# Textual (tui), python-can and canopen (device, simnode), numpy and scipy (model, io, sim).
+LOWEST := .venv-lowest
+lowest:
+	$(PYTHON) -m venv $(LOWEST)
+	$(LOWEST)/bin/python -m pip install --quiet --upgrade pip
+	$(LOWEST)/bin/python -m pip install --quiet -c .ci/lowest-constraints.txt -e '.[dev]'
+	$(LOWEST)/bin/python -m pytest -q -m "not vcan" -p no:cacheprovider \
+	  tests/tui tests/device tests/simnode tests/model tests/io tests/sim
+
 bench: $(STAMP)
 	$(BIN)/python benchmarks/accuracy.py
 
 clean:
-	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) $(LOWEST) $(DEMO_OUT) .pytest_cache .mypy_cache .ruff_cache
 
 # --- test-vcan (issue 3) ---
 # HIL tests over SocketCAN vcan0: natively where vcan0 exists, else inside ../shared/tools/canvm

@@ -51,7 +51,7 @@ TILTS = ("none", "rigid", "additive")
 PARAMS = tuple(f"accel.bias[{i}]" for i in range(3)) + tuple(f"accel.K[{i}][{i}]" for i in range(3))
 TILT_PARAMS = ("base_tilt.alpha0", "base_tilt.beta0")
 
-# The paper's Tables 1 and 2 (TABLES.md): two positions, level and tilted by -1°, -1°;
+# The paper's Tables 1 and 2 (docs/paper-tables.md): two positions, level and tilted by -1°, -1°;
 # columns 15, 30, 60, 120 s; biases in V, scale factors in V/(m/s²).
 PAPER_LEVEL = {
     "accel.bias[0]": (0.01098, 0.01138, 0.01018, 0.01028),
@@ -271,7 +271,7 @@ def per_unit_k(name: str, error: float) -> float:
 
 def paper_tilt_effect(name: str) -> float:
     """Mean over averaging times of Table 2 − Table 1 (ΔUy0 at 30 s read as +0.0416, the
-    sign typo of ERRATA.md)."""
+    sign typo, docs/method.md §2)."""
     level = np.array(PAPER_LEVEL[name])
     if name == "accel.bias[1]":
         level[1] = abs(level[1])

@@ -417,7 +417,7 @@ TABLE1 = np.array(  # rows Ux0, Uy0, Uz0 (V), K11, K22, K33 (V/(m/s²)); columns
      [0.00176, 0.00216, 0.00276, 0.00196], [-0.00110, -0.00110, -0.00130, -0.00140],
      [0.00187, 0.00167, 0.00197, 0.00197], [-0.00434, -0.00334, -0.00294, -0.00374]]
 )  # fmt: skip
-"""Table 1 with the 30-s ΔUy0 sign typo corrected (TABLES.md note)."""
+"""Table 1 with the 30-s ΔUy0 sign typo corrected (docs/method.md §2)."""
 TABLE2 = np.array(
     [[-0.15432, -0.15562, -0.15592, -0.15612], [-0.43220, -0.42940, -0.42850, -0.42730],
      [-0.17104, -0.16944, -0.16954, -0.16914], [-0.00790, -0.00830, -0.00830, -0.00820],
@@ -471,7 +471,7 @@ AT_1G = np.array([1.0, 1.0, 1.0, G_PAPER, G_PAPER, G_PAPER])
 """Row scale of the criterion: biases in V, scale factors as their effect at 1 g (g·ΔK, V)."""
 SCALE_SIGNS = {"ours": np.array([1.0, -1.0, 1.0]), "eq. 12 printed": np.array([1.0, -1.0, -1.0])}
 """Sign of the table's ΔK11, ΔK22, ΔK33 against ours. ΔK22 flipped (the eq. 14 check); ΔK33
-ours, or flipped as the paper's printed eq. 12 makes it (ERRATA.md)."""
+ours, or flipped as the paper's printed eq. 12 makes it (docs/method.md §2)."""
 _AXIS_SIGNS = tuple(
     np.array(s) for s in ((1.0, 1.0, 1.0), (1.0, 1.0, -1.0), (1.0, -1.0, 1.0), (1.0, -1.0, -1.0))
 )

@@ -3,7 +3,7 @@
 Run: ``PYTHONPATH=. .venv/bin/python benchmarks/store.py [--delays 0,0.5,1,2.5,5]
 [--skews -10000,-5000,-1000,0,1000,5000,10000] [--seconds 5] [--node simulated]``.
 ``--node`` picks the independent (durand) node, the default, or the simulated one; both take
-the same behaviours (truth JSON keys, DESIGN §9). "dropped" counts what each drops during a
+the same behaviours (truth JSON keys, docs/design.md §5). "dropped" counts what each drops during a
 store: samples and TPDO events (independent), TPDO frames (simulated).
 
 1. Write + store time against the store's duration. The node blocks the SDO answer of

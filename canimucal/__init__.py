@@ -12,12 +12,15 @@ Names load on first use, so ``import canimucal`` (and ``canimucal --help``) stay
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+import importlib as _importlib
+import typing as _typing
 
 from canimucal.version import __version__
 
-if TYPE_CHECKING:
+if _typing.TYPE_CHECKING:
+    from typing import Any
+
+    from canimucal.analysis.acceptance import AcceptanceConfig, AcceptanceLimits
     from canimucal.analysis.report import Analysis, analyze
     from canimucal.analysis.solve import calibrate
     from canimucal.analysis.static_noise import StaticAnalysis, analyze_static
@@ -43,6 +46,8 @@ _PUBLIC = {
     "Analysis": ("canimucal.analysis.report", "Analysis"),
     "analyze_static": ("canimucal.analysis.static_noise", "analyze_static"),
     "StaticAnalysis": ("canimucal.analysis.static_noise", "StaticAnalysis"),
+    "AcceptanceLimits": ("canimucal.analysis.acceptance", "AcceptanceLimits"),
+    "AcceptanceConfig": ("canimucal.analysis.acceptance", "AcceptanceConfig"),
     "CanimucalError": ("canimucal.errors", "CanimucalError"),
     "InputError": ("canimucal.errors", "InputError"),
     "ModelError": ("canimucal.errors", "ModelError"),
@@ -50,6 +55,8 @@ _PUBLIC = {
 }
 
 __all__ = [
+    "AcceptanceConfig",
+    "AcceptanceLimits",
     "Analysis",
     "BoundTable",
     "Calibration",
@@ -78,11 +85,11 @@ def __getattr__(name: str) -> Any:
         module, attr = _PUBLIC[name]
     except KeyError:
         raise AttributeError(f"module 'canimucal' has no attribute {name!r}") from None
-    value = getattr(importlib.import_module(module), attr)
+    value = getattr(_importlib.import_module(module), attr)
     globals()[name] = value
     return value
 
 
 def __dir__() -> list[str]:
-    """List the public names with the module's own."""
-    return sorted(set(globals()) | set(__all__))
+    """List the public API (``__all__``): what ``dir(canimucal)`` and completion show."""
+    return sorted(__all__)

@@ -19,11 +19,20 @@ class CanimucalError(Exception):
     """Root of every error the tool raises on purpose.
 
     ``title`` is a short heading for the TUI's error modal; ``str(error)`` is the one-line
-    message the CLI prints after ``error: ``.
+    message, in the terms of the Python API (``pass overwrite=True``, ``prior_k_sigma``).
+    ``options`` lists the API spellings the message uses for arguments that caused or
+    would resolve it, so that a shell can word them its own way (the CLI prints
+    ``--overwrite``, ``--prior-k-sigma``: docs/design.md §1).
     """
 
     exit_code: int = 1
     title: str = "Error"
+    options: tuple[str, ...] = ()
+
+    def __init__(self, *args: object, options: tuple[str, ...] = ()) -> None:
+        super().__init__(*args)
+        if options:
+            self.options = options
 
 
 class InputError(CanimucalError):

@@ -66,7 +66,7 @@ def load_text(path_or_text: str | os.PathLike[str], what: str) -> tuple[str, str
 def read_text(path: str | os.PathLike[str]) -> str:
     """Read a UTF-8 file; unreadable or undecodable files raise :class:`InputError`."""
     try:
-        return Path(path).read_text(encoding="utf-8")
+        return Path(path).read_text(encoding="utf-8-sig")  # a leading BOM is skipped
     except UnicodeDecodeError:
         raise InputError(f"{path}: not UTF-8 text") from None
     except OSError as exc:

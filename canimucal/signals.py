@@ -1,4 +1,4 @@
-"""SIGTERM handled like Ctrl-C, and signals held back while a rollback runs (DESIGN §9).
+"""SIGTERM handled like Ctrl-C, and signals held back while a rollback runs (docs/design.md §9).
 
 :func:`handle_sigterm` makes SIGTERM raise :class:`Terminated`, a ``KeyboardInterrupt``, so
 every clean-up written for Ctrl-C (rollback, recorder stop, NMT restore) runs for SIGTERM too;

@@ -6,22 +6,22 @@
 - the χ² lack-of-fit p-value (too small: the model does not explain the data).
 
 Parameters the plan cannot determine (held at nominal) are not checked; the report names them.
-The limits come from ``$XDG_CONFIG_HOME/canimucal/acceptance.toml`` (else
-``~/.config/canimucal/acceptance.toml``; DESIGN §9), with the keys of
-:class:`AcceptanceLimits`, each optional; the built-in defaults when the file is absent. A
-table ``[plan.NAME]`` with the same keys overrides them for the sessions and recordings of
-plan NAME: the vehicle plan holds K at a 1 % prior, so its bias σ cannot go below ~10 mg and
-a quality department that accepts that for vehicles says so there, not by lowering the limit
-for every bench calibration.
+The library judges against the built-in :class:`AcceptanceLimits` unless it is given others;
+it never reads the user's file on its own (docs/design.md §1, §3). The shells do: they read
+``acceptance.toml`` in the user's config directory (:func:`acceptance_config_path`) into an
+:class:`AcceptanceConfig` and pass it in. Its keys are those of :class:`AcceptanceLimits`, each
+optional; a table ``[plan.NAME]`` with the same keys overrides them for the sessions and
+recordings of plan NAME: the vehicle plan holds K at a 1 % prior, so its bias σ cannot go
+below ~10 mg and a quality department that accepts that for vehicles says so there, not by
+lowering the limit for every bench calibration.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import os
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +31,7 @@ from canimucal.analysis.calibrate import SiteConditions, Solution
 from canimucal.errors import InputError
 from canimucal.io.calibration import Acceptance
 from canimucal.model.vocabulary.plans import PLANS
+from canimucal.user_dirs import config_dir
 
 
 @dataclass(frozen=True)
@@ -49,39 +50,63 @@ class AcceptanceLimits:
         return {f.name: float(getattr(self, f.name)) for f in dataclasses.fields(self)}
 
 
-def acceptance_config_path(environ: Mapping[str, str] | None = None) -> Path:
-    """``$XDG_CONFIG_HOME/canimucal/acceptance.toml`` (``~/.config`` when unset or empty)."""
-    env = os.environ if environ is None else environ
-    base = env.get("XDG_CONFIG_HOME") or str(Path(env.get("HOME", "~")).expanduser() / ".config")
-    return Path(base) / "canimucal" / "acceptance.toml"
+@dataclass(frozen=True)
+class AcceptanceConfig:
+    """The contents of an ``acceptance.toml``: limits for every plan and per-plan tables.
 
-
-def load_limits(path: Path | None = None, plan: str | None = None) -> AcceptanceLimits:
-    """Read the acceptance limits (defaults for keys absent, or for an absent file).
-
-    Each key comes from, last one winning: the built-in defaults, the plan's own defaults
-    in the plan registry (``PlanEntry.acceptance``), the file's top-level keys, and the
-    file's ``[plan.NAME]`` table for ``plan``. An unreadable file, an unknown key or a value
-    that is not a positive number is an :class:`InputError` naming the file: a quality
-    limit is never silently dropped.
+    Empty (the built-in limits for every plan) when there is no file.
     """
-    path = acceptance_config_path() if path is None else path
-    if not path.is_file():
+
+    common: Mapping[str, float] = field(default_factory=dict)
+    plans: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+
+    def limits(self, plan: str | None = None) -> AcceptanceLimits:
+        """Return the limits for ``plan``: its own table over the top level over its defaults.
+
+        The defaults are the built-in limits with the plan registry's entry for ``plan``
+        (``PlanEntry.acceptance``) over them.
+        """
+        own = self.plans.get(plan or "", {})
+        return AcceptanceLimits(**{**plan_limits(plan).as_dict(), **self.common, **own})
+
+
+Limits = AcceptanceLimits | AcceptanceConfig
+"""What a caller may give: the limits themselves, or a config that picks them per plan."""
+
+
+def limits_for(limits: Limits | None, plan: str | None) -> AcceptanceLimits:
+    """Resolve what a caller gave into the limits of ``plan`` (None: its built-in ones)."""
+    if limits is None:
         return plan_limits(plan)
+    if isinstance(limits, AcceptanceConfig):
+        return limits.limits(plan)
+    return limits
+
+
+def acceptance_config_path() -> Path:
+    """Return where the user keeps acceptance limits: ``acceptance.toml`` in the config dir."""
+    return config_dir() / "acceptance.toml"
+
+
+def read_acceptance_config(path: Path) -> AcceptanceConfig:
+    """Read an ``acceptance.toml`` (an absent file: the empty config, built-in limits).
+
+    An unreadable file, an unknown key or a value that is not a positive number is an
+    :class:`InputError` naming the file: a quality limit is never silently dropped. Every
+    ``[plan.NAME]`` table is checked, not only the one a run will use.
+    """
+    if not path.is_file():
+        return AcceptanceConfig()
     try:
-        document = tomllib.loads(path.read_text(encoding="utf-8"))
+        document = tomllib.loads(path.read_text(encoding="utf-8-sig"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise InputError(f"{path}: cannot read the acceptance limits ({exc})") from None
     plans = document.pop("plan", {})
     if not isinstance(plans, dict) or not all(isinstance(t, dict) for t in plans.values()):
         raise InputError(f"{path}: 'plan' must hold tables [plan.NAME] of limits")
-    values = plan_limits(plan).as_dict()
-    values.update(_limit_values(document, path, ""))
-    for name, table in plans.items():  # every table checked, not only this plan's
-        own = _limit_values(table, path, f"plan.{name}.")
-        if name == plan:
-            values.update(own)
-    return AcceptanceLimits(**values)
+    common = _limit_values(document, path, "")
+    own = {name: _limit_values(table, path, f"plan.{name}.") for name, table in plans.items()}
+    return AcceptanceConfig(common, own)
 
 
 def plan_limits(plan: str | None) -> AcceptanceLimits:
@@ -219,8 +244,8 @@ class Verdict:
 def judge(
     solution: Solution, site: SiteConditions, limits: AcceptanceLimits | None = None
 ) -> Verdict:
-    """Check ``solution`` against ``limits`` (default: :func:`load_limits`) and say so."""
-    limits = load_limits() if limits is None else limits
+    """Check ``solution`` against ``limits`` (default: the built-in ones) and say so."""
+    limits = AcceptanceLimits() if limits is None else limits
     report = check_acceptance(solution, limits, site.accel_lsb, site.g)
     lines = [f"acceptance: {'PASSED' if report.passed else 'FAILED'}"]
     lines += [f"  {c.line()}" for c in report.checks]

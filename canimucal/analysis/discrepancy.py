@@ -15,7 +15,7 @@ then
    Holm's procedure weighted by each candidate's number of entries, at a family-wise
    ``alpha`` (:mod:`.significance`);
 3. keeps a chosen term only if leave-one-position-out cross-validation agrees, and names it
-   only if no rival explains the misfit as well in the model holding both (DESIGN §9);
+   only if no rival explains the misfit as well in the model holding both (docs/design.md §6);
 4. refits with the chosen terms and reports rms/cv_rms before and after, per sensor, the
    held-out cv_rms by refitting without each position, selection included
    (:mod:`.holdout`); a sensor with under 10 residual dof whose extension predicts the
@@ -201,7 +201,7 @@ def _head_to_head(
     family: tuple[Mapping[str, float], float],
     use_f: bool,
 ) -> list[Ambiguity]:
-    """Pit each chosen term against each rival that could stand in for it (DESIGN §9).
+    """Pit each chosen term against each rival that could stand in for it (docs/design.md §6).
 
     ``family`` holds each term's weight ``w`` and the family's total weight ``W``. Every
     p-value here is that of the per-entry test (:func:`~.significance.entry_test`: the

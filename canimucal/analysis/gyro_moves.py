@@ -1,4 +1,4 @@
-"""Gyro S from the moves of a recording, folded into a solved calibration (DESIGN §9).
+"""Gyro S from the moves of a recording, folded into a solved calibration (docs/design.md §10).
 
 Moves come from two sources:
 

@@ -19,7 +19,7 @@ itself: a term chosen on noise costs held-out error.
 The ratio base/extended ``cv_rms`` gets a 95 % interval from a bootstrap over positions
 (paired: each resample draws positions, with both models' held-out residuals); a gain is
 claimed only when that interval lies above 1 and the extended fit keeps at least
-:data:`MIN_GAIN_DOF` residual degrees of freedom (DESIGN §9).
+:data:`MIN_GAIN_DOF` residual degrees of freedom (docs/design.md §6).
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
 """Published calibrations of known public data sets, to compare `analyze` against.
 
-Keyed by the SHA-256 of the input file. Facts from ``../shared/data/README.md`` (the
-factory calibration of the Xsens MTi recorded in imu_tk's test data, published beside a
-MATLAB port of imu_tk, and the local gravity used with it).
+Keyed by the SHA-256 of the input file. The facts are those published with the data set
+(the factory calibration of the Xsens MTi recorded in imu_tk's test data, published beside a
+MATLAB port of imu_tk, and the local gravity used with it); docs/real-data.md uses them.
 """
 
 from __future__ import annotations

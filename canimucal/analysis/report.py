@@ -247,7 +247,7 @@ def _finite(x: float) -> float | None:
 
 
 def _ambiguity(x: Ambiguity) -> dict[str, Any]:
-    """One ``ambiguous`` entry of the analysis JSON (DESIGN §9), with its separating position."""
+    """Write one ``ambiguous`` entry of the analysis JSON (docs/design.md §5)."""
     out: dict[str, Any] = {
         "sensor": x.sensor,
         "candidates": list(x.candidates),

@@ -1,6 +1,6 @@
 """The one added position that would best separate an ambiguous pair of candidates.
 
-When two candidates explain the same discrepancy (DESIGN §9's head-to-head rule fails), each
+When two candidates explain the same discrepancy (docs/design.md §6's head-to-head rule fails), each
 pose ``x`` of a grid is scored by what the model holding both would know with ``x`` added to
 the recording. Its Fisher information (parameters: the base model, the other chosen terms,
 the term ``a`` and its rival ``b``) is
@@ -21,7 +21,7 @@ the quantity reported as the ambiguity's ``correlation`` (at ``F = DᵀD``, the 
 it is) and as ``correlation_after``: the largest correlation between any combination of one
 candidate's entries and any of the other's, so one number for candidates of several entries
 (the look-alike y→z cross-axis vs z quadratic: 6 entries against 3) that no relabelling of
-the entries changes. The separating position minimises ρ(x) (DESIGN §9). Poses whose ρ lies
+the entries changes. The separating position minimises ρ(x) (docs/design.md §6). Poses whose ρ lies
 within :data:`RHO_TIE` of the smallest are told apart by the head-to-head test of each
 candidate in the model holding both, whose non-centrality is
 

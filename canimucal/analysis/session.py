@@ -107,7 +107,10 @@ def scatter_source(rec: Recording, tolerance_deg: float | None) -> tuple[float, 
     """Return the pose tolerance (degrees) and its source: flag, header, else estimated."""
     if tolerance_deg is not None:
         if not (np.isfinite(tolerance_deg) and tolerance_deg >= 0):
-            raise InputError(f"--tolerance-deg must be a finite number >= 0, got {tolerance_deg}")
+            raise InputError(
+                f"tolerance_deg must be a finite number >= 0, got {tolerance_deg}",
+                options=("tolerance_deg",),
+            )
         return float(tolerance_deg), "flag"
     header = header_tolerance_deg(rec)
     if header is not None:

@@ -1,4 +1,4 @@
-"""Which model to solve, and the model a recording's session solved (DESIGN §9 header keys).
+"""Which model to solve, and the model a recording's session solved (docs/design.md §10).
 
 A session writes ``plan``, ``model``, ``tilt``, ``gyro`` and ``tolerance_deg`` into its
 recording (and ``gyro_g: true`` when it estimated the gyro's G). An option given (a flag,
@@ -66,7 +66,8 @@ class ModelChoice:
         )
         if gyro == "nav" and self.latitude_deg is None:
             raise InputError(
-                "--gyro nav needs --latitude-deg (the gyro scale comes from Earth rate)"
+                "gyro='nav' needs latitude_deg (the gyro scale comes from Earth rate)",
+                options=("gyro='nav'", "latitude_deg"),
             )
         model = self.model or "diag"
         return JointSpec(
@@ -141,9 +142,14 @@ def session_model(rec: Recording, choice: ModelChoice) -> tuple[ModelChoice, Ses
         tolerance_source = "header" if isinstance(value, int | float) else "default"
         tolerance = float(value) if isinstance(value, int | float) else DEFAULT_TOLERANCE_DEG
     if not (np.isfinite(tolerance) and tolerance >= 0):
-        raise InputError(f"--tolerance-deg must be a finite number >= 0, got {tolerance:g}")
+        raise InputError(
+            f"tolerance_deg must be a finite number >= 0, got {tolerance:g}",
+            options=("tolerance_deg",),
+        )
     if choice.prior_k_sigma is not None and not choice.prior_k_sigma > 0:
-        raise InputError(f"--prior-k-sigma must be > 0, got {choice.prior_k_sigma:g}")
+        raise InputError(
+            f"prior_k_sigma must be > 0, got {choice.prior_k_sigma:g}", options=("prior_k_sigma",)
+        )
     name = header.get("plan")
     entry = PLANS.get(name) if isinstance(name, str) else None
     plan = None if entry is None else entry.plan
@@ -200,5 +206,7 @@ def read_factory_k(path: str) -> NDArray[np.float64]:
     record = Calibration.from_dict(document)
     k = np.array([[np.nan if v is None else v for v in row] for row in record.accel.K or ()])
     if k.shape != (3, 3) or not np.all(np.isfinite(k)):
-        raise InputError(f"{path}: --prior-k needs a complete accel.K (3×3, no nulls)")
+        raise InputError(
+            f"{path}: prior_k needs a complete accel.K (3×3, no nulls)", options=("prior_k",)
+        )
     return k

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from canimucal.analysis.acceptance import AcceptanceLimits, Verdict, judge, load_limits
+from canimucal.analysis.acceptance import AcceptanceLimits, Limits, Verdict, judge, limits_for
 from canimucal.analysis.calibrate import SiteConditions, Solution, solve_positions, solve_scalar
 from canimucal.analysis.conditions import recording_conditions
 from canimucal.analysis.gravity_moves import solve_gravity_moves_recording
@@ -88,16 +88,16 @@ def solve_recording(
     choice: ModelChoice | None = None,
     *,
     recording: RecordingRef | None = None,
-    limits: AcceptanceLimits | None = None,
+    limits: Limits | None = None,
 ) -> RecordingSolution:
     """Solve ``rec`` for the calibration ``choice`` asks for (module doc).
 
     Options ``choice`` leaves unset come from the recording's header (the session's own
-    model, tolerance and plan prior); ``limits`` None reads ``acceptance.toml``.
+    model, tolerance and plan prior). ``limits``: the acceptance limits, or a config that
+    picks them for the session's plan; None, the built-in limits.
     """
     choice, session = session_model(rec, choice or ModelChoice())
-    # a bad file: exit 2 before work; the session's plan may have limits of its own
-    limits = load_limits(plan=session.plan_name) if limits is None else limits
+    accept = limits_for(limits, session.plan_name)
     notes: tuple[str, ...] = ()
     site, g_source = site_of(rec, choice)
     serial, node_id = _header_int(rec, "device_serial"), _header_int(rec, "node_id")
@@ -124,7 +124,9 @@ def solve_recording(
             )
     else:
         if choice.gyro == "moves" and position_labels(rec):
-            raise InputError("--gyro moves needs labelled positions with angles")
+            raise InputError(
+                "gyro='moves' needs labelled positions with angles", options=("gyro='moves'",)
+            )
         solution = solve_scalar(
             _unknown_pose_averages(rec),
             site,
@@ -135,7 +137,7 @@ def solve_recording(
         if choice.gyro == "moves":  # imu_tk: the moves' rotations known through gravity only
             solution, _ = solve_gravity_moves_recording(rec, solution, site)
     warnings = solution.warnings + _unchecked_gyro(solution) + _few_dof(solution)
-    verdict = judge(solution, site, limits)
+    verdict = judge(solution, site, accept)
     record = replace(solution.record, acceptance=verdict.block)
     return RecordingSolution(
         replace(solution, record=record, warnings=warnings), g_source, verdict, notes
@@ -159,7 +161,7 @@ def _pose_sigmas(
 
 
 MIN_DOF = 10
-"""Below this many residual degrees of freedom `solve` warns (DESIGN §9)."""
+"""Below this many residual degrees of freedom `solve` warns (docs/design.md §10)."""
 
 
 def _few_dof(solution: Solution) -> tuple[str, ...]:
@@ -225,6 +227,7 @@ def calibrate(
     g: float | None = None,
     latitude_deg: float | None = None,
     tolerance_deg: float | None = None,
+    limits: Limits | None = None,
 ) -> Calibration:
     """Calibrate from a recording (or its path) or from position averages.
 
@@ -232,8 +235,11 @@ def calibrate(
     diagonal K without tilt), so ``calibrate(rec, model="full", tilt=True)`` gives the
     numbers of ``canimucal solve REC --model full --tilt``. Averages (from
     :func:`~canimucal.model.positions.average_position`) are solved with standard gravity
-    (or ``g``) and the nominal LSBs of docs/design.md §4. A failed acceptance check is reported in
-    ``.acceptance``, never raised.
+    (or ``g``) and the nominal LSBs of docs/design.md §4. The result is judged against
+    ``limits`` (an :class:`~canimucal.analysis.acceptance.AcceptanceLimits`, or an
+    :class:`~canimucal.analysis.acceptance.AcceptanceConfig` that picks them per plan), the
+    built-in limits when None: no user file is read. A failed acceptance check is reported
+    in ``.acceptance``, never raised.
     """
     choice = ModelChoice(
         model=model,
@@ -248,13 +254,15 @@ def calibrate(
     if isinstance(source, str | os.PathLike):
         path = Path(source)
         ref = RecordingRef(file=path.name, sha256=sha256_of(path))
-        return solve_recording(read_any(path), choice, recording=ref).record
+        return solve_recording(read_any(path), choice, recording=ref, limits=limits).record
     if isinstance(source, Recording):
-        return solve_recording(source, choice).record
-    return _calibrate_averages(list(source), choice)
+        return solve_recording(source, choice, limits=limits).record
+    return _calibrate_averages(list(source), choice, limits_for(limits, None))
 
 
-def _calibrate_averages(averages: list[PositionAverage], choice: ModelChoice) -> Calibration:
+def _calibrate_averages(
+    averages: list[PositionAverage], choice: ModelChoice, limits: AcceptanceLimits
+) -> Calibration:
     if not averages:
         raise InputError("calibrate: no position averages given")
     latitude = None if choice.latitude_deg is None else float(np.deg2rad(choice.latitude_deg))
@@ -272,5 +280,5 @@ def _calibrate_averages(averages: list[PositionAverage], choice: ModelChoice) ->
         solution = solve_positions(averages, spec, site, device)
     else:
         solution = solve_scalar(averages, site, device, full=choice.model == "full")
-    verdict = judge(solution, site, load_limits())
+    verdict = judge(solution, site, limits)
     return replace(solution.record, acceptance=verdict.block)

@@ -26,6 +26,8 @@ from canimucal.io.importers import FORMATS, load_any
 from canimucal.io.recording import Recording
 from canimucal.model.static import detect_static_intervals
 
+ALLAN_SCHEMA = "canimucal.allan/1"
+"""``allan --json`` (docs/design.md §5)."""
 MIN_STILL_SECONDS = 10.0
 MIN_SENSOR_SECONDS = 3.0
 """A sensor needs this many seconds of samples in the stretch to be analysed."""
@@ -113,6 +115,7 @@ def _si(values: NDArray[np.float64], lsb: float) -> list[float]:
 def _document(sa: StaticAnalysis) -> dict[str, Any]:
     """Build the JSON: per sensor the ADEV, the terms with intervals, drift, best times."""
     out: dict[str, Any] = {
+        "schema": ALLAN_SCHEMA,
         "stretch": sa.where,
         "seconds": sa.seconds,
         **{k: v for k, v in static_document(sa).items() if k not in ("stretch", "seconds")},

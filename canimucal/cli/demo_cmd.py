@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from canimucal.cli.output import add_json_option, check_outputs, dumps, emit
+from canimucal.cli.user_config import user_acceptance
 from canimucal.io.atomic import write_text_atomic
 from canimucal.io.plans import resolve_plan
 from canimucal.io.truth import load_truth
@@ -45,6 +46,9 @@ from canimucal.sim.truth import Truth
 
 log = logging.getLogger(__name__)
 
+DEMO_NODES_SCHEMA = "canimucal.demo-nodes/1"
+"""``demo --nodes N --json`` with N > 1: ``nodes`` maps each node id to its calibration JSON
+(one node: the calibration JSON itself)."""
 DEFAULT_TIME_SCALE = 20.0
 DEMO_GYRO_G_MAX = 0.5
 """With ``--gyro-g`` a random truth's G entries are uniform in ±this (counts per m/s²)."""
@@ -163,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
             plan,
             out,
             plan_name=plan_name,
+            limits=user_acceptance().limits(plan_name),
             gyro=args.gyro,
             gyro_g=args.gyro_g,
             averaging=policy,
@@ -180,7 +185,8 @@ def run(args: argparse.Namespace) -> int:
         history = run_automatic(session, write_anyway=True, deadline_s=_deadline_s(plan, args))
         truth_by_node = dict(rig.truths)
     documents, report = _results(session, history, truth_by_node, out)
-    document: Any = next(iter(documents.values())) if len(documents) == 1 else documents
+    several = {"schema": DEMO_NODES_SCHEMA, "nodes": documents}
+    document: Any = next(iter(documents.values())) if len(documents) == 1 else several
     emit(args, document, report)
     return 0 if all("readback" in d for d in documents.values()) else 3
 
@@ -212,6 +218,7 @@ def _run_tui(
     source = demo_source(truths, out, time_scale=args.time_scale, seed=args.seed + 1)
     source.seconds = seconds
     source.verify_seconds = min(seconds, 10.0) if seconds else 10.0
+    source.acceptance = user_acceptance()
     source.resume = bool(args.resume)
     source.operator, source.site_name = args.operator, args.site
     source.gyro_g = args.gyro_g

@@ -14,6 +14,7 @@ import traceback
 from collections.abc import Sequence
 
 from canimucal.errors import CanimucalError
+from canimucal.flag_words import worded_for_flags
 from canimucal.signals import (
     EXIT_INTERRUPTED,
     EXIT_TERMINATED,
@@ -67,7 +68,23 @@ def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
             importlib.import_module(f"canimucal.cli.{module_name}").add_subparser(subparsers)
         else:
             subparsers.add_parser(name, help=help_line)
+    for sub in subparsers.choices.values():
+        _add_top_flags(sub)
     return parser
+
+
+def _add_top_flags(sub: argparse.ArgumentParser) -> None:
+    """Accept ``--debug`` and ``-v`` after the verb too (``canimucal solve -v rec.csv``).
+
+    ``SUPPRESS``: the verb's parser sets them only when given, so a flag before the verb is
+    not reset by the verb's default.
+    """
+    sub.add_argument(
+        "--debug", action="store_true", default=argparse.SUPPRESS, help="as before the verb"
+    )
+    sub.add_argument(
+        "-v", "--verbose", action="store_true", default=argparse.SUPPRESS, help="as before the verb"
+    )
 
 
 def _verb_of(argv: Sequence[str]) -> str | None:
@@ -164,5 +181,5 @@ def _interrupted(interrupt: KeyboardInterrupt, verb: str | None) -> int:
 def _report(error: BaseException, debug: bool, prefix: str = "") -> None:
     if debug:
         traceback.print_exception(error, file=sys.stderr)
-    message = " ".join(str(error).split()) or type(error).__name__
+    message = " ".join(worded_for_flags(error).split()) or type(error).__name__
     print(f"error: {prefix}{message}", file=sys.stderr)

@@ -34,6 +34,11 @@ from canimucal.procedure.averaging import (
     describe_rule,
 )
 
+PLAN_SCHEMA = "canimucal.plan/1"
+"""``plan --json``: one plan's bounds (docs/design.md §5)."""
+PLAN_COMPARISON_SCHEMA = "canimucal.plan-comparison/1"
+"""``plan --compare --json``: every built-in plan's bounds, each a ``canimucal.plan/1``."""
+
 
 def add_subparser(subparsers: Any) -> None:
     """Register ``plan``."""
@@ -93,7 +98,10 @@ def run(args: argparse.Namespace) -> int:
         if args.plan not in builtin_names():
             plans.append(resolve_plan(args.plan))
         tables = [(plan, _table(args, _timed(args, plan), spec)) for plan in plans]
-        compared = {"plans": [bound_document(t, p) for p, t in tables]}
+        compared = {
+            "schema": PLAN_COMPARISON_SCHEMA,
+            "plans": [bound_document(t, p) for p, t in tables],
+        }
         emit(args, compared, comparison_report(tables))
         return 0
     plan = _timed(args, resolve_plan(args.plan))
@@ -193,6 +201,7 @@ def bound_document(table: BoundTable, plan: Plan) -> dict[str, Any]:
     worst = table.worst_case_counts
     entry = PLANS.get(table.plan)
     return {
+        "schema": PLAN_SCHEMA,
         "plan": table.plan,
         **({"description": entry.description} if entry is not None else {}),
         "total_seconds": plan.total_seconds,

@@ -177,18 +177,18 @@ def run(args: argparse.Namespace) -> int:
     with open_from_args(args) as session, contextlib.ExitStack() as files:
         several = len(session.clients) > 1
         channels = []
-        # a plan that holds K at a prior: the K each node applies now, for solve (DESIGN §9)
+        # a plan that holds K at a prior: the K each node applies now, for solve (docs/design.md §3)
         priors = session.k_priors(plan) if args.position is None else {}
         for nid, client in session.clients.items():
             header = header_for(client, args, session.truths.get(nid))
-            if args.position is None:  # a whole plan: name it and its tolerance (DESIGN §9)
+            if args.position is None:  # a whole plan: name it and its tolerance (docs/design.md §5)
                 header["plan"] = plan.name
                 tolerance = max(p.tolerance for p in plan.positions)
                 header["tolerance_deg"] = round(float(np.rad2deg(tolerance)), 10)
                 if nid in priors:
                     lsb = float(header["accel_lsb"])
                     header.update(k_prior_header(priors[nid], plan, lsb))
-            if args.gyro_g:  # solve then estimates G, as after a session asked to (DESIGN §9)
+            if args.gyro_g:  # solve then estimates G, as after such a session (docs/design.md §5)
                 header["gyro_g"] = True
             path = per_node_path(args.output, nid, several)
             writer = RecordingWriter.open(

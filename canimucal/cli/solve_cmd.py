@@ -11,6 +11,7 @@ from canimucal.analysis.calibrate import Solution
 from canimucal.analysis.solve import solve_recording
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.cli.spec_options import add_model_options, choice_from_args
+from canimucal.cli.user_config import user_acceptance
 from canimucal.io.calibration import RecordingRef, sha256_of
 from canimucal.io.importers import FORMATS, detect_format, load_any
 from canimucal.model.vocabulary.units import QUANTITIES
@@ -67,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     )  # a missing file: the recording reader says "cannot read"
     rec = load_any(args.recording, args.second, fmt=fmt, sample_rate_hz=args.sample_rate_hz)
     ref = RecordingRef(file=Path(args.recording).name, sha256=sha256_of(args.recording))
-    solved = solve_recording(rec, choice_from_args(args), recording=ref)
+    solved = solve_recording(rec, choice_from_args(args), recording=ref, limits=user_acceptance())
     for note in solved.notes:
         print(f"note: {note}", file=sys.stderr)
     for warning in solved.solution.warnings:

@@ -126,6 +126,7 @@ def plan_choice(name_or_path: str) -> tuple[Plan, str]:
 
 def device_source(args: argparse.Namespace) -> DeviceSource:
     """Return the TUI's source of nodes and sessions the flags describe (nothing opened yet)."""
+    from canimucal.cli.user_config import user_acceptance
     from canimucal.tui.source import DeviceSource
 
     if args.seconds is not None and not args.seconds > 0:
@@ -154,6 +155,7 @@ def device_source(args: argparse.Namespace) -> DeviceSource:
         prior_k=args.prior_k,
         prior_k_sigma=args.prior_k_sigma,
         gyro_g=bool(args.gyro_g),
+        acceptance=user_acceptance(),
     )
 
 

@@ -92,8 +92,9 @@ class BusSettings:
             channel = given.get("channel") or self._channel_named_elsewhere()
             if channel is None:
                 raise NoDeviceError(
-                    "no CAN bus configured: give --channel (and --interface), "
-                    "CAN_INTERFACE/CAN_CHANNEL or a python-can config file"
+                    "no CAN bus configured: give channel (and interface), "
+                    "CAN_INTERFACE/CAN_CHANNEL or a python-can config file",
+                    options=("give channel (and interface)",),
                 )
             given["interface"] = DEFAULT_INTERFACE_WITH_CHANNEL
         try:
@@ -140,7 +141,9 @@ def open_bus(settings: BusSettings) -> can.BusABC:
     try:
         bus = can.Bus(**config)
     except Exception as exc:  # the driver's own failure, whatever its type
-        raise NoDeviceError(f"cannot open CAN bus {where}: {bus_error_text(exc, config)}") from exc
+        text = bus_error_text(exc, config)
+        options = ("use another interface",) if "use another interface" in text else ()
+        raise NoDeviceError(f"cannot open CAN bus {where}: {text}", options=options) from exc
     logger.info("opened CAN bus %s", where)
     return bus
 
@@ -153,7 +156,7 @@ _ERRNO_HINTS = {
     errno.ENETDOWN: "the interface is down: 'ip link set {channel} up type can bitrate "
     "500000' (vcan: 'ip link set {channel} up')",
     errno.EAFNOSUPPORT: "this kernel has no SocketCAN: load it ('modprobe can_raw'), or "
-    "use another --interface",
+    "use another interface",
     errno.EPERM: "not permitted: run as a user allowed to use the CAN interface",
     errno.EACCES: "not permitted: run as a user allowed to use the CAN interface",
 }
@@ -176,6 +179,16 @@ def bus_error_text(exc: BaseException, config: Mapping[str, Any]) -> str:
             f"({reason}); install the vendor's driver and its Python package"
         )
     return reason
+
+
+def abort_text(code: int) -> str:
+    """Return ``"0x06090030 value range of parameter exceeded"``, in canopen's words.
+
+    The text is canopen's own table of CiA 301 abort codes (``SdoAbortedError.CODES``),
+    first letter lowered to fit the sentence it ends; a code it lacks is "unknown abort code".
+    """
+    text = SdoAbortedError.CODES.get(code, "unknown abort code")
+    return f"0x{code:08X} {text[:1].lower()}{text[1:]}"
 
 
 class SdoChannel:
@@ -252,7 +265,7 @@ class SdoChannel:
             try:
                 self._sdo.download(index, sub, data)
             except SdoAbortedError as exc:
-                text = od.abort_text(int(exc.code))
+                text = abort_text(int(exc.code))
                 raise SdoAbort(f"device refused write of {name}: {text}", int(exc.code)) from exc
             except SdoCommunicationError as exc:
                 raise StoreTimeoutError(
@@ -272,7 +285,7 @@ class SdoChannel:
                 with self._lock:
                     return op()
             except SdoAbortedError as exc:
-                text = od.abort_text(int(exc.code))
+                text = abort_text(int(exc.code))
                 raise SdoAbort(f"device refused {what} of {name}: {text}", int(exc.code)) from exc
             except (SdoCommunicationError, can.CanError) as exc:
                 if self._boots is not None and self._boots() != boots:

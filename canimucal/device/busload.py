@@ -103,6 +103,9 @@ class BusLoadMeter(can.Listener):
         self.frames_total = 0
         self.error_frames_total = 0
 
+    def stop(self) -> None:
+        """Nothing to release (python-can 4.4 declares it abstract)."""
+
     def on_message_received(self, msg: can.Message) -> None:
         """Count one frame (python-can's receive thread)."""
         now = self._clock()

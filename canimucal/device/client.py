@@ -350,7 +350,7 @@ class ImuClient:
         self._nmt(NMT_START)
 
     def observe_nmt_state(self) -> NmtFound:
-        """Find out (once) the NMT state the node is in now, to leave it so (DESIGN §9)."""
+        """Find out (once) the NMT state the node is in now, to leave it so (docs/design.md §9)."""
         if self.nmt_found is None:
             self.nmt_found = infer_nmt_state(
                 self.read_value,

@@ -85,7 +85,7 @@ class EmergencyReceived:
 
     @property
     def interrupts(self) -> bool:
-        """Whether it interrupts the attempt in progress (DESIGN §9).
+        """Whether it interrupts the attempt in progress (docs/design.md §9).
 
         No for 0x0000 (error reset; CANopenNode also sends it for a CAN bus warning) and
         for 0x81xx/0x82xx (communication: overrun, error passive, heartbeat, protocol);
@@ -238,6 +238,10 @@ class NodeMonitor(can.Listener):
             target=self._run, args=(timeout_s,), name="canimucal-heartbeat", daemon=True
         )
         self._thread.start()
+
+    def stop(self) -> None:
+        """Stop listening: the watchdog ends (python-can's Listener interface)."""
+        self.unwatch()
 
     def unwatch(self) -> None:
         """Stop the watchdog thread."""

@@ -46,12 +46,14 @@ def device_k(readout: CalibrationReadout, accel_lsb: float, node_id: int) -> Dev
         if not np.all(np.isfinite(m)):
             raise DeviceError(
                 f"{name} holds non-finite values; it cannot give the prior on K "
-                "(give --prior-k FILE, or rewrite the unit's calibration)"
+                "(give prior_k, a file, or rewrite the unit's calibration)",
+                options=("prior_k",),
             )
         if not np.linalg.cond(m) < SINGULAR_CONDITION:
             raise DeviceError(
                 f"{name} is singular (det {np.linalg.det(m):.3g}); it cannot give the prior "
-                "on K (give --prior-k FILE, or rewrite the unit's calibration)"
+                "on K (give prior_k, a file, or rewrite the unit's calibration)",
+                options=("prior_k",),
             )
         k = np.asarray(np.linalg.inv(m), dtype=float)
         return DeviceK(k, f"K = M⁻¹ read from node {node_id}'s 0x2101, active, CRC ok", True)

@@ -1,4 +1,4 @@
-"""The NMT state a node was found in, so the tool can leave it as found (DESIGN §9).
+"""The NMT state a node was found in, so the tool can leave it as found (docs/design.md §9).
 
 Inferred, in this order: a heartbeat within 1.5 producer periods (0x1017) gives the state;
 else TPDOs arriving mean OPERATIONAL; else SDO answers without TPDOs mean PRE-OPERATIONAL

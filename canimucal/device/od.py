@@ -90,35 +90,6 @@ CALIBRATION_OBJECTS: tuple[tuple[int, int, str], ...] = CRC_ORDER + tuple(
 OBJECT_CODES: dict[tuple[int, int], str] = {(i, s): c for i, s, c in CALIBRATION_OBJECTS}
 """Encoding code of each calibration object, keyed by ``(index, sub)``."""
 
-SDO_ABORT_TEXT: dict[int, str] = {
-    0x05030000: "toggle bit not alternated",
-    0x05040000: "SDO protocol timed out",
-    0x05040001: "client/server command specifier not valid or unknown",
-    0x05040005: "out of memory",
-    0x06010000: "unsupported access to an object",
-    0x06010001: "attempt to read a write-only object",
-    0x06010002: "attempt to write a read-only object",
-    0x06020000: "object does not exist in the object dictionary",
-    0x06040041: "object cannot be mapped to the PDO",
-    0x06040042: "PDO length exceeded",
-    0x06040043: "general parameter incompatibility",
-    0x06040047: "general internal incompatibility in the device",
-    0x06060000: "access failed due to a hardware error",
-    0x06070010: "data type does not match, length of service parameter does not match",
-    0x06070012: "data type does not match, length of service parameter too high",
-    0x06070013: "data type does not match, length of service parameter too low",
-    0x06090011: "sub-index does not exist",
-    0x06090030: "value range of parameter exceeded",
-    0x06090031: "value of parameter written too high",
-    0x06090032: "value of parameter written too low",
-    0x08000000: "general error",
-    0x08000020: "data cannot be transferred or stored to the application",
-    0x08000021: "data cannot be stored because of local control",
-    0x08000022: "data cannot be stored in the present device state",
-    0x08000024: "no data available",
-}
-"""Readable text of the common SDO abort codes (CiA 301 table 22)."""
-
 ABORT_VALUE_RANGE = 0x06090030
 ABORT_NO_OBJECT = 0x06020000
 ABORT_NO_SUBINDEX = 0x06090011
@@ -141,11 +112,6 @@ def parse_key(key: str) -> tuple[int, int]:
         return int(index_text, 16), int(sub_text, 16)
     except ValueError as exc:
         raise InputError(f"bad object key {key!r}, expected like '0x2100:01'") from exc
-
-
-def abort_text(code: int) -> str:
-    """``"0x06090030 value range of parameter exceeded"`` (or "unknown abort code")."""
-    return f"0x{code:08X} {SDO_ABORT_TEXT.get(code, 'unknown abort code')}"
 
 
 def to_float32(value: float) -> float:

@@ -69,18 +69,23 @@ def choose_store_sub(client: ImuClient, requested: int | None) -> int:
     raise DeviceError(
         f"node {client.node_id} offers no 0x1010:01 and "
         + ("names none for its calibration (0x2011 = 1)" if documented else "has no 0x2011")
-        + "; nothing written (--no-store writes RAM only)"
+        + "; nothing written (store=False writes RAM only)",
+        options=("store=False",),
     )
 
 
 def _requested(client: ImuClient, requested: int, documented: int | None) -> int:
     if requested not in STORE_SUB_CHOICES:
-        raise InputError(f"--store-sub must be one of {STORE_SUB_CHOICES}, got {requested}")
+        raise InputError(
+            f"store_sub must be one of {STORE_SUB_CHOICES}, got {requested}",
+            options=("store_sub",),
+        )
     names_one = documented not in (None, od.STORE_ALL_SUB)
     if names_one and requested not in (documented, od.STORE_ALL_SUB):
         raise InputError(
-            f"--store-sub {requested}: node {client.node_id} stores its calibration with "
-            f"0x1010:{documented:02X} (0x2011); nothing written"
+            f"store_sub {requested}: node {client.node_id} stores its calibration with "
+            f"0x1010:{documented:02X} (0x2011); nothing written",
+            options=("store_sub",),
         )
     if requested == od.STORE_APP_SUB and documented != od.STORE_APP_SUB:
         logger.warning(

@@ -9,7 +9,7 @@ the backup is written back (valid last) and verified; if that fails too, valid i
 at all possible and :class:`RollbackIncompleteError` names the backup. Never valid = 1 over a
 mixed set.
 
-The store (DESIGN §9 "Device behaviour") uses the 0x1010 sub-index the node documents for its
+The store (docs/design.md §9) uses the 0x1010 sub-index the node documents for its
 calibration (0x2011, :mod:`canimucal.device.storage_sub`), else 0x1010:01 after the client
 undid its own RAM changes; 0x1010:03 only when asked (with a warning: CiA 301 gives sub 3 to
 0x6000–0x9FFF). It is sent once with its own timeout: a node
@@ -54,6 +54,7 @@ from canimucal.errors import (
 from canimucal.io.atomic import unique_path, write_text_atomic
 from canimucal.io.calibration import Calibration, calibration_to_json
 from canimucal.signals import deferred_signals
+from canimucal.user_dirs import state_dir
 
 logger = logging.getLogger(__name__)
 
@@ -99,11 +100,12 @@ class WriteReport:
     """The valid flag written last: 0 for a backup that was invalid or whose CRC mismatched."""
 
 
-def default_backup_dir(environ: Mapping[str, str] | None = None) -> Path:
-    """``$XDG_STATE_HOME/canimucal/backups``, else ``~/.local/state/canimucal/backups``."""
-    env = os.environ if environ is None else environ
-    state = env.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
-    return Path(state) / "canimucal" / "backups"
+def default_backup_dir() -> Path:
+    """Return ``backups/`` in canimucal's state directory (:mod:`canimucal.user_dirs`).
+
+    On Linux ``$XDG_STATE_HOME/canimucal/backups``, else ``~/.local/state/canimucal/backups``.
+    """
+    return state_dir() / "backups"
 
 
 def _planned(index: int, sub: int, code: str, value: float | int) -> PlannedWrite:
@@ -138,7 +140,7 @@ def plan_writes(
 
 
 class StoreNotConfirmedError(DeviceError):
-    """The store got no answer in time; nothing rolled back (exit 3, DESIGN §9)."""
+    """The store got no answer in time; nothing rolled back (exit 3, docs/design.md §9)."""
 
     title = "Store not confirmed"
 
@@ -175,7 +177,8 @@ def _check_serial(identity: Identity, record: Calibration, force: bool) -> bool:
     if not force:
         raise DeviceError(
             f"device serial {identity.serial} differs from the calibration file's {wanted}; "
-            "nothing written (use --force to write anyway)"
+            "nothing written (use force=True to write anyway)",
+            options=("force=True",),
         )
     logger.warning("writing serial %d's calibration to device %d (forced)", wanted, identity.serial)
     return True
@@ -270,7 +273,7 @@ def _store(client: ImuClient, write: PlannedWrite, timeout_s: float, boots: int)
 
 
 def _store_timeout_message(client: ImuClient, timeout_s: float, boots: int) -> str:
-    """DESIGN §9's message, with what a fresh read of the block shows."""
+    """Word the docs/design.md §9 message, with what a fresh read of the block shows."""
     head = f"store not confirmed in {timeout_s:g} s"
     tail = "what flash holds is known only after a power cycle"
     if client.boots != boots:

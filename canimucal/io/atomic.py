@@ -1,4 +1,4 @@
-"""Atomic file writes and collision-free names (docs/design.md §7: `--overwrite` rules).
+"""Atomic file writes and collision-free names (docs/design.md §7: the overwrite rule).
 
 A file is written to a temporary sibling, flushed and fsynced, then moved into place in one
 ``rename``: a reader sees either the old file or the complete new one, never a partial file.
@@ -19,6 +19,9 @@ from pathlib import Path
 from canimucal.errors import InputError
 
 logger = logging.getLogger(__name__)
+
+OVERWRITE = ("overwrite=True",)
+"""The option an "exists" error names (the CLI words it ``--overwrite``)."""
 
 _MAX_UNIQUE = 10_000
 """How many ``stem-N`` candidates :func:`unique_path` tries before giving up."""
@@ -57,7 +60,7 @@ def write_bytes_atomic(path: str | os.PathLike[str], data: bytes, *, overwrite: 
 def refuse_existing(path: Path, *, overwrite: bool) -> None:
     """Raise :class:`InputError` when ``path`` exists and ``overwrite`` is false."""
     if not overwrite and os.path.lexists(path):
-        raise InputError(f"{path} exists; use --overwrite to replace it")
+        raise InputError(f"{path} exists; use overwrite=True to replace it", options=OVERWRITE)
 
 
 def read_bytes_nofollow(path: str | os.PathLike[str]) -> bytes:
@@ -94,7 +97,9 @@ def move_into_place(source: Path, target: Path, *, overwrite: bool) -> None:
         try:
             os.link(source, target)
         except FileExistsError as exc:
-            raise InputError(f"{target} exists; use --overwrite to replace it") from exc
+            raise InputError(
+                f"{target} exists; use overwrite=True to replace it", options=OVERWRITE
+            ) from exc
         except OSError:
             # File systems without hard links: a check-then-rename is the best available.
             refuse_existing(target, overwrite=False)

@@ -63,14 +63,18 @@ rest f = C f_L with f_L = [0, −g, 0], so +x up (``x_p``, f = [+g, 0, 0]) is al
 
 _PathLike = str | os.PathLike[str]
 
+UTF8_BOM = b"\xef\xbb\xbf"
+"""The byte-order mark some Windows programs put before UTF-8 text: skipped in every format."""
+
 
 def _head(path: _PathLike, size: int = 4096) -> str:
+    """Return the first ``size`` bytes of ``path`` as text, a leading BOM skipped."""
     try:
         with open(path, "rb") as handle:
             raw = handle.read(size)
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
-    return raw.decode("utf-8", errors="replace")
+    return raw.removeprefix(UTF8_BOM).decode("utf-8", errors="replace")
 
 
 def detect_format(path: _PathLike) -> Format:
@@ -90,7 +94,8 @@ def detect_format(path: _PathLike) -> Format:
         return "imutk"
     raise InputError(
         f"{path}: unknown format (not a canimucal recording, an imu_tk 't x y z' file or an "
-        "imucal CSV); name it with --format"
+        "imucal CSV); name it with format=",
+        options=("format=",),
     )
 
 
@@ -105,7 +110,7 @@ def _is_number(text: str) -> bool:
 def _load_columns(path: _PathLike, columns: int) -> NDArray[np.float64]:
     try:
         require_memory(str(path), os.stat(path).st_size)
-        data = np.loadtxt(path, dtype=float, ndmin=2)
+        data = np.loadtxt(path, dtype=float, ndmin=2, encoding="utf-8-sig")
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: not a table of numbers ({exc})") from None
     except MemoryError:
@@ -155,14 +160,19 @@ def read_imucal(
 ) -> Recording:
     """Read imucal's session CSV and section JSON (module doc)."""
     if sample_rate_hz is None or not np.isfinite(sample_rate_hz) or sample_rate_hz <= 0:
-        raise InputError(f"{csv_path}: an imucal CSV has no time column; give --sample-rate-hz")
+        raise InputError(
+            f"{csv_path}: an imucal CSV has no time column; give sample_rate_hz",
+            options=("sample_rate_hz",),
+        )
     first = _head(csv_path, 1024).splitlines()[0] if _head(csv_path, 1024) else ""
     names = tuple(c.strip() for c in first.split(","))
     if names != IMUCAL_COLUMNS:
         raise InputError(f"{csv_path}: expected columns {','.join(IMUCAL_COLUMNS)}")
     require_memory(str(csv_path), os.stat(csv_path).st_size)
     try:
-        data = np.loadtxt(csv_path, delimiter=",", skiprows=1, dtype=float, ndmin=2)
+        data = np.loadtxt(
+            csv_path, delimiter=",", skiprows=1, dtype=float, ndmin=2, encoding="utf-8-sig"
+        )
     except ValueError as exc:
         raise InputError(f"{csv_path}: not a table of numbers ({exc})") from None
     except MemoryError:
@@ -219,7 +229,7 @@ def _turn(section: tuple[str, int, int], n: NDArray[np.int64]) -> KnownTurn | No
 def _sections(path: _PathLike) -> list[tuple[str, int, int]]:
     """``(name, start, end)`` of each section of an imucal section JSON, in file order."""
     try:
-        doc = json.loads(Path(path).read_text(encoding="utf-8"))
+        doc = json.loads(Path(path).read_text(encoding="utf-8-sig"))
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: not a JSON section list ({exc})") from None
     if not isinstance(doc, dict):

@@ -1,12 +1,13 @@
-"""Mounting maps saved per unit: ``$XDG_CONFIG_HOME/canimucal/mounting/<serial>.toml``.
+"""Mounting maps saved per unit: ``mounting/<serial>.toml`` in the user's config directory.
 
-The file holds the vehicle direction of each unit axis (DESIGN §9)::
+The file holds the vehicle direction of each unit axis (docs/design.md §5)::
 
     x = "forward"
     y = "down"
     z = "left"
 
-``~/.config`` stands in for an unset or empty ``XDG_CONFIG_HOME``. Files are written
+The directory is :func:`canimucal.user_dirs.config_dir` (on Linux ``$XDG_CONFIG_HOME/canimucal``,
+else ``~/.config/canimucal``) unless a caller names another. Files are written
 atomically and never replaced unless asked. :func:`choose_mounting` decides which map words a
 session's instructions: the one asked for, else the one saved for the unit's serial, else
 :data:`~canimucal.model.mounting.DEFAULT_MOUNTING`, and says which in one line.
@@ -15,15 +16,14 @@ session's instructions: the one asked for, else the one saved for the unit's ser
 from __future__ import annotations
 
 import logging
-import os
 import tomllib
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 from canimucal.errors import InputError
 from canimucal.io.atomic import write_text_atomic
 from canimucal.model.mounting import DEFAULT_MOUNTING, MountingMap
+from canimucal.user_dirs import config_dir
 
 log = logging.getLogger(__name__)
 
@@ -31,22 +31,20 @@ BODY = "body"
 """``--mount body``: instructions in the unit's own axes (bench use), nothing saved."""
 
 
-def mounting_dir(environ: Mapping[str, str] | None = None) -> Path:
-    """``$XDG_CONFIG_HOME/canimucal/mounting`` (``~/.config`` when unset or empty)."""
-    env = os.environ if environ is None else environ
-    base = env.get("XDG_CONFIG_HOME") or str(Path(env.get("HOME", "~")).expanduser() / ".config")
-    return Path(base) / "canimucal" / "mounting"
+def mounting_dir(config: Path | None = None) -> Path:
+    """Return ``mounting/`` in ``config`` (default: the user's canimucal config directory)."""
+    return (config_dir() if config is None else config) / "mounting"
 
 
-def mounting_path(serial: int, environ: Mapping[str, str] | None = None) -> Path:
+def mounting_path(serial: int, config: Path | None = None) -> Path:
     """Return the file of the unit with ``serial``."""
-    return mounting_dir(environ) / f"{int(serial)}.toml"
+    return mounting_dir(config) / f"{int(serial)}.toml"
 
 
 def read_mounting(path: Path) -> MountingMap:
     """Read a saved map (:class:`InputError` naming the file when it is not one)."""
     try:
-        document = tomllib.loads(path.read_text(encoding="utf-8"))
+        document = tomllib.loads(path.read_text(encoding="utf-8-sig"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise InputError(f"{path}: cannot read the mounting map ({exc})") from None
     unknown = sorted(set(document) - {"x", "y", "z"})
@@ -61,9 +59,9 @@ def read_mounting(path: Path) -> MountingMap:
         raise InputError(f"{path}: {exc}") from None
 
 
-def load_mounting(serial: int, environ: Mapping[str, str] | None = None) -> MountingMap | None:
+def load_mounting(serial: int, config: Path | None = None) -> MountingMap | None:
     """Return the map saved for ``serial``, None when there is none."""
-    path = mounting_path(serial, environ)
+    path = mounting_path(serial, config)
     return read_mounting(path) if path.is_file() else None
 
 
@@ -72,10 +70,10 @@ def save_mounting(
     mounting: MountingMap,
     *,
     overwrite: bool = False,
-    environ: Mapping[str, str] | None = None,
+    config: Path | None = None,
 ) -> Path:
     """Save ``mounting`` for ``serial`` atomically; an existing file only with ``overwrite``."""
-    path = mounting_path(serial, environ)
+    path = mounting_path(serial, config)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -101,7 +99,7 @@ def choose_mounting(
     requested: MountingMap | str | None = None,
     *,
     replace: bool = False,
-    environ: Mapping[str, str] | None = None,
+    config: Path | None = None,
 ) -> MountingChoice:
     """Decide the map of the unit with ``serial`` (module doc).
 
@@ -112,8 +110,8 @@ def choose_mounting(
         return MountingChoice(None, "instructions in the unit's own axes (--mount body)")
     if isinstance(requested, str):
         requested = MountingMap.parse(requested)
-    saved = load_mounting(serial, environ)
-    path = mounting_path(serial, environ)
+    saved = load_mounting(serial, config)
+    path = mounting_path(serial, config)
     if requested is None:
         if saved is not None:
             return MountingChoice(saved, f"mounting {saved.text()} of serial {serial} ({path})")
@@ -125,7 +123,7 @@ def choose_mounting(
     if saved == requested:
         return MountingChoice(requested, f"mounting {requested.text()} of serial {serial}")
     if saved is None or replace:
-        save_mounting(serial, requested, overwrite=replace, environ=environ)
+        save_mounting(serial, requested, overwrite=replace, config=config)
         log.info("saved mounting %s for serial %d in %s", requested.text(), serial, path)
         return MountingChoice(requested, f"mounting {requested.text()} saved for serial {serial}")
     return MountingChoice(

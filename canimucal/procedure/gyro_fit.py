@@ -1,4 +1,4 @@
-"""The gyro's S from the moves the procedure confirmed (DESIGN §9, gyro from moves).
+"""The gyro's S from the moves the procedure confirmed (docs/design.md §10, gyro from moves).
 
 Each move the gyro check passed (:mod:`.movecheck`) and whose target position was then
 accepted is kept as raw rows: from the acceptance of one position to the pose check of the

@@ -44,7 +44,8 @@ def run_automatic(
                 raise DeviceError(
                     f"the automatic operator gave up after {deadline_s:.0f} s (phase "
                     f"{proc.phase.value}, position {proc.index + 1}): the simulated bus "
-                    "cannot keep up at this time scale; lower --time-scale"
+                    "cannot keep up at this time scale; lower time_scale",
+                    options=("time_scale",),
                 )
             _react(session, write_anyway)
             if session.procedure.phase in (Phase.DONE, Phase.CANCELLED):

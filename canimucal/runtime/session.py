@@ -189,7 +189,7 @@ class Session:
         """Turn what the node reported (``client.events``) into procedure events.
 
         A reboot or an EMCY rejects the attempt being averaged (never averaged across), but
-        not an EMCY 0x0000 or 0x81xx/0x82xx (DESIGN §9: shown only); after
+        not an EMCY 0x0000 or 0x81xx/0x82xx (docs/design.md §9: shown only); after
         a reboot the identity is read again and streaming resumed, unless another unit came
         back (``SerialChanged``: the procedure stops with :class:`ProcedureFailed`).
         """
@@ -523,7 +523,7 @@ def device_of(node_id: int, identity: Identity) -> Device:
 
 
 def model_header(cfg: ProcedureConfig) -> dict[str, Any]:
-    """Header keys naming the model the session solves (DESIGN §9), for ``solve`` to reuse.
+    """Header keys naming the model the session solves (docs/design.md §5), for ``solve`` to reuse.
 
     ``tolerance_deg`` is the plan's largest tilt tolerance; ``solve`` takes each position's
     own from the built-in plan that ``plan`` names. ``gyro`` is ``moves`` when the session

@@ -25,7 +25,6 @@ import can
 import canopen
 import numpy as np
 
-from canimucal.analysis.acceptance import load_limits
 from canimucal.analysis.calibrate import SiteConditions
 from canimucal.analysis.session_model import read_factory_k
 from canimucal.device.bus import BusSettings, describe, open_bus
@@ -182,9 +181,9 @@ class Devices:
             others = sorted(census.heard - {nid})
             if others:
                 heard = ", ".join(f"{n} (0x{n:02X})" for n in others)
-                hint = f"heartbeating on {self.where}: node {heard}; check --node-id"
-            else:
-                hint = f"no node is heartbeating on {self.where}: check power, wiring, bit rate"
+                hint = f"heartbeating on {self.where}: node {heard}; check node_ids"
+                raise NoDeviceError(f"{exc}; {hint}", options=("node_ids",)) from exc
+            hint = f"no node is heartbeating on {self.where}: check power, wiring, bit rate"
             raise NoDeviceError(f"{exc}; {hint}") from exc
 
     def _network(self, bus: can.BusABC) -> canopen.Network:
@@ -267,7 +266,9 @@ class Devices:
         choose how instructions are worded (:func:`instruction_mounting`). ``prior_k`` (a file)
         and ``prior_k_sigma`` set the prior on K
         (:meth:`k_priors`); a resumed session without them keeps the prior its recordings
-        say the first part held. ``config`` goes to :class:`ProcedureConfig`.
+        say the first part held. ``config`` goes to :class:`ProcedureConfig`; without
+        ``limits`` there the session judges against the built-in acceptance limits (the shells
+        pass the user's, docs/design.md §3).
         """
         identities = identities or self.identities()
         if backup_dir is None and self.sim_nodes:
@@ -292,7 +293,6 @@ class Devices:
             config["k_priors"] = resumed.k_priors  # the prior the first part held
         else:
             config["k_priors"] = self.k_priors(plan, prior_k, prior_k_sigma)
-        config.setdefault("limits", load_limits(plan=plan_name))  # acceptance.toml (DESIGN §9)
         cfg = ProcedureConfig(
             plan=plan,
             node_ids=tuple(self.clients),
@@ -333,7 +333,9 @@ class Devices:
         read) when no prior is held.
         """
         if prior_k_sigma is not None and not (np.isfinite(prior_k_sigma) and prior_k_sigma > 0):
-            raise InputError(f"--prior-k-sigma must be > 0, got {prior_k_sigma:g}")
+            raise InputError(
+                f"prior_k_sigma must be > 0, got {prior_k_sigma:g}", options=("prior_k_sigma",)
+            )
         sigma, whence = prior_k_sigma, "--prior-k-sigma" if prior_k_sigma is not None else None
         if sigma is None and prior_k and plan.prior_k_sigma is None:
             sigma, whence = VEHICLE_PRIOR_K_SIGMA, "the default of --prior-k (no σ given)"

@@ -230,7 +230,7 @@ class ImuSimulator:
         tr = self._truth
         additive = tr.tilt_model == "additive"
         c = _dcm_batch(angles, tr.alpha0, tr.beta0, additive)
-        f = c @ self._f_level  # f = A f_L (eq. 5, z sign corrected per ERRATA)
+        f = c @ self._f_level  # f = A f_L (eq. 5, z sign corrected: docs/method.md §2)
         w = c @ self._w_level + body_rate(angles, rates, tr.beta0 if additive else 0.0)
         return f, w
 

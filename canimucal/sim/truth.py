@@ -337,7 +337,7 @@ class Truth:
 
 
 def _device_behaviour(d: Mapping[str, Any]) -> dict[str, Any]:
-    """Read the node-behaviour keys (DESIGN §9): NMT start-up, heartbeat, store, TPDO timing."""
+    """Read the node-behaviour keys (docs/design.md §5): NMT start, heartbeat, store, timers."""
     nmt_start = d.get("nmt_start", "pre-operational")
     if nmt_start not in NMT_STARTS:
         fail("nmt_start", f"must be one of {', '.join(NMT_STARTS)}")

@@ -11,6 +11,7 @@ from textual.widgets import Button, Input, Static
 from canimucal.errors import InputError
 from canimucal.io.mounting import BODY
 from canimucal.model.mounting import MountingMap
+from canimucal.tui.widgets import PlainStatic
 
 
 class Confirm(ModalScreen[bool]):
@@ -35,7 +36,7 @@ class Confirm(ModalScreen[bool]):
         """Question, explanation and two buttons."""
         with Vertical(id="dialog"):
             yield Static(self.QUESTION, classes="dialog-title")
-            yield Static(self.text, id="confirm-text", markup=False)
+            yield PlainStatic(self.text, id="confirm-text")
             with Horizontal(classes="buttons"):
                 yield Button(f"{self.YES} (y)", variant="warning", id="yes")
                 yield Button(f"{self.NO} (n)", variant="primary", id="no")
@@ -91,7 +92,7 @@ class ErrorModal(ModalScreen[None]):
         """Title, message and an OK button."""
         with Vertical(id="dialog", classes="error"):
             yield Static(self.error_title, classes="dialog-title", id="error-title")
-            yield Static(self.message, id="error-message", markup=False)
+            yield PlainStatic(self.message, id="error-message")
             with Horizontal(classes="buttons"):
                 yield Button("OK (enter)", variant="error", id="ok")
 
@@ -127,14 +128,13 @@ class MountModal(ModalScreen[MountingMap | str | None]):
         unit = f"serial {self.serial}" if self.serial is not None else "this unit"
         with Vertical(id="dialog"):
             yield Static("How is the unit mounted?", classes="dialog-title")
-            yield Static(
+            yield PlainStatic(
                 "The vehicle direction of each unit axis (forward, back, left, right, up, "
                 f"down), e.g. x=forward,y=down,z=left; saved for {unit}. 'body' words the "
-                "instructions in the unit's own axes. Enter to use, escape to keep.",
-                markup=False,
+                "instructions in the unit's own axes. Enter to use, escape to keep."
             )
             yield Input(self.current, id="mount-input")
-            yield Static("", id="mount-error", markup=False)
+            yield PlainStatic("", id="mount-error")
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
         """Use the map entered, or say why it cannot be used."""
@@ -145,7 +145,7 @@ class MountModal(ModalScreen[MountingMap | str | None]):
         try:
             self.dismiss(MountingMap.parse(text))
         except InputError as exc:
-            self.query_one("#mount-error", Static).update(str(exc))
+            self.query_one("#mount-error", PlainStatic).update(str(exc))
 
     def action_cancel(self) -> None:
         """Keep the map as it was."""

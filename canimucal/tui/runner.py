@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable
 
 from canimucal.errors import CanimucalError
+from canimucal.flag_words import worded_for_flags
 from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase
 from canimucal.runtime.session import Session, SessionCommand, WriteOptions
@@ -87,7 +88,7 @@ class SessionRunner:
                     deliver(coalesce(pending))
                     pending, last = [], now
         except CanimucalError as exc:
-            pending.append(ev.ProcedureFailed(" ".join(str(exc).split()), exc.title))
+            pending.append(ev.ProcedureFailed(" ".join(worded_for_flags(exc).split()), exc.title))
         except Exception as exc:  # a bug: shown in the modal, logged with its traceback
             logger.exception("session runner failed")
             pending.append(ev.ProcedureFailed(f"internal error: {exc}", "Internal error"))
@@ -99,7 +100,7 @@ class SessionRunner:
         try:
             self.session.finish()
         except CanimucalError as exc:
-            return [ev.ProcedureFailed(str(exc), exc.title)]
+            return [ev.ProcedureFailed(worded_for_flags(exc), exc.title)]
         finally:
             self.finished.set()
         return []

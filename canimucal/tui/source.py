@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 
+from canimucal.analysis.acceptance import AcceptanceConfig
 from canimucal.analysis.calibrate import SiteConditions
 from canimucal.device.busload import BusLoad
 from canimucal.device.client import CalibrationReadout, Identity, ImuClient
@@ -132,6 +133,9 @@ class DeviceSource:
     applies, read live) and its relative σ (else the plan's default)."""
     gyro_g: bool = False
     """Estimate the gyro's g-sensitivity G (where the plan's positions determine it)."""
+    acceptance: AcceptanceConfig = field(default_factory=AcceptanceConfig)
+    """The acceptance limits sessions are judged against, per plan (the shell reads the
+    user's ``acceptance.toml`` into it; empty: the built-in limits)."""
     devices: Devices | None = field(default=None, init=False)
     statuses: dict[int, NodeStatus] = field(default_factory=dict, init=False)
 
@@ -180,6 +184,7 @@ class DeviceSource:
             replace_mount=self.replace_mount,
             prior_k=self.prior_k,
             prior_k_sigma=self.prior_k_sigma,
+            limits=self.acceptance.limits(plan_name),
         )
 
     def close(self) -> None:

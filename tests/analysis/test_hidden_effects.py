@@ -12,7 +12,7 @@ never drawn). Sessions go through the fast per-position path
 Seeds (fixed, listed): unit and noise ``SEEDS`` = 0..99; the effect draw ``10_000 + seed``.
 
 A session counts as a hit when the effect is named exactly, or when nothing is named and the
-effect is reported ``ambiguous`` against a look-alike (DESIGN §9's head-to-head rule: under
+effect is reported ``ambiguous`` against a look-alike (docs/design.md §6's head-to-head rule: under
 this 8-position plan with 0.1° poses, the stands alternating, 2-3 of the 100 seeds of
 cross_axis, scale_nonlinearity and base_tilt end ambiguous against a look-alike (cross_axis
 with scale_nonlinearity, base_tilt with temperature_bias or cross_axis); the canonical

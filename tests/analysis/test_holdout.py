@@ -1,5 +1,5 @@
 """Held-out error by refitting without each position, selection included; gains claimed
-only when that error improves by more than its own sampling error (DESIGN §9)."""
+only when that error improves by more than its own sampling error (docs/design.md §6)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The position that separates an ambiguous pair (DESIGN §9), and that it does separate it.
+"""The position that separates an ambiguous pair (docs/design.md §6), and that it does separate it.
 
 Fixed seeds. The look-alike: a y→z cross-axis term K[2][1] seen only at poses where f_y stays
 near −g (tilts of ±15° about x, ±5° about z), where ``f_y ≈ −g + (f_x² + f_z²)/2g`` makes it

@@ -18,6 +18,7 @@ from canimucal.cli.main import main
 from canimucal.io.recording_writer import write_recording
 from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.sim.truth import Truth
+from tests.support.user_dirs import UserDirs
 
 TRUTH_SEED = 20261121
 NOISE_SEED = 7
@@ -73,6 +74,12 @@ def simulated(tmp_path_factory: pytest.TempPathFactory) -> Callable[[str, str, f
         return cache[key]
 
     return make
+
+
+@pytest.fixture(autouse=True)
+def _own_user_dirs(own_user_dirs: UserDirs) -> UserDirs:
+    """The commands read the user's configuration: these tests run with their own."""
+    return own_user_dirs
 
 
 @pytest.fixture

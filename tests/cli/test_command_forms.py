@@ -57,6 +57,29 @@ def _restore_library_loggers() -> Iterator[None]:
 
 
 @pytest.mark.usefixtures("_restore_library_loggers")
+@pytest.mark.parametrize(
+    ("argv", "verbose", "debug"),
+    [
+        (("plan", "-v", "--plan", "two"), True, False),
+        (("-v", "plan", "--plan", "two"), True, False),
+        (("solve", "rec.csv", "--debug"), False, True),
+        (("--debug", "solve", "rec.csv", "--verbose"), True, True),
+        (("solve", "rec.csv"), False, False),
+        (("--sim", "-v"), True, False),
+    ],
+)
+def test_verbose_and_debug_before_or_after_the_verb(
+    argv: tuple[str, ...], verbose: bool, debug: bool
+) -> None:
+    args = parse(*argv)
+    assert (args.verbose, args.debug) == (verbose, debug)
+
+
+def test_verbose_after_the_verb_runs(cli: Cli) -> None:
+    run = cli(["plan", "--plan", "two", "-v"])
+    assert run.code == 0, run.err
+
+
 def test_library_log_lines_show_only_with_verbose() -> None:
     configure_logging(verbose=False, debug=False)
     assert not logging.getLogger("canopen.sdo.client").isEnabledFor(logging.ERROR)

@@ -22,6 +22,7 @@ import pytest
 from canimucal.io.recording import read_recording
 from canimucal.runtime.readback_check import readback_deviations
 from canimucal.sim.truth import Truth
+from tests.support.user_dirs import UserDirs
 
 FAST = ["--headless", "--seconds", "4", "--time-scale", "30"]
 POSITIONS = {"two": 2, "five": 5, "recommended": 8, "vehicle": 8}
@@ -120,7 +121,9 @@ def test_headless_demo_with_two_nodes_gives_one_result_per_node(
     argv = ["demo", "--headless", "--seconds", "4", "--time-scale", "10", "--plan", "five"]
     result = cli([*argv, "--nodes", "2", "--out", out, "--json", "-"])
     assert result.code == 0, result.err
-    documents = json.loads(result.out)
+    several = json.loads(result.out)
+    assert several["schema"] == "canimucal.demo-nodes/1"
+    documents = several["nodes"]
     assert set(documents) == {"16", "17"}
     serials = {documents[n]["device"]["serial"] for n in documents}
     assert len(serials) == 2
@@ -128,14 +131,16 @@ def test_headless_demo_with_two_nodes_gives_one_result_per_node(
         _check_node(out, record, f".node{node_id}", "five")
 
 
-def test_demo_without_a_terminal_runs_headless(
-    cli: Callable[[Sequence[str]], Any], tmp_path: Path
+def test_demo_without_a_terminal_runs_headless_with_the_users_limits(
+    cli: Callable[[Sequence[str]], Any], tmp_path: Path, own_user_dirs: UserDirs
 ) -> None:
-    result = cli(
-        ["demo", "--seconds", "3", "--time-scale", "30", "--plan", "two", "--out", tmp_path / "o"]
-    )
+    own_user_dirs.write_acceptance("[plan.two]\nmax_rms_ms2 = 0.0421\n")
+    argv = ["demo", "--seconds", "3", "--time-scale", "30", "--plan", "two"]
+    result = cli([*argv, "--out", tmp_path / "o", "--json", tmp_path / "cal.json"])
     assert result.code == 0, result.err
     assert "no terminal" in result.err
+    limits = json.loads((tmp_path / "cal.json").read_text())["acceptance"]["limits"]
+    assert limits["max_rms_ms2"] == 0.0421  # the plan's own table of the user's file
 
 
 @pytest.mark.parametrize(

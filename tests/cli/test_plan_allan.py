@@ -235,3 +235,23 @@ def test_plan_compare_ranks_builtin_plans_by_bound_and_minutes(cli: Cli) -> None
     assert plans["vehicle"]["operator_minutes"] > plans["recommended"]["operator_minutes"]
     text = cli(["plan", "--compare"]).out
     assert re.search(r"vehicle\s+\d", text) and "K ±1%" in text
+
+
+@pytest.mark.parametrize(
+    ("argv", "schema"),
+    [
+        (["plan", "--plan", "five"], "canimucal.plan/1"),
+        (["plan", "--compare"], "canimucal.plan-comparison/1"),
+        (["allan", "STILL"], "canimucal.allan/1"),
+    ],
+)
+def test_every_json_output_names_its_schema(
+    cli: Cli, still_recording: Path, argv: list[str], schema: str
+) -> None:
+    argv = [str(still_recording) if a == "STILL" else a for a in argv]
+    run = cli([*argv, "--json", "-"])
+    assert run.code == 0, run.err
+    document = json.loads(run.out)
+    assert document["schema"] == schema
+    for plan in document.get("plans", []):
+        assert plan["schema"] == "canimucal.plan/1"

@@ -1,4 +1,4 @@
-"""The public API of ``canimucal`` (DESIGN §9) against the command line on the same recording.
+"""The public API of ``canimucal`` (docs/design.md §1) against the CLI on the same recording.
 
 The README's three lines are run as written; their calibration must equal the JSON of
 ``canimucal solve PATH --model full --tilt --json -`` in every numeric field, to the last digit.
@@ -18,6 +18,7 @@ import pytest
 
 import canimucal as cm
 from tests.cli.conftest import CliRun, Simulated
+from tests.support.user_dirs import UserDirs
 
 Cli = Callable[[list[str]], CliRun]
 Sim = Callable[..., Simulated]
@@ -133,7 +134,50 @@ def test_import_is_light() -> None:
     assert out.stdout.strip() == "['canimucal', 'canimucal.version']"
 
 
+def test_dir_lists_the_api_only() -> None:
+    assert dir(cm) == sorted(cm.__all__)
+    assert not {"Any", "importlib", "TYPE_CHECKING", "annotations"} & set(dir(cm))
+
+
+STRICT = "max_bias_sigma_mg = 0.001\n[plan.recommended]\nmax_rms_ms2 = 1e-9\n"
+
+
+def test_calibrate_never_reads_the_users_acceptance_file(
+    cli: Cli, simulated: Sim, own_user_dirs: UserDirs
+) -> None:
+    """Same verdict with and without a strict user file; the CLI honours the file."""
+    path = simulated("recommended", "full").path
+    before = cm.calibrate(path, model="full", tilt=True)
+    assert before.acceptance is not None and before.acceptance.passed
+    own_user_dirs.write_acceptance(STRICT)
+    after = cm.calibrate(path, model="full", tilt=True)
+    assert after.acceptance == before.acceptance
+    assert after.acceptance is not None
+    assert after.acceptance.limits == cm.AcceptanceLimits().as_dict()
+    # given explicitly, the same limits fail it
+    config = cm.AcceptanceConfig({"max_bias_sigma_mg": 0.001})
+    given = cm.calibrate(path, model="full", tilt=True, limits=config)
+    assert given.acceptance is not None and not given.acceptance.passed
+    # the command line reads the file (this recording names no plan: the top level applies)
+    run = cli(["solve", str(path), "--model", "full", "--tilt", "--json", "-"])
+    assert run.code == 3
+    limits = json.loads(run.out)["acceptance"]["limits"]
+    assert (limits["max_bias_sigma_mg"], limits["max_rms_ms2"]) == (0.001, 0.05)
+
+
 def test_every_public_name_resolves() -> None:
     assert set(cm.__all__) == {"__version__", *cm._PUBLIC}
     for name in cm.__all__:
         assert getattr(cm, name) is not None
+
+
+def test_one_version_source(capsys: pytest.CaptureFixture[str]) -> None:
+    """pyproject.toml reads canimucal/version.py: the installed metadata and --version agree."""
+    from importlib.metadata import version
+
+    from canimucal.cli.main import main
+
+    assert version("canimucal") == cm.__version__
+    with pytest.raises(SystemExit):
+        main(["--version"])
+    assert capsys.readouterr().out == f"canimucal {cm.__version__}\n"

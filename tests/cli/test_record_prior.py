@@ -1,4 +1,4 @@
-"""`record --plan vehicle` records the K the node applies, and `solve` holds it (DESIGN §9)."""
+"""`record --plan vehicle` records the K the node applies; `solve` holds it (docs/design.md §3)."""
 
 from __future__ import annotations
 

@@ -8,12 +8,14 @@ from typing import Any
 
 import pytest
 
+from canimucal.analysis.acceptance import AcceptanceConfig
 from canimucal.cli.main import build_parser
 from canimucal.cli.tui_cmd import device_source, plan_choice
 from canimucal.errors import InputError
 from canimucal.io.plans import plan_to_dict
 from canimucal.model.mounting import MountingMap
 from canimucal.model.vocabulary.plans import builtin_plan
+from tests.support.user_dirs import UserDirs
 
 
 def test_a_built_in_plan_keeps_its_name_and_a_file_is_custom(tmp_path: Path) -> None:
@@ -83,3 +85,14 @@ def test_gyro_g_reaches_the_session_the_source_opens(tmp_path: Path) -> None:
         assert session.procedure.config.spec.gyro_g
     finally:
         source.close()
+
+
+def test_the_users_acceptance_limits_go_to_the_source(own_user_dirs: UserDirs) -> None:
+    assert device_source(parse("--sim", "--g", "9.81")).acceptance == AcceptanceConfig()
+    own_user_dirs.write_acceptance("max_rms_ms2 = 0.02\n[plan.vehicle]\nmax_bias_sigma_mg = 15\n")
+    source = device_source(parse("--sim", "--g", "9.81"))
+    assert source.acceptance.limits("vehicle").max_bias_sigma_mg == 15.0
+    assert source.acceptance.limits("two").max_rms_ms2 == 0.02
+    own_user_dirs.write_acceptance("max_rms = 1\n")
+    with pytest.raises(InputError, match="unknown key 'max_rms'"):
+        device_source(parse("--sim", "--g", "9.81"))  # before the TUI starts: exit 2

@@ -2,7 +2,7 @@
 
 Each test runs once per node kind (``device_kind``, tests/support/nodes.py) unless a
 behaviour exists in one node only. The store scenarios are those of CANopenNode devices
-(DESIGN §9 "Device behaviour"): a store that blocks the SDO answer for seconds, storage
+(docs/design.md §9 "Device behaviour"): a store that blocks the SDO answer for seconds, storage
 without 0x1010:04, a store that answers after the tool gave up.
 """
 
@@ -217,7 +217,7 @@ def test_store_timeout_is_not_retried_nor_rolled_back(
     assert device.calibration_valid()  # and the late store did reach flash
 
 
-# -- NMT left as found (DESIGN §9) -----------------------------------------------------------
+# -- NMT left as found (docs/design.md §9) --------------------------------------------------------
 
 
 @pytest.mark.parametrize(

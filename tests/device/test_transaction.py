@@ -356,9 +356,12 @@ def test_backup_names_are_never_reused(rig: Rig, monkeypatch: pytest.MonkeyPatch
     assert first.read_text() == second.read_text()
 
 
-def test_default_backup_dir() -> None:
-    assert default_backup_dir({"XDG_STATE_HOME": "/x/state"}) == Path("/x/state/canimucal/backups")
-    assert default_backup_dir({}) == Path.home() / ".local/state/canimucal/backups"
+def test_default_backup_dir(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    monkeypatch.setenv("XDG_STATE_HOME", "/x/state")
+    assert default_backup_dir() == Path("/x/state/canimucal/backups")
+    monkeypatch.delenv("XDG_STATE_HOME")
+    monkeypatch.setenv("HOME", str(tmp_path))
+    assert default_backup_dir() == tmp_path / ".local/state/canimucal/backups"
 
 
 def test_backup_record_round_trip(rig: Rig, tmp_path: Path) -> None:

@@ -1,4 +1,4 @@
-"""Two SDO clients writing one node (issue 13, failure 1; DESIGN §9 "Two writers").
+"""Two SDO clients writing one node (issue 13, failure 1; docs/design.md §9 "Two writers").
 
 During a write transaction any request on 0x600+id that this client did not send aborts it:
 rolled back, exit 3, "another SDO client is using node N". Two writers whose transactions

@@ -37,6 +37,7 @@ import pytest
 from canimucal.io.truth import write_truth
 from canimucal.sim.truth import Truth
 from tests.support.nodes import SIM_TRUTH_KEYS
+from tests.support.user_dirs import UserDirs
 
 PROJECT = Path(__file__).resolve().parents[2]
 IN_VM = os.environ.get("IN_CAN_VM", "").strip() == "1"
@@ -51,6 +52,12 @@ def _env() -> dict[str, str]:
     env["PYTHONPATH"] = str(PROJECT) + os.pathsep + env.get("PYTHONPATH", "")
     env.setdefault("PYTHONUNBUFFERED", "1")
     return env
+
+
+@pytest.fixture(autouse=True)
+def _own_user_dirs(own_user_dirs: UserDirs) -> UserDirs:
+    """The tool in these processes reads the user's config: they inherit one of their own."""
+    return own_user_dirs
 
 
 @pytest.fixture(scope="session")

@@ -46,6 +46,9 @@ class _PdoCounter(can.Listener):
         self.cob_ids = (0x180 + node, 0x280 + node)
         self.counters: dict[int, list[int]] = {cob: [] for cob in self.cob_ids}
 
+    def stop(self) -> None:
+        pass  # python-can 4.4 declares it abstract
+
     def on_message_received(self, msg: can.Message) -> None:
         if msg.arbitration_id in self.counters and len(msg.data) == 8:
             self.counters[msg.arbitration_id].append(int.from_bytes(msg.data[6:8], "little"))

@@ -26,7 +26,7 @@ def test_write_creates_file_and_leaves_no_temporary(tmp_path: Path) -> None:
 def test_existing_file_is_refused_without_overwrite(tmp_path: Path) -> None:
     target = tmp_path / "out.json"
     target.write_text("old")
-    with pytest.raises(InputError, match=r"out\.json exists; use --overwrite to replace it"):
+    with pytest.raises(InputError, match=r"out\.json exists; use overwrite=True to replace it"):
         write_text_atomic(target, "new", overwrite=False)
     assert target.read_text() == "old"
     assert _names(tmp_path) == ["out.json"]

@@ -101,6 +101,12 @@ def test_full_document_round_trips_key_for_key(tmp_path: Path) -> None:
     assert list(json.loads(text)) == list(full_document())  # the contract's key order
 
 
+def test_a_byte_order_mark_before_the_json_is_skipped(tmp_path: Path) -> None:
+    path = tmp_path / "cal.json"
+    path.write_bytes(b"\xef\xbb\xbf" + json.dumps(full_document()).encode())
+    assert calibration_to_dict(read_calibration(path)) == full_document()
+
+
 def test_objects_keep_their_int_or_float_type() -> None:
     record = read_calibration(json.dumps(full_document()))
     assert record.objects is not None
@@ -210,7 +216,7 @@ def test_unreadable_file(tmp_path: Path) -> None:
 def test_write_refuses_to_overwrite(tmp_path: Path) -> None:
     record = read_calibration(json.dumps(full_document()))
     path = write_calibration(tmp_path / "c.json", record, overwrite=False)
-    with pytest.raises(InputError, match="exists; use --overwrite"):
+    with pytest.raises(InputError, match="exists; use overwrite=True"):
         write_calibration(path, record, overwrite=False)
 
 

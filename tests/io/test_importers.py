@@ -88,7 +88,7 @@ def test_imucal_rotation_sections_become_known_turns(tmp_path: Path) -> None:
 
 def test_imucal_needs_a_sample_rate(tmp_path: Path) -> None:
     csv, sections = _imucal(tmp_path)
-    with pytest.raises(InputError, match="sample-rate"):
+    with pytest.raises(InputError, match="give sample_rate_hz"):
         read_imucal(csv, sections, None)
 
 
@@ -110,6 +110,41 @@ def test_recording_is_detected_and_unknown_text_refused(tmp_path: Path) -> None:
     other.write_text("hello world\n")
     with pytest.raises(InputError, match="unknown format"):
         detect_format(other)
+
+
+BOM = b"\xef\xbb\xbf"
+
+
+def _with_bom(path: Path) -> Path:
+    """Put a UTF-8 byte-order mark before the file's text, as Windows editors do."""
+    bommed = path.with_name("bom-" + path.name)
+    bommed.write_bytes(BOM + path.read_bytes())
+    return bommed
+
+
+def test_a_byte_order_mark_is_read_in_every_format(tmp_path: Path) -> None:
+    """Detected and read as without it: recording, imu_tk pair, imucal CSV and sections."""
+    rec = recording_from_columns(
+        {"sample_rate_hz": 100.0}, t=np.arange(5) / 100.0, accel=np.arange(15.0).reshape(5, 3)
+    )
+    recording = _with_bom(write_recording(tmp_path / "r.csv", rec, overwrite=False))
+    assert detect_format(recording) == "recording"
+    assert np.array_equal(load_any(recording).accel, rec.accel)
+
+    t = 0.02 + np.arange(50) / 100.0
+    acc = _with_bom(_imutk(tmp_path / "acc.mat", t, np.full((50, 3), 32768.0)))
+    gyr = _with_bom(_imutk(tmp_path / "gyr.mat", t, np.full((50, 3), 32000.0)))
+    assert detect_format(acc) == "imutk"
+    both = load_any(acc, gyr)
+    assert both.n_rows == 50 and np.all(both.gyro == 32000.0) and both.t[0] == pytest.approx(0.02)
+
+    csv, sections = _imucal(tmp_path)
+    plain = read_imucal(csv, sections, 102.4)
+    csv, sections = _with_bom(csv), _with_bom(sections)
+    assert detect_format(csv) == "imucal"
+    bommed = load_any(csv, sections, sample_rate_hz=102.4)
+    assert np.array_equal(bommed.accel, plain.accel)
+    assert np.array_equal(bommed.position, plain.position) and bommed.turns == plain.turns
 
 
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared data absent at {DATA}")

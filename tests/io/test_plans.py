@@ -87,7 +87,7 @@ def test_file_to_plan_to_file_keeps_round_degrees(tmp_path: Path) -> None:
     }
     path = write_plan(tmp_path / "again.json", plan, overwrite=False)
     assert json.loads(path.read_text()) == doc
-    with pytest.raises(InputError, match="exists; use --overwrite"):
+    with pytest.raises(InputError, match="exists; use overwrite=True"):
         write_plan(path, plan, overwrite=False)
 
 

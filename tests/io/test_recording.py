@@ -242,7 +242,7 @@ def test_t_has_at_least_six_decimals_and_stays_exact(tmp_path: Path) -> None:
 
 def test_write_refuses_to_overwrite(tmp_path: Path) -> None:
     rec = read_recording(_write(tmp_path, SAMPLE))
-    with pytest.raises(InputError, match="exists; use --overwrite"):
+    with pytest.raises(InputError, match="exists; use overwrite=True"):
         write_recording(tmp_path / "rec.csv", rec, overwrite=False)
     write_recording(tmp_path / "rec.csv", rec, overwrite=True)
 
@@ -321,7 +321,7 @@ def test_killed_recorder_leaves_the_partial_file_readable(tmp_path: Path) -> Non
 
 def test_writer_refuses_existing_target(tmp_path: Path) -> None:
     target = _write(tmp_path, SAMPLE)
-    with pytest.raises(InputError, match="exists; use --overwrite"):
+    with pytest.raises(InputError, match="exists; use overwrite=True"):
         RecordingWriter.open(target, {"sample_rate_hz": 200.0})
     assert not (tmp_path / "rec.csv.partial").exists()
 

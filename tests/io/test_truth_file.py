@@ -58,7 +58,7 @@ def test_truth_round_trip(tmp_path: Path) -> None:
     path = write_truth(tmp_path / "t.json", truth, overwrite=False)
     assert load_truth(path).to_dict() == truth.to_dict()
     assert read_truth(path) == truth.to_dict()
-    with pytest.raises(InputError, match="exists; use --overwrite"):
+    with pytest.raises(InputError, match="exists; use overwrite=True"):
         write_truth(path, truth, overwrite=False)
     with pytest.raises(InputError, match="non-finite"):
         write_truth(tmp_path / "nan.json", {"g": float("nan")}, overwrite=False)

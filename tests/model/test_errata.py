@@ -1,9 +1,10 @@
-"""One test per row of paper/ERRATA.md: the printed equation fails, our closed form does not.
+"""One test per row of the errata table (docs/method.md §2): the printed equation fails, ours
+does not.
 
 Expected values always come from the paper's own matrices, ``f = C f_L`` and ``w = C w_L``
 with ``C = position_dcm(...)`` (never from a corrected formula), with α ≠ 45° (at 45°,
 sin α = cos α hides a sin↔cos slip), an inverted axis, and φ = 50.45° ≠ 45°. Each printed
-equation is written inline, labelled ``PRINTED``, exactly as ERRATA.md quotes it.
+equation is written inline, labelled ``PRINTED``, exactly as the errata table quotes it.
 """
 
 from __future__ import annotations
@@ -208,7 +209,7 @@ def test_erratum_41_tilted_earth_rate_alpha_37() -> None:
 
 
 def test_erratum_40_41_s33_numbers_at_45_5() -> None:
-    """ERRATA: noiseless s33 / truth at φ = 50.45°, (45°, 5°): 0.033, −0.90, 1.000."""
+    """docs/method.md §2: noiseless s33 / truth at φ = 50.45°, (45°, 5°): 0.033, −0.90, 1.000."""
     alpha, beta = np.deg2rad(45.0), np.deg2rad(5.0)
     sp, cp = np.sin(PHI), np.cos(PHI)
     level, tilted = _gyro_pair(alpha, beta, S_TRUE * np.ones(3))
@@ -229,11 +230,11 @@ def test_erratum_40_41_s33_numbers_at_45_5() -> None:
 
 
 def test_erratum_frame_paper_gyro_axes_are_left_handed() -> None:
-    # In East-North-Up coordinates: the paper's (x East, y Up, z North) against DESIGN's
-    # (x East, y Down, z North).
+    # In East-North-Up coordinates: the paper's (x East, y Up, z North) against ours
+    # (x East, y Down, z North; docs/design.md §2).
     east, north, up = np.eye(3)
     assert np.cross(east, up) == pytest.approx(-north)  # paper's: x × y = −z, left-handed
-    assert np.cross(east, -up) == pytest.approx(north)  # DESIGN's: right-handed
+    assert np.cross(east, -up) == pytest.approx(north)  # ours: right-handed
     # At rest the specific force points up: +g on an Up axis, not the paper's −g.
     assert specific_force_level(G)[1] == -G  # the y axis is Down
     assert earth_rate_level(PHI)[1] == pytest.approx(-OMEGA * np.sin(PHI))  # Ω has an up part

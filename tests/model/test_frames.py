@@ -1,4 +1,4 @@
-"""Property tests of canimucal.model.frames against docs/design.md §2 and METHOD.md."""
+"""Property tests of canimucal.model.frames against docs/design.md §2 and docs/method.md §1."""
 
 from __future__ import annotations
 
@@ -121,7 +121,7 @@ def test_additive_equals_rigid_when_beta0_is_zero(
 @PROPS
 @given(st.floats(-np.pi / 2, np.pi / 2), st.floats(-0.2, 0.2), small_tilt)
 def test_rigid_minus_additive_first_order(alpha: float, beta: float, beta0: float) -> None:
-    """METHOD.md: rigid − additive = +g·β0·(1 − cos α)·[0, sin β, cos β] + O(β0²) (α0 = 0).
+    """docs/method.md §1: rigid − additive = +g·β0·(1 − cos α)·[0, sin β, cos β] + O(β0²) (α0 = 0).
 
     The sign, from the math: rigid z = g cos α sin β + g β0 cos β, additive z =
     g cos α sin(β + β0) ≈ g cos α sin β + g β0 cos α cos β; the difference is
@@ -140,7 +140,7 @@ def test_rigid_minus_additive_first_order(alpha: float, beta: float, beta0: floa
 def test_rigid_minus_additive_first_order_with_alpha0(
     alpha: float, beta: float, beta0: float, alpha0: float
 ) -> None:
-    # With α0 ≠ 0 the exact first-order term is g·β0·(cos α0 − cos(α + α0)); METHOD's
+    # With α0 ≠ 0 the exact first-order term is g·β0·(cos α0 − cos(α + α0)); docs/method.md's
     # (1 − cos α) differs from it by at most |α0| + α0²/2: first order in the tilts overall.
     f_level = specific_force_level(G)
     rigid = position_dcm(alpha, beta, 0.0, alpha0, beta0, "rigid") @ f_level

@@ -41,7 +41,7 @@ def test_builtin_plans_are_the_papers_and_ours() -> None:
 
 
 def _specific_force(p: PlannedPosition) -> np.ndarray:
-    """METHOD.md: f = g [-sin a, -cos a cos b, cos a sin b] at psi = 0, no tilt."""
+    """docs/method.md §1: f = g [-sin a, -cos a cos b, cos a sin b] at psi = 0, no tilt."""
     a, b = p.alpha, p.beta
     return G * np.array([-np.sin(a), -np.cos(a) * np.cos(b), np.cos(a) * np.sin(b)])
 
@@ -181,7 +181,7 @@ def test_angle_tolerance_only_adds_uncertainty() -> None:
 
 
 def test_scale_of_z_gyro_from_the_papers_two_positions_is_weak() -> None:
-    """METHOD.md: navigation-grade gyro (ARW 0.002 °/√h), 2 × 300 s: σ(s33)/s33 ≈ 1.4 %."""
+    """docs/method.md §2: navigation-grade gyro (ARW 0.002 °/√h), 2 × 300 s: σ(s33)/s33 ≈ 1.4 %."""
     lsb = 1e-7  # rad/s per count; the relative σ does not depend on it
     arw = np.deg2rad(0.002) / 60.0  # rad/s/√Hz
     table = cramer_rao(

@@ -1,4 +1,4 @@
-"""The prior on K a plan holds comes from the device when no file is given (DESIGN §9)."""
+"""The prior on K a plan holds comes from the device when no file is given (docs/design.md §3)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from canimucal.analysis.session_model import ModelChoice
 from canimucal.analysis.solve import solve_recording
 from canimucal.device.factory_k import device_k
 from canimucal.errors import DeviceError, InputError
+from canimucal.flag_words import worded_for_flags
 from canimucal.io.calibration import read_calibration
 from canimucal.io.recording import normalise_header, read_recording
 from canimucal.model.plan import plan_prior
@@ -49,7 +50,8 @@ def test_the_device_k_is_the_inverse_of_an_active_correction_else_the_nominal_ls
 def test_a_non_finite_or_singular_device_correction_is_refused(m: np.ndarray, words: str) -> None:
     with pytest.raises(DeviceError, match=f"node 16 .*0x2101:01.*{words}") as info:
         device_k(readout(m), LSB, NODE)
-    assert "\n" not in str(info.value) and "--prior-k" in str(info.value)
+    assert "\n" not in str(info.value) and "give prior_k, a file," in str(info.value)
+    assert "give --prior-k, a file," in worded_for_flags(info.value)  # as the shells say it
 
 
 def _truth() -> Truth:

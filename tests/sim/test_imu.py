@@ -97,7 +97,7 @@ def test_noise_free_static_output_is_the_model(tilt_model: str) -> None:
 def test_design_anchor_and_inverted_axis() -> None:
     truth = _truth({"nominal_lsb": 0.01, "K": np.diag([100.0, -100.0, 100.0]).tolist(), **QUIET})
     block = _static(truth, (90 * DEG, 0.0, 0.0), 1)
-    # DESIGN anchor C(90°,0,0) f_L = [-g, 0, 0]; the inverted y axis reads 0 either way.
+    # docs/design.md §2 anchor C(90°,0,0) f_L = [-g, 0, 0]; the inverted y axis reads 0 either way.
     np.testing.assert_allclose(block.accel[0], [-100 * truth.g, 0, 0], atol=1e-9)
     level = _static(truth, (0.0, 0.0, 0.0), 1)
     np.testing.assert_allclose(level.accel[0], [0, 100 * truth.g, 0], atol=1e-9)
@@ -308,7 +308,7 @@ def test_tilt_models_differ_only_when_beta0_is_not_zero() -> None:
     diff = accel("rigid", 0.0, 1.0) - accel("additive", 0.0, 1.0)
     # At α0 = 0, from f = A2(β) A1(α) A2(β0) f_L against A2(β+β0) A1(α) f_L:
     # rigid − additive = g [sin α (1 − cos β0), sin β0 sin β (1 − cos α), sin β0 cos β (1 − cos α)]
-    # (METHOD.md's first-order y and z terms, exact here; x is second order in β0).
+    # (docs/method.md §1's first-order y and z terms, exact here; x is second order in β0).
     g, k = _truth().g, _truth().accel.K
     a, b, b0 = pose[0], pose[1], 1.0 * DEG
     df = g * np.array(

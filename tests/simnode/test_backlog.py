@@ -30,6 +30,9 @@ class SlowListener(can.Listener):
     """A listener that takes :data:`DISPATCH_COST_S` per frame without holding the GIL (a
     client starved of CPU by other processes, as on a loaded CI machine)."""
 
+    def stop(self) -> None:
+        pass  # python-can 4.4 declares it abstract
+
     def on_message_received(self, msg: can.Message) -> None:
         time.sleep(DISPATCH_COST_S)
 

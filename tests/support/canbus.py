@@ -51,6 +51,9 @@ class FrameRecorder(can.Listener):
         self._lock = threading.Lock()
         self._frames: list[Frame] = []
 
+    def stop(self) -> None:
+        pass  # python-can 4.4 declares it abstract
+
     def on_message_received(self, msg: can.Message) -> None:
         with self._lock:
             self._frames.append(Frame(msg.arbitration_id, bytes(msg.data), msg.timestamp))

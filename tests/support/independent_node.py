@@ -126,7 +126,7 @@ def factory_calibration(accel_lsb: float, gyro_lsb: float) -> dict[Key, Any]:
 
 @dataclass
 class Behaviour:
-    """Switchable device behaviours (the truth JSON's, DESIGN §9, plus CANopenNode habits)."""
+    """Device behaviours (truth JSON keys, docs/design.md §5, plus CANopenNode habits)."""
 
     device_name: bytes = b"canimucal IMU"
     hardware_version: bytes = b"1.0"

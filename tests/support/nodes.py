@@ -5,7 +5,7 @@ a started node of that kind on its own bus of ``bus_channel`` and wraps it in a
 :class:`DeviceUnderTest`, so one test body runs against python-canopen's responder
 (:class:`~canimucal.simnode.node.SimulatedImuNode`) and durand's
 (:class:`~tests.support.independent_node.IndependentImuNode`). Behaviour keys are those of
-the truth JSON (DESIGN §9, docs/hil.md: ``nmt_start``, ``heartbeat_ms``, ``store_delay_s``,
+the truth JSON (docs/design.md §5, docs/hil.md: ``nmt_start``, ``heartbeat_ms``, ``store_delay_s``,
 ``store_pdo_mode``, ``storage_subs``, ``sync_pdos``, ``timer_skew_ppm``), which both nodes
 take; a behaviour one node does not have (none today) skips the test for that node.
 """

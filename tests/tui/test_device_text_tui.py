@@ -29,3 +29,19 @@ async def test_markup_in_device_name_and_channel_is_shown_not_parsed(tmp_path: P
         await pilot.pause()
         text = screen_text(app)
         assert "evil [/] [b]x[/b]" in text and "socketcan [/]can0" in text
+
+
+async def test_notices_show_bracketed_words_literally() -> None:
+    """Messages and paths put into the position screen's marked-up notices are escaped."""
+    from textual.content import Content
+
+    from canimucal.procedure import events as ev
+    from canimucal.tui.screens.position import notice_text
+
+    evil = "restored from /tmp/run [/]/[b]x[/b].json"
+    for event in (
+        ev.WriteFinished(16, False, evil),
+        ev.DeviceEventReported(16, "emergency", evil),
+    ):
+        shown = Content.from_markup(notice_text(event)).plain  # raised MarkupError before
+        assert shown.endswith(evil)

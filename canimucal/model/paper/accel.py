@@ -1,7 +1,7 @@
 """The paper's accelerometer closed forms, physics corrected, with σ (eq. 11-34).
 
 Two positions (eq. 11-14) and the n-position sine/cosine least squares with the additive base
-tilt (eq. 15-34). Corrections (``paper/ERRATA.md``): ``f_z = +g cos a sin b`` (eq. 5, 12), the
+tilt (eq. 15-34). Corrections (docs/method.md §2): ``f_z = +g cos a sin b`` (eq. 5, 12), the
 signs of the x coefficients (eq. 17), principal-value arctangents (eq. 23) and signed scale
 factors instead of square roots (eq. 22, 30, 34).
 """

@@ -6,7 +6,7 @@ The estimators (Avrutov & Pozniak 2023, physics corrected) live in
 frozen :class:`ClosedFormResult`: the estimates *and* their covariance, propagated linearly from
 the covariances of the means (counts²). Parameter names follow the calibration JSON
 (``accel.bias[0]``, ``accel.K[1][1]``, ``gyro.S[2][2]``, ``base_tilt.alpha0``); angles are
-radians. The corrections to the printed equations are those of ``paper/ERRATA.md``.
+radians. The corrections to the printed equations are those of docs/method.md §2.
 """
 
 from __future__ import annotations

@@ -2,7 +2,8 @@
 
 MEMS grade: biases only, the Earth rate neglected (eq. 36). Navigation grade: biases and
 diagonal scale factors from the Earth rate seen in two positions (eq. 45-48), with the Earth
-rate of DESIGN's right-handed frame, ``w_L = [0, -Ω sin φ, Ω cos φ]`` (ERRATA rows (40), (41)).
+rate of the right-handed level frame, ``w_L = [0, -Ω sin φ, Ω cos φ]`` (eq. 40-41 as
+corrected in docs/method.md §2).
 """
 
 from __future__ import annotations
@@ -121,7 +122,7 @@ def nav_gyro_two_position(
     """Gyro biases and diagonal S from the Earth rate in two positions (eq. 45-48, corrected).
 
     ``w_i = C_i w_L`` with ``w_L = earth_rate_level(latitude, heading)`` and ``C_i`` the
-    position's DCM (eq. 40-41 corrected, ERRATA). Each axis k is the 2x2 solve of
+    position's DCM (eq. 40-41 corrected, docs/method.md §2). Each axis k is the 2x2 solve of
     ``<V_ik> = B_k + s_kk w_ik`` (eq. 47-48); eq. (45)-(46), ``Bx = <Vx1>`` and
     ``s11 = (<Vx2> - Bx)/wx2``, are its special case ``wx1 = 0`` (level first position at
     heading 0). Linear in the means, so σ is exact.

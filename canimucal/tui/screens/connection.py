@@ -12,11 +12,12 @@ from textual.screen import Screen
 from textual.widgets import DataTable, Footer, Static
 
 from canimucal.errors import CanimucalError
+from canimucal.flag_words import worded_for_flags
 from canimucal.tui.messages import ConnectFailed, NodesFound, PlanWanted
 from canimucal.tui.modals import ErrorModal
 from canimucal.tui.source import NodeStatus, SessionSource
 from canimucal.tui.text import calibration_summary
-from canimucal.tui.widgets import passive_table
+from canimucal.tui.widgets import PlainStatic, passive_table
 
 HEARTBEAT_REFRESH_S = 1.0
 STATE_WORDS = {"PRE-OPERATIONAL": "pre-op", "OPERATIONAL": "op", "STOPPED": "stopped"}
@@ -50,16 +51,16 @@ class ConnectionScreen(Screen[None]):
         """Title, bus, node table, status line."""
         yield Static("canimucal · connection", classes="screen-title")
         # device text and bus names are shown as they are, never parsed as markup
-        yield Static(f"bus: {self.source.description}", id="bus", markup=False)
+        yield PlainStatic(f"bus: {self.source.description}", id="bus")
         yield passive_table(id="nodes", zebra_stripes=True)
-        yield Static("connecting…", id="status", markup=False)
+        yield PlainStatic("connecting…", id="status")
         yield Footer()
 
     def on_mount(self) -> None:
         """Cache widgets, start connecting, refresh heartbeats every second."""
         self.table = self.query_one("#nodes", DataTable)
-        self.status = self.query_one("#status", Static)
-        self.bus = self.query_one("#bus", Static)
+        self.status = self.query_one("#status", PlainStatic)
+        self.bus = self.query_one("#bus", PlainStatic)
         for column in COLUMNS:
             self.table.add_column(column, key=column)
         self.set_interval(HEARTBEAT_REFRESH_S, self.refresh_heartbeats)
@@ -86,7 +87,7 @@ class ConnectionScreen(Screen[None]):
         try:
             statuses = self.source.connect()
         except CanimucalError as exc:
-            self.post_message(ConnectFailed(exc.title, " ".join(str(exc).split())))
+            self.post_message(ConnectFailed(exc.title, " ".join(worded_for_flags(exc).split())))
             return
         except Exception as exc:  # a bug, still shown in the modal
             self.post_message(ConnectFailed("Internal error", f"internal error: {exc}"))

@@ -25,6 +25,7 @@ from textual.screen import Screen
 from textual.widgets import Footer, ProgressBar, Sparkline, Static
 
 from canimucal.errors import CanimucalError
+from canimucal.flag_words import worded_for_flags
 from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase
 from canimucal.runtime.session import SessionCommand, WriteOptions
@@ -33,6 +34,7 @@ from canimucal.tui.modals import ConfirmSkip, ErrorModal
 from canimucal.tui.runner import Command, SessionRunner
 from canimucal.tui.source import NodeStatus
 from canimucal.tui.text import UNIT_BAR, UNIT_MARK, live_line, pose_drawing, short_live_line
+from canimucal.untrusted import markup_text
 
 
 class SessionState(Enum):
@@ -150,7 +152,7 @@ class PositionScreen(Screen[None]):
         try:
             self.runner = self.open_runner()
         except CanimucalError as exc:
-            self.post_message(EventsArrived([ev.ProcedureFailed(str(exc), exc.title)]))
+            self.post_message(EventsArrived([ev.ProcedureFailed(worded_for_flags(exc), exc.title)]))
             return
         note = self.runner.session.procedure.config.mounting_note  # how the words are framed
         if note:
@@ -297,7 +299,8 @@ class PositionScreen(Screen[None]):
         elif isinstance(event, ev.ProcedureFailed):
             self.phase = SessionState.FAILED  # the loop has ended: no procedure key applies
             self._title()
-            self.notice.update(f"stopped: {event.message} — the recording so far is kept; q quits")
+            stopped = markup_text(event.message)
+            self.notice.update(f"stopped: {stopped} — the recording so far is kept; q quits")
             self.app.push_screen(ErrorModal(event.title, event.message))
 
     def _title(self) -> None:
@@ -365,9 +368,10 @@ def notice_text(event: ev.Event) -> str:
             f"/{event.window_s:g} s"
         )
     if isinstance(event, ev.PoseRefused):
-        return f"[b]pose refused[/b] (node {event.node_id}): {event.message}"
+        return f"[b]pose refused[/b] (node {event.node_id}): {markup_text(event.message)}"
     if isinstance(event, ev.PositionRejected):
-        return f"[b]position {event.index + 1} rejected[/b]: {event.reason}; settling again"
+        reason = markup_text(event.reason)
+        return f"[b]position {event.index + 1} rejected[/b]: {reason}; settling again"
     if isinstance(event, ev.PositionAveraged):
         parts = [
             f"node {n}: n={a.n} lost={a.lost} σ {a.std_accel.max():.1f} cnt"
@@ -379,11 +383,11 @@ def notice_text(event: ev.Event) -> str:
     if isinstance(event, ev.AveragingTimeChosen):
         return f"averaging time of the next positions: {event.describe()}"
     if isinstance(event, ev.WriteFinished):
-        return f"write node {event.node_id}: {event.message}"
+        return f"write node {event.node_id}: {markup_text(event.message)}"
     if isinstance(event, ev.RecordSaved):
-        return f"saved {event.record_path}"
+        return f"saved {markup_text(str(event.record_path))}"
     if isinstance(event, ev.DeviceEventReported):
-        return f"[b]{event.kind.replace('_', ' ')}[/b]: {event.message}"
+        return f"[b]{event.kind.replace('_', ' ')}[/b]: {markup_text(event.message)}"
     return ""
 
 

@@ -10,6 +10,7 @@ from textual.widgets import Footer, Static
 
 from canimucal.procedure import events as ev
 from canimucal.tui.text import level_line
+from canimucal.tui.widgets import PlainStatic
 
 
 def verification_text(
@@ -54,5 +55,5 @@ class VerificationScreen(Screen[None]):
         """Title and the text."""
         yield Static("canimucal · verification", classes="screen-title")
         with VerticalScroll():
-            yield Static(self.text, id="verification-text")
+            yield PlainStatic(self.text, id="verification-text")  # paths, device words
         yield Footer()
