@@ -14,13 +14,7 @@ import traceback
 from collections.abc import Sequence
 
 from canimucal.errors import CanimucalError
-from canimucal.signals import (
-    EXIT_INTERRUPTED,
-    EXIT_TERMINATED,
-    Terminated,
-    handle_sigterm,
-    ignore_signals,
-)
+from canimucal.signals import describe, exit_status, handle_signals, ignore_signals, interrupt_for
 from canimucal.version import __version__
 
 # verb -> (module under canimucal.cli providing `add_subparser` and `run`, one-line help)
@@ -111,15 +105,19 @@ def configure_logging(verbose: bool, debug: bool) -> None:
         logging.getLogger(name).setLevel(level if verbose or debug else logging.CRITICAL + 1)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None, *, early: Sequence[int] = ()) -> int:
     """Run one command; return its exit status.
 
-    Ctrl-C gives 130 and SIGTERM 143 (``sim``: 0, its normal stop) at any moment, imports
-    and argument parsing included, with one line naming what was done (never a traceback).
+    Ctrl-C gives 130, SIGTERM 143 and SIGHUP 129 (``sim``: 0, its normal stop) at any
+    moment, imports and argument parsing included, with one line naming what was done
+    (never a traceback). ``early``: signals the entry point held before this ran
+    (:mod:`canimucal.cli.entry`); the first is raised here as if it had just arrived.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
-    restore = handle_sigterm()
+    restore = handle_signals()
     try:
+        if early:
+            raise interrupt_for(early[0])
         return _main(argv)
     except KeyboardInterrupt as interrupt:
         ignore_signals()  # a second interrupt must not cut the report short
@@ -149,16 +147,15 @@ def _main(argv: list[str]) -> int:
 
 
 def _interrupted(interrupt: KeyboardInterrupt, verb: str | None) -> int:
-    """Report an interrupt in one line (its notes name the backup); return the status."""
-    terminated = isinstance(interrupt, Terminated)
+    """Report an interrupt in one line (its notes say what was done); return the status."""
     if verb == "sim":
         return 0
-    words = ["terminated" if terminated else "interrupted", *getattr(interrupt, "__notes__", [])]
+    words = [describe(interrupt), *getattr(interrupt, "__notes__", [])]
     try:
         print("; ".join(words), file=sys.stderr)
-    except OSError:
+    except OSError:  # the terminal is gone (SIGHUP): the status still tells
         pass
-    return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
+    return exit_status(interrupt)
 
 
 def _report(error: BaseException, debug: bool, prefix: str = "") -> None:

@@ -31,6 +31,7 @@ from canimucal.device.events import (
     SerialChanged,
 )
 from canimucal.device.nmt_state import NmtFound, infer_nmt_state
+from canimucal.device.sdo_tally import SdoAnswerTally
 from canimucal.device.stream import SampleLayout, SamplePairer, layout_from_mapping
 from canimucal.device.stream_consumer import StreamConsumer
 from canimucal.errors import DeviceError, DeviceSilentError, NoDeviceError, SdoAbort
@@ -46,6 +47,12 @@ DEFAULT_STORE_TIMEOUT_S = 10.0
 """How long a 0x1010 store may take to answer (flash erase inside the SDO handler)."""
 SDO_REQUEST_BASE = 0x600
 """COB-ID base of SDO requests (client to server) of the default SDO channel."""
+SDO_RESPONSE_BASE = 0x580
+"""COB-ID base of SDO responses (server to client) of the default SDO channel."""
+UPLOAD_RESPONSE = 0x40
+"""SDO command specifier of an upload (read) response (CiA 301)."""
+ANSWER_WINDOW_FLOOR_S = 0.005
+"""After the first answer to a serial read, how long at least to listen for a second device."""
 NOTIFIER_CYCLE_S = 0.1
 """Receive-thread wake-up of a network the client makes itself (bounds :meth:`close`)."""
 
@@ -136,6 +143,9 @@ class ImuClient:
         self.foreign_sdo_requests = 0
         """SDO requests to the node that this client did not send (another SDO client)."""
         network.subscribe(SDO_REQUEST_BASE + node_id, self._on_foreign_sdo_request)
+        self._answer_tally = SdoAnswerTally()
+        self._answer_tally.attach(self.node.sdo)
+        network.subscribe(SDO_RESPONSE_BASE + node_id, self._answer_tally.on_response)
         self.bus_meter = BusLoadMeter(bitrate_bps)
         """Every frame the network receives (``bitrate_bps=None``: 500 kbit/s assumed)."""
         if network.notifier is not None:
@@ -320,6 +330,35 @@ class ImuClient:
     def _on_foreign_sdo_request(self, can_id: int, data: bytearray, timestamp: float) -> None:
         """Count a request on 0x600+id: the bus never echoes our own, so it is not ours."""
         self.foreign_sdo_requests += 1
+        self._answer_tally.on_foreign_request(data)
+
+    @property
+    def extra_sdo_answers(self) -> int:
+        """SDO answers from the node beyond one per request seen (ours and others').
+
+        Grows when a second device answers as this node-id (docs/design.md §9); compare it
+        before and after a stretch of transfers. A lost answer makes it fall.
+        """
+        return self._answer_tally.surplus
+
+    def answering_serials(self) -> list[int | None]:
+        """Read the serial (0x1018:04) once and return what every answer said.
+
+        One entry per device answering as this node-id (``None`` for an answer that was
+        not a serial: an abort); empty when none answered within the SDO timeout. Answers
+        to another client's requests meanwhile are not counted as a second device.
+        """
+        key = bytes([od.IDENTITY & 0xFF, od.IDENTITY >> 8, 4])
+        started = time.monotonic() - self.sdo.timeout_s  # an earlier request's late answer
+        answers = self.sdo.answers(od.IDENTITY, 4, ANSWER_WINDOW_FLOOR_S)
+        ours = [a for a in answers if bytes(a[1:4]) == key]  # another object: not to us
+        others = self._answer_tally.foreign_since(started, key)  # another client asked too
+        if len(ours) - others <= 1:
+            ours = ours[:1]
+        return [
+            int.from_bytes(a[4:8], "little") if a[0] & 0xE0 == UPLOAD_RESPONSE else None
+            for a in ours
+        ]
 
     def _boots(self) -> int:
         return self.heartbeat.boots
@@ -512,6 +551,7 @@ class ImuClient:
         self.network.unsubscribe(HEARTBEAT_BASE + self.node_id, self.heartbeat.on_heartbeat)
         self.network.unsubscribe(EMCY_BASE + self.node_id, self.heartbeat.on_emergency)
         self.network.unsubscribe(SDO_REQUEST_BASE + self.node_id, self._on_foreign_sdo_request)
+        self.network.unsubscribe(SDO_RESPONSE_BASE + self.node_id, self._answer_tally.on_response)
         if self.network.notifier is not None:
             for listener in (self.heartbeat, self.bus_meter):
                 try:
