@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +29,7 @@ from scipy.stats import chi2 as chi2_distribution
 from canimucal.analysis.calibrate import SiteConditions, Solution
 from canimucal.errors import InputError
 from canimucal.io.calibration import Acceptance
+from canimucal.schema import parse_toml
 
 
 @dataclass(frozen=True)
@@ -67,9 +67,10 @@ def load_limits(path: Path | None = None, plan: str | None = None) -> Acceptance
     if not path.is_file():
         return AcceptanceLimits()
     try:
-        document = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read the acceptance limits ({exc})") from None
+    document = parse_toml(text, f"{path}: cannot read the acceptance limits")
     plans = document.pop("plan", {})
     if not isinstance(plans, dict) or not all(isinstance(t, dict) for t in plans.values()):
         raise InputError(f"{path}: 'plan' must hold tables [plan.NAME] of limits")

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from canimucal.cli.output import add_json_option, check_outputs, dumps, emit
-from canimucal.io.atomic import write_text_atomic
+from canimucal.io.atomic import make_directory, write_text_atomic
 from canimucal.io.plans import BUILTIN_PLANS, resolve_plan
 from canimucal.io.truth import load_truth
 from canimucal.model.plan import builtin_plan
@@ -137,8 +137,7 @@ def run(args: argparse.Namespace) -> int:
     plan = resolve_plan(args.plan, builtin_plan)
     plan_name = plan.name if plan.name in BUILTIN_PLANS else "custom"
     truths = _truths(args)
-    out = Path(args.resume or args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = make_directory(args.resume or args.out)
     if args.resume:  # a different plan or an unreadable recording: exit 2 before any work
         load_resume_state(out, plan)
     if not args.headless and _terminal():

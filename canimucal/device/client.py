@@ -12,6 +12,7 @@ run on the client's consumer thread (:mod:`canimucal.device.stream`).
 from __future__ import annotations
 
 import logging
+import math
 import queue
 import threading
 import time
@@ -53,6 +54,20 @@ UPLOAD_RESPONSE = 0x40
 """SDO command specifier of an upload (read) response (CiA 301)."""
 ANSWER_WINDOW_FLOOR_S = 0.005
 """After the first answer to a serial read, how long at least to listen for a second device."""
+LSB_UNITS = (("accel", "m/s² per count"), ("gyro", "rad/s per count"))
+"""What 0x2010:01 and 0x2010:02 scale, and their units."""
+RESTRICTED_COB_IDS = (
+    (0x000, 0x000, "NMT"),
+    (0x001, 0x07F, "reserved"),
+    (0x101, 0x180, "reserved (TIME and below TPDO1's range)"),
+    (0x581, 0x5FF, "SDO answers"),
+    (0x601, 0x67F, "SDO requests"),
+    (0x6E0, 0x6FF, "reserved"),
+    (0x701, 0x77F, "heartbeats and boot-ups"),
+    (0x780, 0x7FF, "reserved"),
+)
+"""CAN-IDs CiA 301 (§7.3.5) does not allow for a PDO: a TPDO there would be taken for an SDO
+answer, a heartbeat or an NMT command by every other device and tool on the bus."""
 NOTIFIER_CYCLE_S = 0.1
 """Receive-thread wake-up of a network the client makes itself (bounds :meth:`close`)."""
 
@@ -152,6 +167,7 @@ class ImuClient:
             network.notifier.add_listener(self.heartbeat)  # error frames
             network.notifier.add_listener(self.bus_meter)
         self._serial: int | None = None
+        self._negative_lsb_told: set[int] = set()
         self._original_odr: int | None = None
         self.nmt_found: NmtFound | None = None
         """The NMT state the node was found in (set by :meth:`observe_nmt_state`)."""
@@ -228,11 +244,34 @@ class ImuClient:
         return device_text(raw, cut)
 
     def nominal_lsb(self) -> tuple[float, float]:
-        """Nominal accel (m/s² per count) and gyro (rad/s per count) LSB, signed (0x2010)."""
-        return (
+        """Nominal accel (m/s² per count) and gyro (rad/s per count) LSB, signed (0x2010).
+
+        A zero or non-finite LSB is a :class:`DeviceError` (nothing can be scaled by it); a
+        negative one is legal (the axes count against the quantity) and is logged once.
+        """
+        lsbs = (
             float(self.read_value(od.NOMINAL, 1, "f32")),
             float(self.read_value(od.NOMINAL, 2, "f32")),
         )
+        for sub, (what, unit), lsb in zip((1, 2), LSB_UNITS, lsbs, strict=True):
+            if not (math.isfinite(lsb) and lsb != 0.0):
+                raise DeviceError(
+                    f"node {self.node_id} reports a nominal {what} LSB of {lsb:g} {unit} "
+                    f"(0x2010:{sub:02X}): unusable; nothing can be scaled by it"
+                )
+            if lsb < 0.0 and sub not in self._negative_lsb_told:
+                self._negative_lsb_told.add(sub)
+                logger.warning(
+                    "node %d reports a negative nominal %s LSB (%g %s, 0x2010:%02X): its axes "
+                    "count against the %s; the calibration keeps that sign",
+                    self.node_id,
+                    what,
+                    lsb,
+                    unit,
+                    sub,
+                    "acceleration" if sub == 1 else "rotation",
+                )
+        return lsbs
 
     def output_data_rate(self) -> int:
         """Output data rate (Hz, 0x2010:03)."""
@@ -258,6 +297,8 @@ class ImuClient:
             if cob & 0x8000_0000 or count == 0:
                 continue  # PDO not valid or nothing mapped
             cob_ids[number] = cob & (0x1FFF_FFFF if cob & 0x2000_0000 else 0x7FF)
+            if not cob & 0x2000_0000:
+                _refuse_restricted(number, cob_ids[number])
             entries[number] = [
                 int(self.read_value(mapping, sub, "u32")) for sub in range(1, count + 1)
             ]
@@ -568,3 +609,13 @@ class ImuClient:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _refuse_restricted(number: int, cob_id: int) -> None:
+    """DeviceError when TPDO ``number`` sits on a CAN-ID CiA 301 reserves (11-bit IDs)."""
+    for low, high, what in RESTRICTED_COB_IDS:
+        if low <= cob_id <= high:
+            raise DeviceError(
+                f"unusable PDO mapping: TPDO{number} has COB-ID 0x{cob_id:03X}, which CiA 301 "
+                f"reserves ({what}, 0x{low:03X}-0x{high:03X}): check 0x{0x1800 + number - 1:04X}:01"
+            )

@@ -347,7 +347,8 @@ def save_backup(
     try:
         directory.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise InputError(f"cannot create backup directory {directory}: {exc.strerror}") from exc
+        reason = exc.strerror or exc
+        raise InputError(f"cannot create backup directory {directory}: {reason}") from exc
     now = datetime.now(UTC)
     stamp = now.strftime("%Y%m%dT%H%M%S.") + f"{now.microsecond // 1000:03d}Z"
     record = record_from_readout(readout, identity, node_id)

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import logging
 import os
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +23,7 @@ from pathlib import Path
 from canimucal.errors import InputError
 from canimucal.io.atomic import write_text_atomic
 from canimucal.model.mounting import DEFAULT_MOUNTING, MountingMap
+from canimucal.schema import parse_toml
 
 log = logging.getLogger(__name__)
 
@@ -46,9 +46,10 @@ def mounting_path(serial: int, environ: Mapping[str, str] | None = None) -> Path
 def read_mounting(path: Path) -> MountingMap:
     """Read a saved map (:class:`InputError` naming the file when it is not one)."""
     try:
-        document = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read the mounting map ({exc})") from None
+    document = parse_toml(text, f"{path}: cannot read the mounting map")
     unknown = sorted(set(document) - {"x", "y", "z"})
     if unknown:
         raise InputError(f"{path}: unknown key {unknown[0]!r} (only x, y, z)")

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import os
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -25,7 +24,7 @@ import numpy as np
 from canimucal.errors import InputError, SchemaError
 from canimucal.io.atomic import write_text_atomic
 from canimucal.model.positions import DEFAULT_SECONDS, Plan, PlannedPosition
-from canimucal.schema import parse_json, read_number, read_text
+from canimucal.schema import parse_json, parse_toml, read_number, read_text
 
 BUILTIN_PLANS = ("two", "five", "recommended", "vehicle")
 """Plan names resolved by the model, not read from a file."""
@@ -48,10 +47,7 @@ def read_plan(path: str | os.PathLike[str]) -> Plan:
     if is_json:
         document = parse_json(text, source)
     else:
-        try:
-            document = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise InputError(f"{source}: invalid TOML ({str(exc).splitlines()[0]})") from None
+        document = parse_toml(text, source)
     return plan_from_document(document, source)
 
 

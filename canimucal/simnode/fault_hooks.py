@@ -98,6 +98,10 @@ class FaultActions:
         elif fate == "reboot":
             log.warning("simulated power cycle while serving an SDO request")
             self._reboot()
+        elif fate == "reboot+serve":
+            log.warning("simulated power cycle just before serving an SDO request")
+            self._reboot()
+            self._serve_sdo(can_id, data, timestamp)
         elif fate.startswith("abort:"):
             code = int(fate.split(":")[1])
             head = bytes([0x80]) + bytes(data[1:4])
