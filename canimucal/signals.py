@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import signal
 import threading
-from collections.abc import Callable
 from types import FrameType, TracebackType
 from typing import Any
 
@@ -78,27 +77,54 @@ class _FirstRaises:
         raise interrupt_for(signum)
 
 
-def handle_signals() -> Callable[[], None]:
-    """Turn SIGINT, SIGTERM and SIGHUP into interrupts; return a function restoring the handlers.
+class SignalHandling:
+    """The handlers :func:`handle_signals` installed; calling it puts back the previous ones.
 
-    The first of them raises (``KeyboardInterrupt``, :class:`Terminated`, :class:`HungUp`);
-    any that follow are held until the restoring function runs (and then dropped: the
-    process is ending with the first one's status). The returned function puts back the
-    handlers found on entry (undoing :func:`ignore_signals` too). Does nothing outside the
-    main thread, where Python cannot install signal handlers.
+    :attr:`first` is the first signal that arrived (None: none yet).
     """
-    if not _in_main_thread():
-        return lambda: None
-    previous = {s: signal.getsignal(s) for s in HELD_SIGNALS}
-    handler = _FirstRaises()
-    for signum in HELD_SIGNALS:
-        signal.signal(signum, handler)
 
-    def restore() -> None:
-        for signum, old in previous.items():
+    def __init__(self, handler: _FirstRaises | None, previous: dict[int, Any]) -> None:
+        self._handler = handler
+        self._previous = previous
+
+    @property
+    def first(self) -> int | None:
+        """The first of the three signals received since the handlers were installed."""
+        return None if self._handler is None else self._handler.first
+
+    def __call__(self) -> None:
+        """Put back the handlers found on entry."""
+        for signum, old in self._previous.items():
             signal.signal(signum, old)
 
-    return restore
+
+def handle_signals() -> SignalHandling:
+    """Turn SIGINT, SIGTERM and SIGHUP into interrupts; return what restores the handlers.
+
+    The first of them raises (``KeyboardInterrupt``, :class:`Terminated`, :class:`HungUp`);
+    one ignored on entry stays ignored (``nohup``, a background job); any that follow the
+    first are held until the handlers are restored (and then dropped: the
+    process is ending with the first one's status). Calling the returned
+    :class:`SignalHandling` puts back the handlers found on entry (undoing
+    :func:`ignore_signals` too). Does nothing outside the main thread, where Python cannot
+    install signal handlers.
+    """
+    if not _in_main_thread():
+        return SignalHandling(None, {})
+    previous: dict[int, Any] = {int(s): signal.getsignal(s) for s in HELD_SIGNALS}
+    handler = _FirstRaises()
+    for signum in _not_ignored():
+        signal.signal(signum, handler)
+    return SignalHandling(handler, previous)
+
+
+def _not_ignored() -> list[int]:
+    """Return the held signals not ignored on entry.
+
+    ``nohup`` (SIGHUP) or a shell's background job (SIGINT) asked the process to ignore
+    them, and it does.
+    """
+    return [s for s in HELD_SIGNALS if signal.getsignal(s) is not signal.SIG_IGN]
 
 
 handle_sigterm = handle_signals
@@ -133,7 +159,7 @@ class deferred_signals:  # noqa: N801  (used as a context manager, like contextl
 
     def __enter__(self) -> deferred_signals:
         if _in_main_thread():
-            self._previous = {s: signal.signal(s, self._hold) for s in HELD_SIGNALS}
+            self._previous = {s: signal.signal(s, self._hold) for s in _not_ignored()}
         return self
 
     def __exit__(

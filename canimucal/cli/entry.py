@@ -12,8 +12,11 @@ from __future__ import annotations
 
 import signal
 import sys
-from collections.abc import Sequence
-from types import FrameType
+
+TYPE_CHECKING = False  # typing not imported: every millisecond before the hold counts
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from types import FrameType
 
 _HOLD = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
@@ -26,7 +29,8 @@ def run_main(argv: Sequence[str]) -> int:
         pending.append(signum)
 
     for signum in _HOLD:
-        signal.signal(signum, hold)
+        if signal.getsignal(signum) is not signal.SIG_IGN:  # nohup, a background job
+            signal.signal(signum, hold)
     from canimucal.cli.main import main
 
     return main(list(argv), early=pending)

@@ -14,7 +14,15 @@ import traceback
 from collections.abc import Sequence
 
 from canimucal.errors import CanimucalError
-from canimucal.signals import describe, exit_status, handle_signals, ignore_signals, interrupt_for
+from canimucal.signals import (
+    SignalHandling,
+    deferred_signals,
+    describe,
+    exit_status,
+    handle_signals,
+    ignore_signals,
+    interrupt_for,
+)
 from canimucal.version import __version__
 
 # verb -> (module under canimucal.cli providing `add_subparser` and `run`, one-line help)
@@ -114,22 +122,29 @@ def main(argv: Sequence[str] | None = None, *, early: Sequence[int] = ()) -> int
     (:mod:`canimucal.cli.entry`); the first is raised here as if it had just arrived.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
-    restore = handle_signals()
+    handling = handle_signals()
     try:
         if early:
             raise interrupt_for(early[0])
-        return _main(argv)
+        return _main(argv, handling)
     except KeyboardInterrupt as interrupt:
         ignore_signals()  # a second interrupt must not cut the report short
         return _interrupted(interrupt, _verb_of(argv))
     finally:
-        restore()
+        handling()
 
 
-def _main(argv: list[str]) -> int:
+def _main(argv: list[str], handling: SignalHandling) -> int:
     verb = _verb_of(argv)
-    parser = build_parser(verb)
-    args = parser.parse_args(_with_verb(argv, verb))  # `canimucal [TUI options]`: the TUI
+    # the command's modules are imported here (numpy, scipy, canopen: up to a second or
+    # more): a Ctrl-C inside a C extension's import comes out as an ImportError, so the
+    # signals wait until the imports are done
+    with deferred_signals() as held:
+        parser = build_parser(verb)
+        args = parser.parse_args(_with_verb(argv, verb))  # `canimucal [TUI options]`: the TUI
+    interrupt = held.interrupt()
+    if interrupt is not None:
+        raise interrupt
     configure_logging(args.verbose, args.debug)
     try:
         return int(args.run(args))
@@ -141,8 +156,10 @@ def _main(argv: list[str]) -> int:
     except MemoryError:  # an input too large for this machine: say so, never a traceback
         print("error: out of memory (input too large for this machine?)", file=sys.stderr)
         return 2
-    except Exception as error:  # a bug: say so, in one line unless --debug
-        _report(error, args.debug, prefix="internal error: ")
+    except Exception as error:
+        if handling.first is not None:  # the interrupt's own doing (a lazy import it cut)
+            raise interrupt_for(handling.first) from error
+        _report(error, args.debug, prefix="internal error: ")  # a bug: say so, in one line
         return 1
 
 

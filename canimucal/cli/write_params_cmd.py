@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -92,20 +93,47 @@ def run(args: argparse.Namespace) -> int:
 
     record = check_file(args.calibration, no_check=args.no_check)
     store_timeout_s = _store_timeout(args.store_timeout_s)
-    with open_from_args(args) as session:
-        for client in session.clients.values():
-            result = write_calibration_transaction(
-                client,
-                record,
-                force=args.force,
-                store=not args.no_store,
-                backup_dir=args.backup_dir,
-                dry_run=args.dry_run,
-                store_sub=args.store_sub,
-                store_timeout_s=store_timeout_s,
-            )
-            print(report(result, client.node_id), end="")
+    done: list[tuple[str, str]] = []  # written, for an interrupt after it (docs/design.md §9)
+    try:
+        with open_from_args(args) as session:
+            for client in session.clients.values():
+                result = write_calibration_transaction(
+                    client,
+                    record,
+                    force=args.force,
+                    store=not args.no_store,
+                    backup_dir=args.backup_dir,
+                    dry_run=args.dry_run,
+                    store_sub=args.store_sub,
+                    store_timeout_s=store_timeout_s,
+                    on_done=_collect(done, client.node_id),
+                )
+                print(report(result, client.node_id), end="")
+    except KeyboardInterrupt as interrupt:
+        notes = list(getattr(interrupt, "__notes__", []))
+        for note, backup in done:  # written before the signal came: say so, whatever came after
+            if not any(backup in n for n in notes):
+                interrupt.add_note(note)
+        raise
     return 0
+
+
+def _collect(done: list[tuple[str, str]], node: int) -> Callable[[WriteReport], None]:
+    """Return an ``on_done`` keeping each finished node's note and its backup's name."""
+
+    def keep(result: WriteReport) -> None:
+        done.append((finished_note(result, node), str(result.backup_path)))
+
+    return keep
+
+
+def finished_note(result: WriteReport, node: int) -> str:
+    """One line saying what a finished transaction left on the node (for an interrupt)."""
+    if result.stored:
+        held = "written, stored and read back: RAM and flash hold the new calibration"
+    else:
+        held = "written and verified in RAM, not stored (--no-store)"
+    return f"node {node}: the calibration was {held}; backup of the previous: {result.backup_path}"
 
 
 def _store_timeout(value: float) -> float:

@@ -29,7 +29,7 @@ from __future__ import annotations
 import logging
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
@@ -233,14 +233,19 @@ def write_calibration_transaction(
     dry_run: bool = False,
     store_sub: int | None = None,
     store_timeout_s: float = DEFAULT_STORE_TIMEOUT_S,
+    on_done: Callable[[WriteReport], None] | None = None,
 ) -> WriteReport:
     """Write ``record`` (a calibration or a backup with ``objects``) to the node, docs/design.md §4.
 
     Raises :class:`DeviceError` (exit 3) for a serial mismatch (nothing written) or a
     failure that was rolled back, :class:`RollbackIncompleteError` when the rollback failed,
     :class:`StoreNotConfirmedError` when the store did not answer within ``store_timeout_s``,
-    :class:`InputError` (exit 2) for values out of the device's ranges (nothing written).
-    ``store_sub`` forces the 0x1010 sub-index (see :func:`choose_store_sub`).
+    :class:`StoreNotVerifiedError` when the node restarted around the store or read back
+    otherwise after it, :class:`DuplicateNodeError` (exit 4) when two devices answer as the
+    node, :class:`InputError` (exit 2) for values out of the device's ranges (nothing
+    written). ``store_sub`` forces the 0x1010 sub-index (see :func:`choose_store_sub`).
+    ``on_done`` gets the report once the set is written (and stored), while signals are
+    still held: a caller interrupted after that can still say what was done.
     """
     marks = _Marks(client.foreign_sdo_requests, client.extra_sdo_answers)  # from now on abort
     refuse_second_answerer(client, "nothing written")  # one device per node-id (DESIGN §9)
@@ -302,13 +307,16 @@ def write_calibration_transaction(
         interrupt = held.interrupt()
         if interrupt is not None:
             raise interrupt
+        progress.report = replace(report, backup_path=progress.backup, stored=store)
+        progress.on_done = on_done
         _run_with_rollback(
             client, writes, before, progress, identity.serial, marks, store_timeout_s, watch
         )
     except KeyboardInterrupt as exc:
         progress.name_backup(exc)
         raise
-    return replace(report, backup_path=progress.backup, stored=store)
+    assert progress.report is not None
+    return progress.report
 
 
 @dataclass(frozen=True)
@@ -326,6 +334,14 @@ class _Progress:
     backup: Path | None = None
     done: str = ""
     """Set once nothing is to be undone: the set is written (and stored, if asked)."""
+    report: WriteReport | None = None
+    on_done: Callable[[WriteReport], None] | None = None
+
+    def finished(self, done: str) -> None:
+        """Record that the set is written (and stored); tell the caller (signals held)."""
+        self.done = done
+        if self.on_done is not None and self.report is not None:
+            self.on_done(self.report)
 
     def name_backup(self, interrupt: KeyboardInterrupt) -> None:
         """Make sure an interrupt's notes say what was done and name the backup."""
@@ -393,10 +409,7 @@ def _run_with_rollback(
             _check_alone(client, marks)
             _do_step(client, step, batch, watch)
             _check_alone(client, marks)
-        if store is None:
-            progress.done = "the calibration was written and verified (not stored: --no-store)"
-        else:
-            commit_hold.__enter__()  # from here a signal waits for the commit's outcome
+        commit_hold.__enter__()  # from here a signal waits for the commit's outcome
     except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM or SIGHUP (canimucal.signals)
         logger.error("interrupted at %s; rolling back", step)
         with deferred_signals():  # a second interrupt must not skip the rollback
@@ -420,10 +433,20 @@ def _run_with_rollback(
             raise interrupt from exc
         raise DeviceError(message) from exc
     if store is None:
+        try:
+            progress.finished("the calibration was written and verified (not stored: --no-store)")
+        finally:
+            commit_hold.__exit__(None, None, None)
+        interrupt = commit_hold.interrupt()
+        if interrupt is not None:
+            raise interrupt  # the note says it was written (name_backup)
         return
 
     def committed() -> None:
-        progress.done = "the calibration was written, stored and read back"
+        progress.finished(
+            "the calibration was written, stored and read back: RAM and flash hold the new "
+            "calibration"
+        )
 
     commit_store(
         client,

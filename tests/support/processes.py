@@ -132,12 +132,21 @@ def bus_flags(hub: tcpbus.TcpHub, node_id: int = 0x10) -> list[str]:
 
 
 def start_sim_node(
-    hub: tcpbus.TcpHub, workdir: Path, truth: dict[str, Any], *, node_id: int = 0x10
+    hub: tcpbus.TcpHub,
+    workdir: Path,
+    truth: dict[str, Any],
+    *,
+    node_id: int = 0x10,
+    state: Path | None = None,
 ) -> CliProcess:
-    """``canimucal sim`` in its own process on ``hub``; returns once it printed ``ready``."""
+    """``canimucal sim`` in its own process on ``hub``; returns once it printed ``ready``.
+
+    ``state``: the node's non-volatile memory (``--state``), where its stores go.
+    """
     path = workdir / f"truth-{node_id}.json"
     path.write_text(json.dumps(truth))
     argv = ["sim", *bus_flags(hub, node_id), "--truth", str(path)]
+    argv += ["--state", str(state)] if state is not None else []
     proc = fork_cli(argv, workdir, f"sim-{node_id}")
     deadline = time.monotonic() + 30.0
     while not proc.stdout.startswith("ready"):
