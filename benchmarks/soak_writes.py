@@ -190,6 +190,12 @@ def process_storm(runs: int, seed: int, workdir: Path) -> bool:
     window, signals and ending, what RAM and flash held, and the silent runs and unreported
     RAM/flash disagreements (both must be 0).
     """
+    # the command's modules are imported once here, so each forked command starts at once
+    import canimucal.cli.main  # noqa: F401
+    import canimucal.cli.sim_cmd  # noqa: F401
+    import canimucal.cli.write_params_cmd  # noqa: F401
+    import canimucal.runtime.wiring  # noqa: F401
+    import canimucal.simnode.node  # noqa: F401
     from tests.support.storm import ProcessRig, draw_plan, judge
 
     signal.signal(signal.SIGINT, signal.default_int_handler)

@@ -167,7 +167,34 @@ def test_back_to_back_writers_in_two_processes_both_succeed(rig: ProcessRig) -> 
     rig.holds = "C"
 
 
-def test_sigterm_during_record_leaves_the_node_as_found(rig: ProcessRig, tmp_path: Path) -> None:
+@pytest.mark.parametrize("late", [False, True], ids=["while-writing", "while-storing"])
+def test_sighup_during_write_params_is_told_and_never_leaves_valid_0(
+    rig: ProcessRig, late: bool
+) -> None:
+    """Issue 25, item 4: the session closes mid-write; the process says what it left."""
+    plan = (
+        SignalPlan("hup", "store", delay_s=0.05)
+        if late
+        else SignalPlan("hup", "step", step=rig.requests_per_write // 2)
+    )
+    outcome = rig.interrupted_write(plan)
+    check_interrupted(outcome, rig.backups)
+    last = outcome.stderr.strip().splitlines()[-1]
+    assert outcome.code == 129 and last.startswith("hung up; "), outcome
+    if late:  # the store had begun: completed, and said so
+        assert (outcome.ram, outcome.flash) == ("new", "new") and "RAM and flash hold" in last
+    else:
+        assert (outcome.ram, outcome.flash) == ("old", "old")
+        assert last.startswith(f"hung up; previous calibration restored from {rig.backups}")
+
+
+@pytest.mark.parametrize(
+    ("signum", "code", "word"),
+    [(signal.SIGTERM, 143, "terminated"), (signal.SIGHUP, 129, "hung up")],
+)
+def test_a_signal_during_record_leaves_the_node_as_found(
+    rig: ProcessRig, tmp_path: Path, signum: int, code: int, word: str
+) -> None:
     observer = tcpbus.TcpBus(rig.hub.channel)
     frames = FrameRecorder()
     notifier = can.Notifier(observer, [frames], timeout=0.05)
@@ -179,13 +206,14 @@ def test_sigterm_during_record_leaves_the_node_as_found(rig: ProcessRig, tmp_pat
         frames.wait_count(TPDO1, 20, timeout=20.0)  # streaming
         beats = frames.frames(HEARTBEAT)
         assert beats and beats[-1].data[0] == OPERATIONAL
-        proc.signal(signal.SIGTERM)
-        code = proc.wait(30.0)
+        proc.signal(signum)
+        got = proc.wait(30.0)
         stopped = time.time()
-        assert code == 143, proc.stderr
-        assert proc.stderr.strip().splitlines()[-1] == "terminated", proc.stderr
+        assert got == code, proc.stderr
+        assert proc.stderr.strip().splitlines()[-1] == word, proc.stderr
         assert "Traceback" not in proc.stderr
-        assert read_recording(out).n_rows > 10
+        assert read_recording(out).n_rows > 10  # closed, renamed: --append goes on with it
+        assert not out.with_name(out.name + ".partial").exists()
         time.sleep(0.5)
         late = [f for f in frames.frames(TPDO1) if f.timestamp > stopped + 0.05]
         assert not late, f"{len(late)} TPDOs after the tool exited: node left streaming"
