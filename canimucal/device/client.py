@@ -48,6 +48,8 @@ DEFAULT_STORE_TIMEOUT_S = 10.0
 """How long a 0x1010 store may take to answer (flash erase inside the SDO handler)."""
 SDO_REQUEST_BASE = 0x600
 """COB-ID base of SDO requests (client to server) of the default SDO channel."""
+NMT_COB_ID = 0x000
+"""COB-ID of NMT commands (CiA 301)."""
 SDO_RESPONSE_BASE = 0x580
 """COB-ID base of SDO responses (server to client) of the default SDO channel."""
 UPLOAD_RESPONSE = 0x40
@@ -158,6 +160,9 @@ class ImuClient:
         self.foreign_sdo_requests = 0
         """SDO requests to the node that this client did not send (another SDO client)."""
         network.subscribe(SDO_REQUEST_BASE + node_id, self._on_foreign_sdo_request)
+        self.foreign_nmt_commands = 0
+        """NMT commands to this node (or to all) sent by another master on the bus."""
+        network.subscribe(NMT_COB_ID, self._on_foreign_nmt)
         self._answer_tally = SdoAnswerTally()
         self._answer_tally.attach(self.node.sdo)
         network.subscribe(SDO_RESPONSE_BASE + node_id, self._answer_tally.on_response)
@@ -172,6 +177,8 @@ class ImuClient:
         self.nmt_found: NmtFound | None = None
         """The NMT state the node was found in (set by :meth:`observe_nmt_state`)."""
         self._nmt_sent = False
+        self.nmt_commands = 0
+        """NMT commands this client sent (a state change after one is not a reset)."""
         self._closed = False
         self.sync_producer = sync_producer
         self.sync_period_s = sync_period_s
@@ -373,6 +380,11 @@ class ImuClient:
         self.foreign_sdo_requests += 1
         self._answer_tally.on_foreign_request(data)
 
+    def _on_foreign_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        """Count an NMT command for this node or all (the bus never echoes our own)."""
+        if len(data) >= 2 and data[1] in (0, self.node_id):
+            self.foreign_nmt_commands += 1
+
     @property
     def extra_sdo_answers(self) -> int:
         """SDO answers from the node beyond one per request seen (ours and others').
@@ -462,6 +474,7 @@ class ImuClient:
     def _nmt(self, command: int) -> None:
         """NMT command to the target node only; a failing bus is a DeviceError."""
         self._nmt_sent = True
+        self.nmt_commands += 1
         try:
             self.node.nmt.send_command(command)
         except can.CanError as exc:
@@ -593,6 +606,7 @@ class ImuClient:
         self.network.unsubscribe(EMCY_BASE + self.node_id, self.heartbeat.on_emergency)
         self.network.unsubscribe(SDO_REQUEST_BASE + self.node_id, self._on_foreign_sdo_request)
         self.network.unsubscribe(SDO_RESPONSE_BASE + self.node_id, self._answer_tally.on_response)
+        self.network.unsubscribe(NMT_COB_ID, self._on_foreign_nmt)
         if self.network.notifier is not None:
             for listener in (self.heartbeat, self.bus_meter):
                 try:

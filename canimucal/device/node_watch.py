@@ -9,8 +9,9 @@ after the store. Evidence that the node restarted and lost what was written to i
   :data:`HEARTBEAT_GAP_FLOOR_S` (a restart whose boot-up frame was lost); the time a store
   took to answer is excused, since a node erasing flash inside its SDO handler may hold its
   heartbeat meanwhile;
-- an NMT state other than the one the node was in at the mark, without this tool having
-  sent NMT (a reset to PRE-OPERATIONAL, say).
+- heartbeats saying PRE-OPERATIONAL where the node was OPERATIONAL at the mark, with no NMT
+  command for it on the bus since, this client's or another master's (a reset that lost its
+  boot-up frame; a node another master starts or stops keeps its RAM).
 
 An EMCY whose code interrupts (:attr:`EmergencyReceived.interrupts`) is reported too: a node
 that signals a device fault while being written is not trusted to store.
@@ -26,6 +27,8 @@ from canimucal.device import od
 from canimucal.device.client import ImuClient
 from canimucal.errors import SdoAbort
 
+OPERATIONAL, PRE_OPERATIONAL = 0x05, 0x7F
+"""Heartbeat state codes (CiA 301)."""
 HEARTBEAT_GAP_FLOOR_S = 0.3
 """Shortest heartbeat gap that counts as a restart, whatever 0x1017 says: frames relayed by a
 loaded host arrive late by tens of milliseconds, and a gap shorter than this would raise
@@ -41,6 +44,8 @@ class NodeWatch:
     boots: int
     emergencies: int
     state_code: int | None
+    nmt_commands: int = 0
+    """This client's and other masters' NMT commands to the node at the mark."""
     excused_s: float = 0.0
 
     @classmethod
@@ -58,6 +63,7 @@ class NodeWatch:
             monitor.boots,
             monitor.interrupting_emergencies,
             monitor.state_code,
+            client.nmt_commands + client.foreign_nmt_commands,
         )
 
     @property
@@ -83,11 +89,12 @@ class NodeWatch:
                 f"no heartbeat from node {node} for {silence:.2f} s (its period is "
                 f"{1000 * self.period_s:.0f} ms): it may have restarted without a boot-up frame"
             )
-        now = monitor.state_code
-        if self.state_code not in (None, 0) and now not in (None, 0, self.state_code):
+        reset = self.state_code == OPERATIONAL and monitor.state_code == PRE_OPERATIONAL
+        commanded = self.client.nmt_commands + self.client.foreign_nmt_commands
+        if reset and commanded == self.nmt_commands:
             return (
-                f"node {node} went from {_state_name(self.state_code)} to {_state_name(now)} "
-                "without an NMT command from this tool (a reset?)"
+                f"node {node} went from {_state_name(OPERATIONAL)} to "
+                f"{_state_name(PRE_OPERATIONAL)} with no NMT command on the bus (a reset?)"
             )
         return None
 

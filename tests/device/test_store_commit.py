@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import signal
 import threading
+import time
 import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -293,6 +294,38 @@ def test_an_emergency_while_writing_rolls_back(rig: Rig) -> None:
 def test_a_communication_emergency_does_not_stop_the_write(rig: Rig) -> None:
     _, new = prepared(rig)
     rig.tap.arm((nth_write(10), lambda: rig.node.send_emergency(0x8130, 0x11)))  # heartbeat
+    assert isinstance(write(rig, NEW), WriteReport)
+    assert rig.ram() == new and rig.flash() == new
+
+
+def _operational(rig: Rig) -> None:
+    rig.client.node.nmt.send_command(0x01)  # start: heartbeats say OPERATIONAL
+    deadline = time.monotonic() + 5.0
+    while rig.client.node_state != "OPERATIONAL" and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert rig.client.node_state == "OPERATIONAL"
+
+
+def test_a_reset_to_pre_operational_with_no_nmt_on_the_bus_fails_the_step(rig: Rig) -> None:
+    old, _ = prepared(rig)
+    _operational(rig)
+    rig.client.node.sdo.PAUSE_BEFORE_SEND = 0.005  # heartbeats (50 ms) arrive meanwhile
+    reset = lambda: rig.node.local_node.nmt.send_command(0x80)  # noqa: E731  (no frame sent)
+    rig.tap.arm((nth_write(5), reset))
+    outcome = write(rig, NEW)
+    assert isinstance(outcome, DeviceError) and outcome.exit_code == 3, outcome
+    text = str(outcome)
+    assert "went from OPERATIONAL to PRE-OPERATIONAL with no NMT command on the bus" in text
+    assert "previous calibration restored from" in text
+    assert rig.ram() == old and rig.flash() == old
+
+
+def test_another_masters_nmt_command_does_not_stop_the_write(rig: Rig) -> None:
+    _, new = prepared(rig)
+    _operational(rig)
+    rig.client.node.sdo.PAUSE_BEFORE_SEND = 0.005
+    stop = can.Message(arbitration_id=0x000, data=[0x80, NODE_ID], is_extended_id=False)
+    rig.tap.arm((nth_write(5), lambda: rig.buses[2].send(stop)))  # "enter pre-operational"
     assert isinstance(write(rig, NEW), WriteReport)
     assert rig.ram() == new and rig.flash() == new
 
