@@ -24,7 +24,10 @@ producer's thread (no virtual-bus queue): use it when the machine cannot keep up
 :mod:`benchmarks.soak_writes` instead (SIGTERM/SIGINT/double interrupts at random write
 steps; two overlapping writers), print their counts and exit 0 when every run held.
 ``--processes N`` runs N interrupted ``write-params`` processes against ``canimucal sim`` in
-another process on a cross-process bus (``tests/support/tcpbus.py``).
+another process on a cross-process bus (``tests/support/tcpbus.py``): SIGINT, SIGTERM,
+SIGHUP and pairs, 40 % of them in the store window, tallying what RAM and flash (the node's
+state file) hold against what each process said; 0 silent runs and 0 unreported RAM/flash
+disagreements, or exit 1.
 """
 
 from __future__ import annotations

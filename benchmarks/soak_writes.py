@@ -179,40 +179,58 @@ def two_writers(rounds: int, backups: Path) -> bool:
 
 
 def process_storm(runs: int, seed: int, workdir: Path) -> bool:
-    """``runs`` interrupted ``write-params`` processes on a cross-process bus; print counts.
+    """``runs`` interrupted ``write-params`` processes on a cross-process bus; print the tally.
 
     Each run forks ``canimucal write-params`` against ``canimucal sim`` in another process on
-    a :class:`~tests.support.tcpbus.TcpHub`, signals it at a seeded random SDO request
-    (SIGTERM, SIGINT, or SIGINT twice 5–20 ms apart) and reads the device back from this
-    process (checks: :func:`tests.support.storm.check_interrupted`).
+    a :class:`~tests.support.tcpbus.TcpHub` (its flash a state file, its store taking 0.2 s)
+    and signals it per a seeded :func:`tests.support.storm.draw_plan`: SIGINT, SIGTERM,
+    SIGHUP or a pair, at a random SDO request or (in 40 % of the runs) in the store window.
+    RAM is read back by SDO from this process, flash from the node's state file; the
+    message is held to what they hold (:func:`tests.support.storm.judge`). Prints the runs by
+    window, signals and ending, what RAM and flash held, and the silent runs and unreported
+    RAM/flash disagreements (both must be 0).
     """
-    from tests.support.storm import KINDS, ProcessRig, check_interrupted
+    # the command's modules are imported once here, so each forked command starts at once
+    import canimucal.cli.main  # noqa: F401
+    import canimucal.cli.sim_cmd  # noqa: F401
+    import canimucal.cli.write_params_cmd  # noqa: F401
+    import canimucal.runtime.wiring  # noqa: F401
+    import canimucal.simnode.node  # noqa: F401
+    from tests.support.storm import ProcessRig, draw_plan, judge
 
     signal.signal(signal.SIGINT, signal.default_int_handler)
     rig = ProcessRig(workdir)
     tally: Counter[str] = Counter()
+    held: Counter[str] = Counter()
+    problems: Counter[str] = Counter()
     failures: list[str] = []
     started = time.monotonic()
     try:
         rng = np.random.default_rng(seed)
         for _ in range(runs):
-            kind = str(rng.choice(KINDS))
-            step = int(rng.integers(1, rig.requests_per_write + 1))
-            outcome = rig.interrupted_write(kind, step, float(rng.uniform(0.005, 0.020)))
-            try:
-                check_interrupted(outcome, rig.backups)
-            except AssertionError as exc:
-                failures.append(str(exc))
-                tally[f"{kind}: FAILED"] += 1
-                continue
-            named = ", backup named" if "restored from" in outcome.stderr else ""
-            tally[f"{kind}: exit {outcome.code}, device {outcome.state}{named}"] += 1
+            outcome = rig.interrupted_write(draw_plan(rng, rig.requests_per_write))
+            said, found = judge(outcome, rig.backups)
+            plan = outcome.plan
+            tally[f"{plan.window:5s} {plan.kind:8s} exit {outcome.code}: {said}"] += 1
+            held[f"RAM {outcome.ram}, flash {outcome.flash}"] += 1
+            problems.update(found)
+            if found:
+                failures.append(f"{found}: {plan}, exit {outcome.code}: {outcome.stderr!r}")
     finally:
         rig.close()
     took = time.monotonic() - started
-    print(f"process storm: {runs} write-params processes in {took:.1f} s")
+    windows = Counter(key.split()[0] for key in tally.elements())
+    print(f"process storm: {runs} write-params processes in {took:.1f} s ({dict(windows)})")
     for key, count in sorted(tally.items()):
         print(f"  {key}: {count}")
+    print("what the device held afterwards:")
+    for key, count in sorted(held.items()):
+        print(f"  {key}: {count}")
+    silent = problems["silent"]
+    unreported = problems["unreported disagreement"]
+    print(f"silent: {silent}; RAM/flash disagreements not reported: {unreported}")
+    other = {k: v for k, v in problems.items() if k not in ("silent", "unreported disagreement")}
+    print(f"other contract breaks: {other or 0}")
     for failure in failures[:5]:
         print(f"  failure: {failure}")
     return not failures

@@ -13,11 +13,15 @@ Names load on first use, so ``import canimucal`` (and ``canimucal --help``) stay
 from __future__ import annotations
 
 import importlib as _importlib
-import typing as _typing
 
 from canimucal.version import __version__
 
-if _typing.TYPE_CHECKING:
+TYPE_CHECKING = False
+"""``typing.TYPE_CHECKING`` without importing typing: ~10 ms of every command's start-up,
+during which a Ctrl-C could only print a traceback (the entry point holds signals after).
+Not in ``__all__`` or ``dir()``."""
+
+if TYPE_CHECKING:
     from typing import Any
 
     from canimucal.analysis.acceptance import AcceptanceConfig, AcceptanceLimits

@@ -1,7 +1,5 @@
 """`python -m canimucal` runs the same entry point as the `canimucal` script."""
 
-import sys
+from canimucal.cli.entry import run
 
-from canimucal.cli.main import main
-
-sys.exit(main())
+run()

@@ -7,7 +7,7 @@ failed / rollback incomplete, 4 no device or no bus. The tree::
     ├── InputError (2)        ModelError, SchemaError
     ├── DeviceError (3)       SdoAbort, DeviceSilentError, NodeRebootedError,
     │                         ForeignSdoClientError, RollbackIncompleteError
-    └── NoDeviceError (4)
+    └── NoDeviceError (4)     DuplicateNodeError
 """
 
 from __future__ import annotations
@@ -107,3 +107,13 @@ class NoDeviceError(CanimucalError):
 
     exit_code = 4
     title = "No device"
+
+
+class DuplicateNodeError(NoDeviceError):
+    """Two or more devices answer as one node-id (exit 4); nothing was written or read.
+
+    Every SDO request then gets two answers and every write lands on both units
+    (docs/design.md §9 "One device per node-id").
+    """
+
+    title = "Two devices, one node-id"

@@ -1,12 +1,14 @@
-"""Strict JSON for every file the tool reads: parsing, value readers, dataclass schemas.
+"""Strict JSON and TOML for every file the tool reads: parsing, value readers, schemas.
 
 ``parse_json`` refuses ``NaN``/``Infinity`` literals and duplicate keys and reports syntax
-errors as ``FILE:LINE:COLUMN``. The readers (``read_number``, ``read_array``, ...) check one
-value found at a key path and raise :class:`~canimucal.errors.SchemaError` as
-``key.path: problem``; documents with free-form structure (the simulator's truth, its fault
-block) call them directly. A schema is a frozen dataclass whose fields carry a checker in
-their metadata (``field(metadata=number(...))``); :func:`build` turns a parsed object into it
-with the same readers, refusing unknown keys.
+errors as ``FILE:LINE:COLUMN``; it and ``parse_toml`` bound nesting (:data:`MAX_NESTING`)
+and integers (:data:`MAX_INT_DIGITS`), so a hostile file is a one-line error, never a
+``RecursionError`` or Python's own integer-conversion limit. The readers (``read_number``,
+``read_array``, ...) check one value found at a key path and raise
+:class:`~canimucal.errors.SchemaError` as ``key.path: problem``; documents with free-form
+structure (the simulator's truth, its fault block) call them directly. A schema is a frozen
+dataclass whose fields carry a checker in their metadata (``field(metadata=number(...))``);
+:func:`build` turns a parsed object into it with the same readers, refusing unknown keys.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import json
 import math
 import os
 import re
+import tomllib
 from collections.abc import Callable, Collection, Mapping
 from dataclasses import MISSING, fields, is_dataclass
 from datetime import datetime
@@ -76,7 +79,7 @@ def read_text(path: str | os.PathLike[str]) -> str:
 def parse_json(text: str, source: str) -> Any:
     """Parse JSON text; syntax errors, non-finite literals and duplicate keys are refused."""
     try:
-        return json.loads(
+        document = json.loads(
             text,
             parse_constant=_refuse_constant,
             parse_int=_bounded_int,
@@ -92,6 +95,45 @@ def parse_json(text: str, source: str) -> Any:
         raise InputError(f"{source}: duplicate key {exc}") from None
     except RecursionError:
         raise InputError(f"{source}: JSON nested too deeply") from None
+    check_nesting(document, source)
+    return document
+
+
+def parse_toml(text: str, source: str) -> dict[str, Any]:
+    """Parse TOML text; syntax errors, huge integers and deep nesting are one-line errors."""
+    try:
+        document = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{source}: invalid TOML ({str(exc).splitlines()[0]})") from None
+    except RecursionError:
+        raise InputError(f"{source}: TOML nested too deeply") from None
+    except ValueError:  # int(): Python refuses to convert more than 4300 digits
+        raise InputError(
+            f"{source}: invalid TOML (an integer of more than {MAX_INT_DIGITS} digits)"
+        ) from None
+    check_nesting(document, source)
+    return document
+
+
+MAX_NESTING = 32
+"""Deepest nesting of arrays and tables accepted in a JSON or TOML file: the deepest of
+the tool's own documents is 4 (a covariance in a calibration), so 32 leaves room and
+keeps a hostile file from reaching the interpreter's recursion limit anywhere later."""
+
+
+def check_nesting(document: Any, source: str, limit: int = MAX_NESTING) -> None:
+    """Refuse a document nested deeper than ``limit`` (walked without recursion)."""
+    stack: list[tuple[Any, int]] = [(document, 1)]
+    while stack:
+        value, depth = stack.pop()
+        children = (
+            value.values() if isinstance(value, dict) else value if isinstance(value, list) else ()
+        )
+        for child in children:
+            if isinstance(child, dict | list):
+                if depth + 1 > limit:
+                    raise InputError(f"{source}: nested deeper than {limit} levels")
+                stack.append((child, depth + 1))
 
 
 MAX_INT_DIGITS = 4300

@@ -19,7 +19,6 @@ lowering the limit for every bench calibration.
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,6 +30,7 @@ from canimucal.analysis.calibrate import SiteConditions, Solution
 from canimucal.errors import InputError
 from canimucal.io.calibration import Acceptance
 from canimucal.model.vocabulary.plans import PLANS
+from canimucal.schema import parse_toml
 from canimucal.user_dirs import config_dir
 
 
@@ -98,9 +98,10 @@ def read_acceptance_config(path: Path) -> AcceptanceConfig:
     if not path.is_file():
         return AcceptanceConfig()
     try:
-        document = tomllib.loads(path.read_text(encoding="utf-8-sig"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read the acceptance limits ({exc})") from None
+    document = parse_toml(text, f"{path}: cannot read the acceptance limits")
     plans = document.pop("plan", {})
     if not isinstance(plans, dict) or not all(isinstance(t, dict) for t in plans.values()):
         raise InputError(f"{path}: 'plan' must hold tables [plan.NAME] of limits")

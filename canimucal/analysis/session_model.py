@@ -209,4 +209,35 @@ def read_factory_k(path: str) -> NDArray[np.float64]:
         raise InputError(
             f"{path}: prior_k needs a complete accel.K (3×3, no nulls)", options=("prior_k",)
         )
+    check_prior_k(k, path)
     return k
+
+
+PRIOR_K_MAX_CONDITION = 1e6
+"""Largest condition number of a prior K: a K that maps some direction to (almost) nothing
+cannot be a unit's scale factors."""
+
+
+def check_prior_k(k: NDArray[np.float64], source: str) -> None:
+    """Refuse a singular K, and one whose axes are mirrored or swapped (InputError, exit 2).
+
+    A prior holds K near the unit's nominal ``I / LSB``: every axis counts along itself
+    (each row's diagonal entry outweighs the rest of the row), all with one sign (the
+    LSB's), and ``det K`` has the sign of the diagonal's product. One axis negated or two
+    swapped is a mirror image, which no scale-factor error produces.
+    """
+    if not np.linalg.cond(k) < PRIOR_K_MAX_CONDITION:
+        raise InputError(
+            f"{source}: the accel.K of prior_k is singular (or nearly)", options=("prior_k",)
+        )
+    diag = np.diag(k)
+    off = np.sum(np.abs(k), axis=1) - np.abs(diag)
+    same_sign = bool(np.all(diag > 0) or np.all(diag < 0))
+    dominant = bool(np.all(np.abs(diag) > off))
+    handed = np.sign(np.linalg.det(k)) == np.sign(np.prod(diag))
+    if not (same_sign and dominant and handed):
+        raise InputError(
+            f"{source}: the accel.K of prior_k is mirrored or has axes swapped (a prior must "
+            "be near the unit's K = I/LSB: each axis along itself, all with one sign)",
+            options=("prior_k",),
+        )

@@ -25,7 +25,7 @@ import numpy as np
 
 from canimucal.analysis.report import Analysis
 from canimucal.errors import InputError
-from canimucal.io.atomic import refuse_existing, write_bytes_atomic
+from canimucal.io.atomic import make_directory, refuse_existing, write_bytes_atomic
 
 PLOT_FILES = ("residuals.png", "allan.png", "session.png")
 AXES = ("x", "y", "z")
@@ -55,7 +55,7 @@ def check_plot_targets(directory: Path, *, overwrite: bool) -> None:
 def write_plots(a: Analysis, directory: Path, *, overwrite: bool) -> list[Path]:
     """Write the plots of the module doc to ``directory``; return their paths."""
     plt = pyplot()
-    directory.mkdir(parents=True, exist_ok=True)
+    make_directory(directory)
     written = [_save(plt, _residual_figure(plt, a), directory / PLOT_FILES[0], overwrite=overwrite)]
     fig, axes = plt.subplots(1, len(a.allan), figsize=(6 * len(a.allan), 4), squeeze=False)
     for ax, (sensor, check) in zip(axes[0], a.allan.items(), strict=True):

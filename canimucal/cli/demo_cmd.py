@@ -30,7 +30,7 @@ import numpy as np
 
 from canimucal.cli.output import add_json_option, check_outputs, dumps, emit
 from canimucal.cli.user_config import user_acceptance
-from canimucal.io.atomic import write_text_atomic
+from canimucal.io.atomic import make_directory, write_text_atomic
 from canimucal.io.plans import resolve_plan
 from canimucal.io.truth import load_truth
 from canimucal.model.positions import Plan
@@ -151,8 +151,7 @@ def run(args: argparse.Namespace) -> int:
     plan = resolve_plan(args.plan)
     plan_name = plan.name if plan.name in builtin_names() else CUSTOM
     truths = _truths(args)
-    out = Path(args.resume or args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = make_directory(args.resume or args.out)
     if args.resume:  # a different plan or an unreadable recording: exit 2 before any work
         load_resume_state(out, plan)
     if not args.headless and _terminal():

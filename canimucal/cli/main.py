@@ -16,11 +16,13 @@ from collections.abc import Sequence
 from canimucal.errors import CanimucalError
 from canimucal.flag_words import worded_for_flags
 from canimucal.signals import (
-    EXIT_INTERRUPTED,
-    EXIT_TERMINATED,
-    Terminated,
-    handle_sigterm,
+    SignalHandling,
+    deferred_signals,
+    describe,
+    exit_status,
+    handle_signals,
     ignore_signals,
+    interrupt_for,
 )
 from canimucal.version import __version__
 
@@ -128,27 +130,38 @@ def configure_logging(verbose: bool, debug: bool) -> None:
         logging.getLogger(name).setLevel(level if verbose or debug else logging.CRITICAL + 1)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None, *, early: Sequence[int] = ()) -> int:
     """Run one command; return its exit status.
 
-    Ctrl-C gives 130 and SIGTERM 143 (``sim``: 0, its normal stop) at any moment, imports
-    and argument parsing included, with one line naming what was done (never a traceback).
+    Ctrl-C gives 130, SIGTERM 143 and SIGHUP 129 (``sim``: 0, its normal stop) at any
+    moment, imports and argument parsing included, with one line naming what was done
+    (never a traceback). ``early``: signals the entry point held before this ran
+    (:mod:`canimucal.cli.entry`); the first is raised here as if it had just arrived.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
-    restore = handle_sigterm()
+    handling = handle_signals()
     try:
-        return _main(argv)
+        if early:
+            raise interrupt_for(early[0])
+        return _main(argv, handling)
     except KeyboardInterrupt as interrupt:
         ignore_signals()  # a second interrupt must not cut the report short
         return _interrupted(interrupt, _verb_of(argv))
     finally:
-        restore()
+        handling()
 
 
-def _main(argv: list[str]) -> int:
+def _main(argv: list[str], handling: SignalHandling) -> int:
     verb = _verb_of(argv)
-    parser = build_parser(verb)
-    args = parser.parse_args(_with_verb(argv, verb))  # `canimucal [TUI options]`: the TUI
+    # the command's modules are imported here (numpy, scipy, canopen: up to a second or
+    # more): a Ctrl-C inside a C extension's import comes out as an ImportError, so the
+    # signals wait until the imports are done
+    with deferred_signals() as held:
+        parser = build_parser(verb)
+        args = parser.parse_args(_with_verb(argv, verb))  # `canimucal [TUI options]`: the TUI
+    interrupt = held.interrupt()
+    if interrupt is not None:
+        raise interrupt
     configure_logging(args.verbose, args.debug)
     try:
         return int(args.run(args))
@@ -160,22 +173,23 @@ def _main(argv: list[str]) -> int:
     except MemoryError:  # an input too large for this machine: say so, never a traceback
         print("error: out of memory (input too large for this machine?)", file=sys.stderr)
         return 2
-    except Exception as error:  # a bug: say so, in one line unless --debug
-        _report(error, args.debug, prefix="internal error: ")
+    except Exception as error:
+        if handling.first is not None:  # the interrupt's own doing (a lazy import it cut)
+            raise interrupt_for(handling.first) from error
+        _report(error, args.debug, prefix="internal error: ")  # a bug: say so, in one line
         return 1
 
 
 def _interrupted(interrupt: KeyboardInterrupt, verb: str | None) -> int:
-    """Report an interrupt in one line (its notes name the backup); return the status."""
-    terminated = isinstance(interrupt, Terminated)
+    """Report an interrupt in one line (its notes say what was done); return the status."""
     if verb == "sim":
         return 0
-    words = ["terminated" if terminated else "interrupted", *getattr(interrupt, "__notes__", [])]
+    words = [describe(interrupt), *getattr(interrupt, "__notes__", [])]
     try:
         print("; ".join(words), file=sys.stderr)
-    except OSError:
+    except OSError:  # the terminal is gone (SIGHUP): the status still tells
         pass
-    return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
+    return exit_status(interrupt)
 
 
 def _report(error: BaseException, debug: bool, prefix: str = "") -> None:

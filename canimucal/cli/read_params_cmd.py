@@ -45,6 +45,7 @@ def run(args: argparse.Namespace) -> int:
     check_outputs(args)
     require_single_stdout(args, len(node_ids(args)))
     with open_from_args(args) as session:
+        session.refuse_second_answerers("their answers would mix; nothing read")
         several = len(session.clients) > 1
         for nid, client in session.clients.items():
             document = read_document(client)
@@ -117,7 +118,8 @@ def report(document: dict[str, Any]) -> str:
         *("  " + _row(row) for row in r["gyro_correction"]),
         "gyro G (counts per m/s²):",
         *("  " + _row(row) for row in r["gyro_g"]),
-        "base tilt (deg): " + _row(list(np.rad2deg(r["base_tilt_rad"]))),
+        "base tilt (deg): "
+        + _row([None if v is None else float(np.rad2deg(v)) for v in r["base_tilt_rad"]]),
     ]
     if "bus_load" in document:
         from canimucal.device.busload import BusLoad
@@ -128,4 +130,5 @@ def report(document: dict[str, Any]) -> str:
 
 
 def _row(values: Any) -> str:
-    return ", ".join(f"{float(v):.8g}" for v in values)
+    """Numbers as the device holds them; ``non-finite`` where it holds NaN or ±inf (JSON null)."""
+    return ", ".join("non-finite" if v is None else f"{float(v):.8g}" for v in values)

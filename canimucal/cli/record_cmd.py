@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from canimucal.cli.bus_options import add_bus_options, node_ids, open_from_args
-from canimucal.errors import InputError
+from canimucal.errors import DeviceError, InputError
 from canimucal.io.atomic import per_node_path, refuse_existing
 from canimucal.io.plans import resolve_plan
 from canimucal.io.recording import HeaderValue
@@ -175,6 +175,7 @@ def run(args: argparse.Namespace) -> int:
 
     plan = check_args(args)
     with open_from_args(args) as session, contextlib.ExitStack() as files:
+        session.refuse_second_answerers("nothing recorded")  # before any file is made
         several = len(session.clients) > 1
         channels = []
         # a plan that holds K at a prior: the K each node applies now, for solve (docs/design.md §3)
@@ -203,12 +204,19 @@ def run(args: argparse.Namespace) -> int:
         recorder = Recorder(channels, idle_timeout_s=idle_s, check_rate=real_time)
         try:
             _record(args, session, recorder, plan)
+        except DeviceError:
+            recorder.stop()
+            if not any(w.rows_written for _, w, _ in channels):  # refused before any row:
+                for _, writer, _ in channels:  # no header-only file, no "wrote 0 rows"
+                    writer.discard()
+            raise
         finally:
             try:
                 recorder.stop()
             finally:
-                if not any(w.failed for _, w, _ in channels):
-                    print(report(recorder.tallies, [w.path for _, w, _ in channels]), end="")
+                writers = [w for _, w, _ in channels]
+                if not any(w.failed or w.discarded for w in writers):
+                    print(report(recorder.tallies, [w.path for w in writers]), end="")
     return 0
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -107,21 +108,30 @@ def run(args: argparse.Namespace) -> int:
     store_timeout_s = _store_timeout(args.store_timeout_s)
     if args.verify_after_restart and (args.no_store or args.dry_run):
         raise InputError("--verify-after-restart needs a store: not with --no-store or --dry-run")
-    with open_from_args(args) as session:
-        for client in session.clients.values():
-            result = write_calibration_transaction(
-                client,
-                record,
-                force=args.force,
-                store=not args.no_store,
-                backup_dir=args.backup_dir,
-                dry_run=args.dry_run,
-                store_sub=args.store_sub,
-                store_timeout_s=store_timeout_s,
-            )
-            print(report(result, client.node_id), end="")
-            if args.verify_after_restart:
-                print(_verify(client, result), flush=True)
+    done: list[tuple[str, str]] = []  # written, for an interrupt after it (docs/design.md §9)
+    try:
+        with open_from_args(args) as session:
+            for client in session.clients.values():
+                result = write_calibration_transaction(
+                    client,
+                    record,
+                    force=args.force,
+                    store=not args.no_store,
+                    backup_dir=args.backup_dir,
+                    dry_run=args.dry_run,
+                    store_sub=args.store_sub,
+                    store_timeout_s=store_timeout_s,
+                    on_done=_collect(done, client.node_id),
+                )
+                print(report(result, client.node_id), end="")
+                if args.verify_after_restart:
+                    print(_verify(client, result), flush=True)
+    except KeyboardInterrupt as interrupt:
+        notes = list(getattr(interrupt, "__notes__", []))
+        for note, backup in done:  # written before the signal came: say so, whatever came after
+            if not any(backup in n for n in notes):
+                interrupt.add_note(note)
+        raise
     return 0
 
 
@@ -135,6 +145,24 @@ def _verify(client: ImuClient, result: WriteReport) -> str:
         f"node {client.node_id}: verified after a restart: {valid}, CRC 0x{result.crc:08X} "
         f"(boot-up {check.boot_s:.1f} s after NMT reset node)"
     )
+
+
+def _collect(done: list[tuple[str, str]], node: int) -> Callable[[WriteReport], None]:
+    """Return an ``on_done`` keeping each finished node's note and its backup's name."""
+
+    def keep(result: WriteReport) -> None:
+        done.append((finished_note(result, node), str(result.backup_path)))
+
+    return keep
+
+
+def finished_note(result: WriteReport, node: int) -> str:
+    """One line saying what a finished transaction left on the node (for an interrupt)."""
+    if result.stored:
+        held = "written, stored and read back: RAM and flash hold the new calibration"
+    else:
+        held = "written and verified in RAM, not stored (--no-store)"
+    return f"node {node}: the calibration was {held}; backup of the previous: {result.backup_path}"
 
 
 def _store_timeout(value: float) -> float:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import errno
 import logging
 import os
+import queue
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -148,6 +149,8 @@ def open_bus(settings: BusSettings) -> can.BusABC:
     return bus
 
 
+REQUEST_UPLOAD = 0x40
+"""SDO command specifier of an upload (read) request (CiA 301)."""
 ABORT_OUT_OF_MEMORY = 0x05040005
 """CiA 301 SDO abort code the client sends to stop an over-long upload."""
 _ERRNO_HINTS = {
@@ -210,6 +213,8 @@ class SdoChannel:
     ) -> None:
         node.sdo.RESPONSE_TIMEOUT = timeout_s
         node.sdo.MAX_RETRIES = 1  # our own retry loop, with backoff
+        self.timeout_s = timeout_s
+        """The response timeout of each transfer (a store has its own)."""
         self._sdo = node.sdo
         self._retries = retries
         self._backoff_s = backoff_s
@@ -275,6 +280,37 @@ class SdoChannel:
                 raise DeviceSilentError(f"cannot send the write of {name}: {exc}") from exc
             finally:
                 self._sdo.RESPONSE_TIMEOUT = saved
+
+    def answers(self, index: int, sub: int, window_floor_s: float) -> list[bytes]:
+        """Send one expedited upload request of ``index:sub`` and collect every answer.
+
+        One node answers once; a second device with the same node-id answers too
+        (docs/design.md §9). After the first answer this waits three times its latency
+        more, at least ``window_floor_s``, for others. ``[]`` when nothing answers within
+        the SDO timeout or the request could not be sent (the next transfer, retried as
+        usual, reports it). Not retried.
+        """
+        request = bytes([REQUEST_UPLOAD, index & 0xFF, index >> 8, sub, 0, 0, 0, 0])
+        with self._lock:
+            responses: queue.Queue[bytes] = queue.Queue()
+            self._sdo.responses = responses  # canopen's own queue, fresh as before any request
+            started = time.monotonic()
+            try:
+                self._sdo.send_request(request)
+            except can.CanError as exc:  # nothing left: the next transfer retries and reports
+                logger.warning("cannot send a read of %s: %s", od.format_key(index, sub), exc)
+                return []
+            try:
+                got = [responses.get(timeout=self._sdo.RESPONSE_TIMEOUT)]
+            except queue.Empty:
+                return []
+            deadline = time.monotonic() + max(window_floor_s, 3.0 * (time.monotonic() - started))
+            while (left := deadline - time.monotonic()) > 0:
+                try:
+                    got.append(responses.get(timeout=left))
+                except queue.Empty:
+                    break
+            return got
 
     def _call(self, what: str, index: int, sub: int, op: Any) -> Any:
         name = od.format_key(index, sub)

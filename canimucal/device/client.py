@@ -12,6 +12,7 @@ run on the client's consumer thread (:mod:`canimucal.device.stream`).
 from __future__ import annotations
 
 import logging
+import math
 import queue
 import threading
 import time
@@ -31,6 +32,7 @@ from canimucal.device.events import (
     SerialChanged,
 )
 from canimucal.device.nmt_state import NmtFound, infer_nmt_state
+from canimucal.device.sdo_tally import SdoAnswerTally
 from canimucal.device.stream import SampleLayout, SamplePairer, layout_from_mapping
 from canimucal.device.stream_consumer import StreamConsumer
 from canimucal.errors import DeviceError, DeviceSilentError, NoDeviceError, SdoAbort
@@ -48,6 +50,28 @@ DEFAULT_STORE_TIMEOUT_S = 10.0
 """How long a 0x1010 store may take to answer (flash erase inside the SDO handler)."""
 SDO_REQUEST_BASE = 0x600
 """COB-ID base of SDO requests (client to server) of the default SDO channel."""
+NMT_COB_ID = 0x000
+"""COB-ID of NMT commands (CiA 301)."""
+SDO_RESPONSE_BASE = 0x580
+"""COB-ID base of SDO responses (server to client) of the default SDO channel."""
+UPLOAD_RESPONSE = 0x40
+"""SDO command specifier of an upload (read) response (CiA 301)."""
+ANSWER_WINDOW_FLOOR_S = 0.005
+"""After the first answer to a serial read, how long at least to listen for a second device."""
+LSB_UNITS = (("accel", "m/s² per count"), ("gyro", "rad/s per count"))
+"""What 0x2010:01 and 0x2010:02 scale, and their units."""
+RESTRICTED_COB_IDS = (
+    (0x000, 0x000, "NMT"),
+    (0x001, 0x07F, "reserved"),
+    (0x101, 0x180, "reserved (TIME and below TPDO1's range)"),
+    (0x581, 0x5FF, "SDO answers"),
+    (0x601, 0x67F, "SDO requests"),
+    (0x6E0, 0x6FF, "reserved"),
+    (0x701, 0x77F, "heartbeats and boot-ups"),
+    (0x780, 0x7FF, "reserved"),
+)
+"""CAN-IDs CiA 301 (§7.3.5) does not allow for a PDO: a TPDO there would be taken for an SDO
+answer, a heartbeat or an NMT command by every other device and tool on the bus."""
 NOTIFIER_CYCLE_S = 0.1
 """Receive-thread wake-up of a network the client makes itself (bounds :meth:`close`)."""
 
@@ -138,16 +162,25 @@ class ImuClient:
         self.foreign_sdo_requests = 0
         """SDO requests to the node that this client did not send (another SDO client)."""
         network.subscribe(SDO_REQUEST_BASE + node_id, self._on_foreign_sdo_request)
+        self.foreign_nmt_commands = 0
+        """NMT commands to this node (or to all) sent by another master on the bus."""
+        network.subscribe(NMT_COB_ID, self._on_foreign_nmt)
+        self._answer_tally = SdoAnswerTally()
+        self._answer_tally.attach(self.node.sdo)
+        network.subscribe(SDO_RESPONSE_BASE + node_id, self._answer_tally.on_response)
         self.bus_meter = BusLoadMeter(bitrate_bps)
         """Every frame the network receives (``bitrate_bps=None``: 500 kbit/s assumed)."""
         if network.notifier is not None:
             network.notifier.add_listener(self.heartbeat)  # error frames
             network.notifier.add_listener(self.bus_meter)
         self._serial: int | None = None
+        self._negative_lsb_told: set[int] = set()
         self._original_odr: int | None = None
         self.nmt_found: NmtFound | None = None
         """The NMT state the node was found in (set by :meth:`observe_nmt_state`)."""
         self._nmt_sent = False
+        self.nmt_commands = 0
+        """NMT commands this client sent (a state change after one is not a reset)."""
         self._closed = False
         self.sync_producer = sync_producer
         self.sync_period_s = sync_period_s
@@ -220,11 +253,34 @@ class ImuClient:
         return device_text(raw, cut)
 
     def nominal_lsb(self) -> tuple[float, float]:
-        """Nominal accel (m/s² per count) and gyro (rad/s per count) LSB, signed (0x2010)."""
-        return (
+        """Nominal accel (m/s² per count) and gyro (rad/s per count) LSB, signed (0x2010).
+
+        A zero or non-finite LSB is a :class:`DeviceError` (nothing can be scaled by it); a
+        negative one is legal (the axes count against the quantity) and is logged once.
+        """
+        lsbs = (
             float(self.read_value(od.NOMINAL, 1, "f32")),
             float(self.read_value(od.NOMINAL, 2, "f32")),
         )
+        for sub, (what, unit), lsb in zip((1, 2), LSB_UNITS, lsbs, strict=True):
+            if not (math.isfinite(lsb) and lsb != 0.0):
+                raise DeviceError(
+                    f"node {self.node_id} reports a nominal {what} LSB of {lsb:g} {unit} "
+                    f"(0x2010:{sub:02X}): unusable; nothing can be scaled by it"
+                )
+            if lsb < 0.0 and sub not in self._negative_lsb_told:
+                self._negative_lsb_told.add(sub)
+                logger.warning(
+                    "node %d reports a negative nominal %s LSB (%g %s, 0x2010:%02X): its axes "
+                    "count against the %s; the calibration keeps that sign",
+                    self.node_id,
+                    what,
+                    lsb,
+                    unit,
+                    sub,
+                    "acceleration" if sub == 1 else "rotation",
+                )
+        return lsbs
 
     def output_data_rate(self) -> int:
         """Output data rate (Hz, 0x2010:03)."""
@@ -252,6 +308,8 @@ class ImuClient:
             if cob & 0x8000_0000 or count == 0:
                 continue  # PDO not valid or nothing mapped
             cob_ids[number] = cob & (0x1FFF_FFFF if cob & 0x2000_0000 else 0x7FF)
+            if not cob & 0x2000_0000:
+                _refuse_restricted(number, cob_ids[number])
             entries[number] = [
                 int(self.read_value(mapping, sub, "u32")) for sub in range(1, count + 1)
             ]
@@ -320,6 +378,40 @@ class ImuClient:
     def _on_foreign_sdo_request(self, can_id: int, data: bytearray, timestamp: float) -> None:
         """Count a request on 0x600+id: the bus never echoes our own, so it is not ours."""
         self.foreign_sdo_requests += 1
+        self._answer_tally.on_foreign_request(data)
+
+    def _on_foreign_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        """Count an NMT command for this node or all (the bus never echoes our own)."""
+        if len(data) >= 2 and data[1] in (0, self.node_id):
+            self.foreign_nmt_commands += 1
+
+    @property
+    def extra_sdo_answers(self) -> int:
+        """SDO answers from the node beyond one per request seen (ours and others').
+
+        Grows when a second device answers as this node-id (docs/design.md §9); compare it
+        before and after a stretch of transfers. A lost answer makes it fall.
+        """
+        return self._answer_tally.surplus
+
+    def answering_serials(self) -> list[int | None]:
+        """Read the serial (0x1018:04) once and return what every answer said.
+
+        One entry per device answering as this node-id (``None`` for an answer that was
+        not a serial: an abort); empty when none answered within the SDO timeout. Answers
+        to another client's requests meanwhile are not counted as a second device.
+        """
+        key = bytes([od.IDENTITY & 0xFF, od.IDENTITY >> 8, 4])
+        started = time.monotonic() - self.sdo.timeout_s  # an earlier request's late answer
+        answers = self.sdo.answers(od.IDENTITY, 4, ANSWER_WINDOW_FLOOR_S)
+        ours = [a for a in answers if bytes(a[1:4]) == key]  # another object: not to us
+        others = self._answer_tally.foreign_since(started, key)  # another client asked too
+        if len(ours) - others <= 1:
+            ours = ours[:1]
+        return [
+            int.from_bytes(a[4:8], "little") if a[0] & 0xE0 == UPLOAD_RESPONSE else None
+            for a in ours
+        ]
 
     def _boots(self) -> int:
         return self.heartbeat.boots
@@ -390,6 +482,7 @@ class ImuClient:
     def _nmt(self, command: int) -> None:
         """NMT command to the target node only; a failing bus is a DeviceError."""
         self._nmt_sent = True
+        self.nmt_commands += 1
         try:
             self.node.nmt.send_command(command)
         except can.CanError as exc:
@@ -527,6 +620,8 @@ class ImuClient:
         self.network.unsubscribe(HEARTBEAT_BASE + self.node_id, self.heartbeat.on_heartbeat)
         self.network.unsubscribe(EMCY_BASE + self.node_id, self.heartbeat.on_emergency)
         self.network.unsubscribe(SDO_REQUEST_BASE + self.node_id, self._on_foreign_sdo_request)
+        self.network.unsubscribe(SDO_RESPONSE_BASE + self.node_id, self._answer_tally.on_response)
+        self.network.unsubscribe(NMT_COB_ID, self._on_foreign_nmt)
         if self.network.notifier is not None:
             for listener in (self.heartbeat, self.bus_meter):
                 try:
@@ -543,3 +638,13 @@ class ImuClient:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _refuse_restricted(number: int, cob_id: int) -> None:
+    """DeviceError when TPDO ``number`` sits on a CAN-ID CiA 301 reserves (11-bit IDs)."""
+    for low, high, what in RESTRICTED_COB_IDS:
+        if low <= cob_id <= high:
+            raise DeviceError(
+                f"unusable PDO mapping: TPDO{number} has COB-ID 0x{cob_id:03X}, which CiA 301 "
+                f"reserves ({what}, 0x{low:03X}-0x{high:03X}): check 0x{0x1800 + number - 1:04X}:01"
+            )

@@ -23,6 +23,8 @@ EMCY_BASE = 0x80
 HEARTBEAT_BASE = 0x700
 EMCY_KEPT = 8
 """The last EMCY frames a :class:`NodeMonitor` keeps (for a diagnosis such as a refused start)."""
+EMCY_LOG_EVERY = 1000
+"""A stream of EMCY frames is logged at its 1st, 10th and every 1000th frame (all counted)."""
 
 EMCY_TEXT = {
     0x0000: "error reset or no error",
@@ -132,6 +134,9 @@ class NodeMonitor(can.Listener):
 
     ``boots`` counts boot-up frames (the transaction compares it before and after each
     step); ``watch(timeout_s)`` starts a watchdog thread emitting :class:`HeartbeatLost`.
+    :meth:`silence_s` gives the longest heartbeat gap since :meth:`mark_gaps`;
+    ``interrupting_emergencies`` and ``last_emergency`` count the EMCY frames that interrupt
+    (:attr:`EmergencyReceived.interrupts`).
     """
 
     def __init__(self, node_id: int, events: queue.SimpleQueue[DeviceEvent]) -> None:
@@ -145,8 +150,11 @@ class NodeMonitor(can.Listener):
         self.emergencies = 0
         self.recent_emergencies: deque[EmergencyReceived] = deque(maxlen=EMCY_KEPT)
         """The last EMCY frames, oldest first."""
+        self.interrupting_emergencies = 0
+        self.last_emergency: EmergencyReceived | None = None
         self.bus_errors = 0
         self._last_mono = 0.0
+        self._max_gap_s = 0.0
         self._lost = False
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -161,7 +169,10 @@ class NodeMonitor(can.Listener):
         with self._lock:
             self.state_code = data[0] & 0x7F
             self.last_time_s = timestamp
-            self._last_mono = time.monotonic()
+            now = time.monotonic()
+            if self._last_mono:
+                self._max_gap_s = max(self._max_gap_s, now - self._last_mono)
+            self._last_mono = now
             resumed, self._lost = self._lost, False
             if self.state_code == 0:
                 self.boots += 1
@@ -187,7 +198,13 @@ class NodeMonitor(can.Listener):
         )
         self.emergencies += 1
         self.recent_emergencies.append(event)
-        logger.warning("node %d emergency: %s", self.node_id, event.text)
+        if event.interrupts:
+            self.interrupting_emergencies += 1
+            self.last_emergency = event
+        n = self.emergencies
+        if n in (1, 10) or n % EMCY_LOG_EVERY == 0:
+            more = "" if n == 1 else f" ({n} so far)"
+            logger.warning("node %d emergency: %s%s", self.node_id, event.text, more)
         self.events.put(event)
 
     def on_message_received(self, msg: can.Message) -> None:
@@ -221,6 +238,21 @@ class NodeMonitor(can.Listener):
             if time.monotonic() >= deadline:
                 return None
             time.sleep(0.01)
+
+    def mark_gaps(self) -> None:
+        """Start measuring heartbeat gaps afresh (see :meth:`silence_s`)."""
+        with self._lock:
+            self._max_gap_s = 0.0
+
+    def silence_s(self) -> float | None:
+        """Longest time without a heartbeat since :meth:`mark_gaps`, the current silence too.
+
+        None before the first heartbeat or boot-up frame.
+        """
+        with self._lock:
+            if not self._last_mono:
+                return None
+            return max(self._max_gap_s, time.monotonic() - self._last_mono)
 
     @property
     def lost(self) -> bool:

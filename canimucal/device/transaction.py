@@ -4,10 +4,17 @@
 checks before writing; (3) backup of the whole current block to a never-overwritten JSON;
 (4) clear valid; (5) write the block in CRC order; (6) read every value back, bytes compared
 bit-exactly; (7) write the CRC; (8) set valid; (9) verify valid and CRC; (10) store with
-0x1010 unless told not to, only after verification. Any failure after (4) but before (10):
-the backup is written back (valid last) and verified; if that fails too, valid is left 0 if
-at all possible and :class:`RollbackIncompleteError` names the backup. Never valid = 1 over a
-mixed set.
+0x1010 unless told not to, only after verification, and read serial, valid and CRC back. Any
+failure after (4) but before (10): the backup is written back (valid last) and verified; if
+that fails too, valid is left 0 if at all possible and :class:`RollbackIncompleteError`
+names the backup. Never valid = 1 over a mixed set.
+
+The store is the commit point (:mod:`canimucal.device.commit`): from its request on nothing
+is rolled back, signals are held until the read-back after it, and a restart seen between
+the first write and that read-back fails the transaction with what the node holds now.
+Before anything is written, a second device answering as the node is refused (exit 4,
+:mod:`canimucal.device.answerers`); a signal while the backup is written is held, and an
+interrupt after it always names the backup.
 
 The store (docs/design.md §9) uses the 0x1010 sub-index the node documents for its
 calibration (0x2011, :mod:`canimucal.device.storage_sub`), else 0x1010:01 after the client
@@ -23,12 +30,13 @@ from __future__ import annotations
 import logging
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
 
 from canimucal.device import od
+from canimucal.device.answerers import describe_answerers, refuse_second_answerer
 from canimucal.device.calibration_map import (
     backup_objects,
     backup_raw,
@@ -41,15 +49,17 @@ from canimucal.device.client import (
     Identity,
     ImuClient,
 )
+from canimucal.device.commit import StoreNotConfirmedError, StoreNotVerifiedError, commit_store
+from canimucal.device.node_watch import NodeWatch
 from canimucal.device.storage_sub import choose_store_sub
 from canimucal.errors import (
     DeviceError,
+    DuplicateNodeError,
     ForeignSdoClientError,
     InputError,
     NodeRebootedError,
     RollbackIncompleteError,
     SdoAbort,
-    StoreTimeoutError,
 )
 from canimucal.io.atomic import unique_path, write_text_atomic
 from canimucal.io.calibration import Calibration, calibration_to_json
@@ -57,6 +67,14 @@ from canimucal.signals import deferred_signals
 from canimucal.user_dirs import state_dir
 
 logger = logging.getLogger(__name__)
+
+__all__ = [
+    "PlannedWrite",
+    "StoreNotConfirmedError",
+    "StoreNotVerifiedError",
+    "WriteReport",
+    "write_calibration_transaction",
+]
 
 ObjectKey = tuple[int, int]
 VALID_KEY: ObjectKey = (od.CAL_INFO, od.CAL_VALID_SUB)
@@ -139,10 +157,6 @@ def plan_writes(
     return tuple(writes)
 
 
-class StoreNotConfirmedError(DeviceError):
-    """The store got no answer in time; nothing rolled back (exit 3, docs/design.md §9)."""
-
-    title = "Store not confirmed"
 
 
 def _target(
@@ -194,16 +208,22 @@ def write_calibration_transaction(
     dry_run: bool = False,
     store_sub: int | None = None,
     store_timeout_s: float = DEFAULT_STORE_TIMEOUT_S,
+    on_done: Callable[[WriteReport], None] | None = None,
 ) -> WriteReport:
     """Write ``record`` (a calibration or a backup with ``objects``) to the node, docs/design.md §4.
 
     Raises :class:`DeviceError` (exit 3) for a serial mismatch (nothing written) or a
     failure that was rolled back, :class:`RollbackIncompleteError` when the rollback failed,
     :class:`StoreNotConfirmedError` when the store did not answer within ``store_timeout_s``,
-    :class:`InputError` (exit 2) for values out of the device's ranges (nothing written).
-    ``store_sub`` forces the 0x1010 sub-index (see :func:`choose_store_sub`).
+    :class:`StoreNotVerifiedError` when the node restarted around the store or read back
+    otherwise after it, :class:`DuplicateNodeError` (exit 4) when two devices answer as the
+    node, :class:`InputError` (exit 2) for values out of the device's ranges (nothing
+    written). ``store_sub`` forces the 0x1010 sub-index (see :func:`choose_store_sub`).
+    ``on_done`` gets the report once the set is written (and stored), while signals are
+    still held: a caller interrupted after that can still say what was done.
     """
-    foreign = client.foreign_sdo_requests  # any request we did not send from now on aborts
+    marks = _Marks(client.foreign_sdo_requests, client.extra_sdo_answers)  # from now on abort
+    refuse_second_answerer(client, "nothing written")  # one device per node-id (DESIGN §9)
     identity = client.identity()  # step 1
     forced = _check_serial(identity, record, force)
     accel_lsb, gyro_lsb = client.nominal_lsb()  # step 2
@@ -252,42 +272,59 @@ def write_calibration_transaction(
     )
     if dry_run:
         return report
+    watch = NodeWatch.start(client)  # restarts, heartbeat gaps, EMCY from here on
     before = client.read_calibration_block()  # step 3
-    _check_alone(client, foreign, "nothing written")
-    backup_path = save_backup(before, identity, client.node_id, backup_dir)
-    _run_with_rollback(
-        client, writes, before, backup_path, identity.serial, foreign, store_timeout_s
-    )
-    return replace(report, backup_path=backup_path, stored=store)
-
-
-def _store(client: ImuClient, write: PlannedWrite, timeout_s: float, boots: int) -> None:
-    """Step 10: one 'save', its own timeout, never retried; a timeout rolls nothing back."""
-    if write.sub == od.STORE_ALL_SUB:
-        client.undo_ram_changes()
+    _check_alone(client, marks, "nothing written")
+    progress = _Progress()
     try:
-        client.store(write.sub, timeout_s)
-    except StoreTimeoutError as exc:
-        logger.error("%s", exc)
-        raise StoreNotConfirmedError(_store_timeout_message(client, timeout_s, boots)) from exc
+        with deferred_signals() as held:  # the backup file is named once it exists
+            progress.backup = save_backup(before, identity, client.node_id, backup_dir)
+        interrupt = held.interrupt()
+        if interrupt is not None:
+            raise interrupt
+        progress.report = replace(report, backup_path=progress.backup, stored=store)
+        progress.on_done = on_done
+        _run_with_rollback(
+            client, writes, before, progress, identity.serial, marks, store_timeout_s, watch
+        )
+    except KeyboardInterrupt as exc:
+        progress.name_backup(exc)
+        raise
+    assert progress.report is not None
+    return progress.report
 
 
-def _store_timeout_message(client: ImuClient, timeout_s: float, boots: int) -> str:
-    """Word the docs/design.md §9 message, with what a fresh read of the block shows."""
-    head = f"store not confirmed in {timeout_s:g} s"
-    tail = "what flash holds is known only after a power cycle"
-    if client.boots != boots:
-        return f"{head}; the node rebooted meanwhile and runs what its flash held; {tail}"
-    try:
-        readout = client.read_calibration_block()
-    except DeviceError as exc:
-        return f"{head}; the node does not answer ({exc}); {tail}"
-    if readout.valid == 1 and readout.crc_ok:
-        ram = "RAM holds the new set (valid, CRC ok)"
-    else:
-        crc = "CRC ok" if readout.crc_ok else "CRC mismatch"
-        ram = f"RAM holds valid = {readout.valid}, {crc}"
-    return f"{head}; {ram}; {tail}"
+@dataclass(frozen=True)
+class _Marks:
+    """Counts taken before the transaction: a change means another client or device spoke."""
+
+    foreign: int
+    answers: int
+
+
+@dataclass
+class _Progress:
+    """How far the transaction got: an interrupt's notes must say what was done."""
+
+    backup: Path | None = None
+    done: str = ""
+    """Set once nothing is to be undone: the set is written (and stored, if asked)."""
+    report: WriteReport | None = None
+    on_done: Callable[[WriteReport], None] | None = None
+
+    def finished(self, done: str) -> None:
+        """Record that the set is written (and stored); tell the caller (signals held)."""
+        self.done = done
+        if self.on_done is not None and self.report is not None:
+            self.on_done(self.report)
+
+    def name_backup(self, interrupt: KeyboardInterrupt) -> None:
+        """Make sure an interrupt's notes say what was done and name the backup."""
+        notes = getattr(interrupt, "__notes__", [])
+        if self.backup is None or any(str(self.backup) in note for note in notes):
+            return
+        done = self.done or "nothing written"
+        interrupt.add_note(f"{done}; backup of the previous calibration: {self.backup}")
 
 
 def save_backup(
@@ -301,7 +338,8 @@ def save_backup(
     try:
         directory.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise InputError(f"cannot create backup directory {directory}: {exc.strerror}") from exc
+        reason = exc.strerror or exc
+        raise InputError(f"cannot create backup directory {directory}: {reason}") from exc
     now = datetime.now(UTC)
     stamp = now.strftime("%Y%m%dT%H%M%S.") + f"{now.microsecond // 1000:03d}Z"
     record = record_from_readout(readout, identity, node_id)
@@ -323,31 +361,31 @@ def _run_with_rollback(
     client: ImuClient,
     writes: tuple[PlannedWrite, ...],
     before: CalibrationReadout,
-    backup_path: Path,
+    progress: _Progress,
     serial: int,
-    foreign: int,
-    store_timeout_s: float = DEFAULT_STORE_TIMEOUT_S,
+    marks: _Marks,
+    store_timeout_s: float,
+    watch: NodeWatch,
 ) -> None:
-    """Run steps 4–10; on failure restore ``before`` or raise RollbackIncompleteError.
+    """Run steps 4–9, rolling back on failure; then step 10, the commit (:func:`commit_store`).
 
-    A store that does not answer in time is not a failure to roll back: RAM holds the new,
-    verified set and flash may too (:class:`StoreNotConfirmedError`). A request from another
-    SDO client (``client.foreign_sdo_requests`` past ``foreign``) is a failure like any
-    other: its writes may interleave with ours.
+    A request from another SDO client (``client.foreign_sdo_requests`` past its mark), a
+    second answerer, a restart (:class:`NodeWatch`) or an interrupting EMCY is a failure
+    like any other: the writes may not have landed where they were meant to.
     """
+    backup_path = progress.backup
+    assert backup_path is not None
+    steps = _steps(writes)
+    store = steps.pop()[1][0] if steps[-1][0] == "store" else None
     step = "clear valid"
-    boots = client.boots
+    commit_hold = deferred_signals()
     try:
-        for step, batch in _steps(writes):
-            _check_alone(client, foreign)
-            if step == "store":
-                _store(client, batch[0], store_timeout_s, boots)
-            else:
-                _do_step(client, step, batch, boots)
-            _check_alone(client, foreign)
-    except StoreNotConfirmedError:
-        raise
-    except KeyboardInterrupt as exc:  # Ctrl-C or SIGTERM (canimucal.signals.Terminated)
+        for step, batch in steps:
+            _check_alone(client, marks)
+            _do_step(client, step, batch, watch)
+            _check_alone(client, marks)
+        commit_hold.__enter__()  # from here a signal waits for the commit's outcome
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM or SIGHUP (canimucal.signals)
         logger.error("interrupted at %s; rolling back", step)
         with deferred_signals():  # a second interrupt must not skip the rollback
             _rollback(client, before, backup_path)
@@ -369,15 +407,60 @@ def _run_with_rollback(
             interrupt.add_note(message)
             raise interrupt from exc
         raise DeviceError(message) from exc
+    if store is None:
+        try:
+            progress.finished("the calibration was written and verified (not stored: --no-store)")
+        finally:
+            commit_hold.__exit__(None, None, None)
+        interrupt = commit_hold.interrupt()
+        if interrupt is not None:
+            raise interrupt  # the note says it was written (name_backup)
+        return
+
+    def committed() -> None:
+        progress.finished(
+            "the calibration was written, stored and read back: RAM and flash hold the new "
+            "calibration"
+        )
+
+    commit_store(
+        client,
+        store.sub,
+        _final_bytes(writes),
+        before.raw,
+        serial=serial,
+        backup_path=backup_path,
+        timeout_s=store_timeout_s,
+        watch=watch,
+        roll_back=lambda: _rollback(client, before, backup_path),
+        held=commit_hold,
+        on_committed=committed,
+    )
 
 
-def _check_alone(client: ImuClient, foreign: int, consequence: str = "") -> None:
-    """Raise ForeignSdoClientError when another SDO client has spoken to the node."""
-    if client.foreign_sdo_requests != foreign:
+def _final_bytes(writes: tuple[PlannedWrite, ...]) -> dict[ObjectKey, bytes]:
+    """Bytes of every calibration object once the plan has run (the last write of each)."""
+    return {(w.index, w.sub): w.data for w in writes if w.index != od.STORE}
+
+
+def _check_alone(client: ImuClient, marks: _Marks, consequence: str = "") -> None:
+    """Raise when another SDO client spoke to the node or a second device answers as it."""
+    if client.foreign_sdo_requests != marks.foreign:
         error = ForeignSdoClientError(client.node_id)
         if consequence:
             raise DeviceError(f"{error}; {consequence}") from error
         raise error
+    # answers still due at the mark (another client's request just before) came since: the
+    # mark is negative by their number, so only a surplus above zero is a second device
+    extra = client.extra_sdo_answers - max(marks.answers, 0)
+    if extra > 0:
+        text = (
+            f"{describe_answerers(client.node_id, [None, None])}: {extra} SDO answer(s) more "
+            "than requests"
+        )
+        if consequence:
+            raise DuplicateNodeError(f"{text}; {consequence}")
+        raise DeviceError(text)
 
 
 def _refuse_other_unit(client: ImuClient, serial: int, exc: DeviceError) -> None:
@@ -432,16 +515,26 @@ def _steps(writes: tuple[PlannedWrite, ...]) -> list[tuple[str, list[PlannedWrit
     return steps
 
 
-def _do_step(client: ImuClient, step: str, batch: list[PlannedWrite], boots: int) -> None:
-    """Run one step; a boot-up seen since ``boots`` fails it (unsaved values are gone)."""
+def _do_step(client: ImuClient, step: str, batch: list[PlannedWrite], watch: NodeWatch) -> None:
+    """Run one step; a restart or an interrupting EMCY since the mark fails it."""
     if step.startswith("verify"):
         verify_bytes(client, batch)
-        _check_no_reboot(client, boots, step)
+        _check_node(watch, step)
         return
     for write in batch:
-        _check_no_reboot(client, boots, step)
+        _check_node(watch, step)
         client.sdo.download(write.index, write.sub, write.data)
-    _check_no_reboot(client, boots, step)
+    _check_node(watch, step)
+
+
+def _check_node(watch: NodeWatch, step: str) -> None:
+    """NodeRebootedError when the node restarted, DeviceError for an interrupting EMCY."""
+    restarted = watch.restarted()
+    if restarted is not None:
+        raise NodeRebootedError(f"{restarted} during {step}")
+    emergency = watch.emergency()
+    if emergency is not None:
+        raise DeviceError(f"{emergency} during {step}")
 
 
 def _check_no_reboot(client: ImuClient, boots: int, step: str) -> None:

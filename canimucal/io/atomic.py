@@ -8,7 +8,6 @@ so even a file created concurrently is never replaced.
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import logging
 import os
@@ -49,12 +48,45 @@ def write_bytes_atomic(path: str | os.PathLike[str], data: bytes, *, overwrite: 
             os.fsync(handle.fileno())
         move_into_place(tmp, target, overwrite=overwrite)
     except OSError as exc:
-        raise InputError(f"cannot write {target}: {exc.strerror or exc}") from exc
+        raise InputError(f"cannot write {target}: {_reason(exc)}") from exc
     finally:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
+        _remove_quietly(tmp)
     logger.debug("wrote %s (%d bytes)", target, len(data))
     return target
+
+
+def _reason(exc: OSError) -> str:
+    """``read-only file system``: the OS's words for the cause, as the user reads them."""
+    text = exc.strerror or str(exc)
+    return text[:1].lower() + text[1:] if text[:2] != text[:2].upper() else text
+
+
+def _remove_quietly(path: Path) -> None:
+    """Remove a temporary file if it is there; a failure must not hide the first error.
+
+    On a read-only file system even the unlink of a file that was never created fails
+    (EROFS before the lookup), and raising it would replace the write's own error.
+    """
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
+    except OSError as exc:
+        logger.debug("could not remove %s: %s", path, exc)
+
+
+def make_directory(path: str | os.PathLike[str]) -> Path:
+    """Create ``path`` and its parents if missing; :class:`InputError` naming the cause.
+
+    A read-only file system or a directory the user may not write to is a one-line error
+    (``cannot create out: read-only file system``), never an internal error.
+    """
+    directory = Path(path)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot create {directory}: {_reason(exc)}") from exc
+    return directory
 
 
 def refuse_existing(path: Path, *, overwrite: bool) -> None:

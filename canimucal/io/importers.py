@@ -22,10 +22,8 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import os
-from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -40,6 +38,7 @@ from canimucal.io.recording import (
     recording_from_columns,
     require_memory,
 )
+from canimucal.schema import parse_json, read_text
 
 log = logging.getLogger(__name__)
 
@@ -228,10 +227,7 @@ def _turn(section: tuple[str, int, int], n: NDArray[np.int64]) -> KnownTurn | No
 
 def _sections(path: _PathLike) -> list[tuple[str, int, int]]:
     """``(name, start, end)`` of each section of an imucal section JSON, in file order."""
-    try:
-        doc = json.loads(Path(path).read_text(encoding="utf-8-sig"))
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: not a JSON section list ({exc})") from None
+    doc = parse_json(read_text(path), f"{path}: imucal section list")
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected an object of sections")
     out = []

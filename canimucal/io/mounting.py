@@ -16,13 +16,15 @@ session's instructions: the one asked for, else the one saved for the unit's ser
 from __future__ import annotations
 
 import logging
-import tomllib
+import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 from canimucal.errors import InputError
 from canimucal.io.atomic import write_text_atomic
 from canimucal.model.mounting import DEFAULT_MOUNTING, MountingMap
+from canimucal.schema import parse_toml
 from canimucal.user_dirs import config_dir
 
 log = logging.getLogger(__name__)
@@ -44,9 +46,10 @@ def mounting_path(serial: int, config: Path | None = None) -> Path:
 def read_mounting(path: Path) -> MountingMap:
     """Read a saved map (:class:`InputError` naming the file when it is not one)."""
     try:
-        document = tomllib.loads(path.read_text(encoding="utf-8-sig"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read the mounting map ({exc})") from None
+    document = parse_toml(text, f"{path}: cannot read the mounting map")
     unknown = sorted(set(document) - {"x", "y", "z"})
     if unknown:
         raise InputError(f"{path}: unknown key {unknown[0]!r} (only x, y, z)")

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import os
-import tomllib
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +24,7 @@ from canimucal.errors import InputError, SchemaError
 from canimucal.io.atomic import write_text_atomic
 from canimucal.model.positions import DEFAULT_SECONDS, Plan, PlannedPosition
 from canimucal.model.vocabulary.plans import CUSTOM, builtin_names, builtin_plan
-from canimucal.schema import parse_json, read_number, read_text
+from canimucal.schema import parse_json, parse_toml, read_number, read_text
 
 DEFAULT_TOLERANCE_DEG = 0.1
 """Angle-setting tolerance of a position that names none (docs/design.md §3)."""
@@ -44,10 +44,7 @@ def read_plan(path: str | os.PathLike[str]) -> Plan:
     if is_json:
         document = parse_json(text, source)
     else:
-        try:
-            document = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise InputError(f"{source}: invalid TOML ({str(exc).splitlines()[0]})") from None
+        document = parse_toml(text, source)
     return plan_from_document(document, source)
 
 

@@ -160,6 +160,7 @@ def _recording_from_table(
     header: dict[str, HeaderValue], table: FloatArray, *, first_line: int, source: str
 ) -> Recording:
     check_table(table, first_line, source)
+    check_time_advances(table[:, 0], source)
     inferred = False
     if "sample_rate_hz" not in header:
         header["sample_rate_hz"] = _infer_rate(table[:, 0], source)
@@ -230,6 +231,23 @@ def count_duplicates(table: FloatArray) -> tuple[int, int]:
     a, b = table[empty], table[empty - 1]
     copies += int(np.count_nonzero(np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1)))
     return int(later.size), copies
+
+
+def check_time_advances(t: FloatArray, source: str) -> None:
+    """Refuse a time column that stands still for most rows (InputError, exit 2).
+
+    Every analysis takes the sample interval from the median step of ``t``; a constant
+    column, or a file whose rows were each written twice, makes it zero. Said here, once,
+    in words, rather than as a division by zero wherever ``t`` is used.
+    """
+    steps = np.diff(t)
+    if steps.size == 0 or float(np.median(steps)) > 0.0:
+        return
+    still = int(np.count_nonzero(steps == 0))
+    raise InputError(
+        f"{source or 'recording'}: t does not advance ({still} of {steps.size} steps are 0: "
+        "a constant time column, or rows written twice); fix t or remove the repeated rows"
+    )
 
 
 def _infer_rate(t: FloatArray, source: str) -> float:

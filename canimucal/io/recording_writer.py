@@ -85,6 +85,8 @@ class RecordingWriter:
         self.rows_written = 0
         self.failed: InputError | None = None
         """The write error that stopped this writer (its ``.partial`` is kept, not renamed)."""
+        self.discarded = False
+        """Whether :meth:`discard` removed the file (nothing was recorded)."""
         self._header: dict[str, HeaderValue] | None = None  # None: appending, header not ours
         self._head_size = 0
         self._header_fix: dict[str, HeaderValue] = {}
@@ -247,10 +249,28 @@ class RecordingWriter:
             if os.path.lexists(tmp):
                 os.unlink(tmp)
 
+    def discard(self) -> bool:
+        """Remove the ``.partial`` of a new file that holds no row yet; True if removed.
+
+        For a recording that never started (the device refused to stream): no header-only
+        file is left behind. An appended file, or one with rows, is left to :meth:`close`.
+        """
+        if self._fd is None or self.rows_written or self._header is None:
+            return False
+        fd, self._fd = self._fd, None
+        os.close(fd)
+        self.discarded = True
+        try:
+            os.unlink(self.partial_path)
+        except OSError as exc:
+            logger.warning("could not remove %s: %s", self.partial_path, exc)
+        return True
+
     def close(self) -> Path:
         """Fsync and rename ``path.partial`` to ``path``; idempotent.
 
-        After a write error (:attr:`failed`) nothing is renamed: the ``.partial`` stays.
+        After a write error (:attr:`failed`) nothing is renamed: the ``.partial`` stays;
+        after :meth:`discard` there is no file at all.
         """
         fd, self._fd = self._fd, None
         if fd is None:

@@ -42,6 +42,7 @@ from canimucal.device.events import (
 from canimucal.device.start_check import refused_start
 from canimucal.device.transaction import write_calibration_transaction
 from canimucal.errors import CanimucalError, DeviceError
+from canimucal.io.atomic import make_directory
 from canimucal.io.calibration import (
     Calibration,
     Device,
@@ -140,7 +141,7 @@ class Session:
         self.site_name = site_name
         self.out_dir = out_dir
         self.backup_dir = backup_dir
-        out_dir.mkdir(parents=True, exist_ok=True)
+        make_directory(out_dir)
         several = len(clients) > 1
         self.links: dict[int, NodeLink] = {}
         for node_id, client in clients.items():

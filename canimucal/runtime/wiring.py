@@ -27,6 +27,7 @@ import numpy as np
 
 from canimucal.analysis.calibrate import SiteConditions
 from canimucal.analysis.session_model import read_factory_k
+from canimucal.device.answerers import refuse_second_answerer
 from canimucal.device.bus import BusSettings, describe, open_bus
 from canimucal.device.client import NOTIFIER_CYCLE_S, Identity, ImuClient
 from canimucal.device.factory_k import device_k
@@ -217,12 +218,18 @@ class Devices:
         return client_bus
 
     def identities(self) -> dict[int, Identity]:
-        """Find every node and read its identity."""
+        """Find every node and read its identity; refuse a node-id two devices answer as."""
         out = {}
         for node_id, client in self.clients.items():
             client.find_node(FIND_NODE_TIMEOUT_S)
+            refuse_second_answerer(client, "nothing recorded, the session does not start")
             out[node_id] = client.identity()
         return out
+
+    def refuse_second_answerers(self, consequence: str) -> None:
+        """:class:`DuplicateNodeError` (exit 4) when two devices answer as one of the nodes."""
+        for client in self.clients.values():
+            refuse_second_answerer(client, consequence)
 
     def simulated_site(self) -> SiteConditions:
         """Return the first simulated node's site, with the LSBs its node reports."""

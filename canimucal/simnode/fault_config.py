@@ -27,9 +27,12 @@ _COUNTS = (
     "abort_at_sdo_request",
     "serial_after_reboot",
     "delay_frames",
+    "reboot_before_sdo_request",
+    "twin_serial",
 )
 _KEYS = {"seed", "burst_loss", "sdo_aborts", "sdo_silent_mode", "reboot_at_s", "emergency"}
 _KEYS |= {"heartbeat_loss", "error_frames_at_s", *_FRACTIONS, *_COUNTS}
+_FROM_ZERO = ("sdo_silent_after", "twin_serial", "serial_after_reboot")
 _ABORT_KEYS = {"object", "code", "access", "after_writes", "at_access"}
 
 
@@ -113,12 +116,14 @@ class FaultConfig:
     sdo_silent_after: int | None = None
     sdo_silent_mode: str = "request"
     reboot_at_sdo_request: int | None = None
+    reboot_before_sdo_request: int | None = None
     abort_at_sdo_request: int | None = None
     reboot_at_s: float | None = None
     emergency: tuple[Emergency, ...] = ()
     heartbeat_loss: tuple[float, float] | None = None
     serial_after_reboot: int | None = None
     error_frames_at_s: tuple[float, ...] = ()
+    twin_serial: int | None = None
 
     @property
     def touches_tpdos(self) -> bool:
@@ -147,7 +152,7 @@ def _parse(doc: Any) -> FaultConfig:
             kw[key] = read_number(d[key], key, 0.0, 1.0)
     for key in _COUNTS:
         if d.get(key) is not None:
-            kw[key] = _integer(d[key], key, 1 if key != "sdo_silent_after" else 0)
+            kw[key] = _integer(d[key], key, 0 if key in _FROM_ZERO else 1)
     if "seed" in d:
         kw["seed"] = _integer(d["seed"], "seed")
     if "burst_loss" in d:

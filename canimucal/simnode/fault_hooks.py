@@ -17,6 +17,7 @@ import can
 import canopen
 
 from canimucal.device import od
+from canimucal.device.events import EMCY_LOG_EVERY
 from canimucal.simnode.faults import EMCY_BASE, Emergency, FaultInjector, emcy_frame
 from canimucal.simnode.producer import SampleProducer
 
@@ -62,7 +63,9 @@ class FaultActions:
             self._producer.error_register = register & 0xFF
             self._producer.live[(od.ERROR_REGISTER, 0)] = register & 0xFF
         self.faults.stats.emergencies += 1
-        log.warning("simulated EMCY 0x%04X (error register 0x%02X)", code, register)
+        n = self.faults.stats.emergencies
+        if n in (1, 10) or n % EMCY_LOG_EVERY == 0:  # as the client logs them: not 8000 lines
+            log.warning("simulated EMCY 0x%04X (error register 0x%02X; %d sent)", code, register, n)
         self._network.send_message(EMCY_BASE + self.node_id, emcy_frame(code, register))
 
     def send_error_frame(self) -> None:
@@ -95,6 +98,10 @@ class FaultActions:
         elif fate == "reboot":
             log.warning("simulated power cycle while serving an SDO request")
             self._reboot()
+        elif fate == "reboot+serve":
+            log.warning("simulated power cycle just before serving an SDO request")
+            self._reboot()
+            self._serve_sdo(can_id, data, timestamp)
         elif fate.startswith("abort:"):
             code = int(fate.split(":")[1])
             head = bytes([0x80]) + bytes(data[1:4])

@@ -23,12 +23,18 @@ key                        meaning
 ``sdo_silent_mode``        ``"request"`` (default: requests ignored unprocessed) or
                            ``"response"`` (requests processed, answers lost)
 ``reboot_at_sdo_request``  power-cycle instead of answering the n-th SDO request (1-based)
+``reboot_before_sdo_``     power-cycle just before serving the n-th SDO request, then serve it
+``request``                (the request lands on the freshly booted node, as one sent right
+                           after a restart the client had not yet heard of)
 ``abort_at_sdo_request``   abort the n-th SDO request, whatever it is (code 0x08000020)
 ``reboot_at_s``            power-cycle at this simulated time
 ``emergency``              list of ``{"at_s": t, "code": 0x5000, "register": 0x01}``: EMCY frames
 ``heartbeat_loss``         ``{"from_s": t, "until_s": t or null}``: no heartbeat in between
 ``serial_after_reboot``    the identity serial (0x1018:04) the node reports after a reboot
 ``error_frames_at_s``      list of simulated times: an error frame is put on the bus
+``twin_serial``            a second unit with this serial answers as the same node-id (its
+                           own ``LocalNode`` on the node's network, booted with it, nominal
+                           truth otherwise); read when the node is made, not by ``set``
 =========================  ===================================================================
 
 Control API: ``node.faults.set(**keys)`` merges keys (same schema and checks), ``clear()``
@@ -199,7 +205,7 @@ class FaultInjector:
         """Decide the fate of one SDO request.
 
         Returns ``"serve"``, ``"ignore"`` (silent: drop the request), ``"mute"`` (process,
-        drop the answer), ``"reboot"`` or ``"abort:<code>"``.
+        drop the answer), ``"reboot"``, ``"reboot+serve"`` or ``"abort:<code>"``.
         """
         if data[:1] and data[0] & 0xE0 == CLIENT_ABORT:
             return "serve"  # the client giving up a transfer: no answer expected, not counted
@@ -210,6 +216,9 @@ class FaultInjector:
             if cfg.reboot_at_sdo_request == n:
                 self.stats.reboots += 1
                 return "reboot"
+            if cfg.reboot_before_sdo_request == n:
+                self.stats.reboots += 1
+                return "reboot+serve"
             if cfg.sdo_silent_after is not None and n > cfg.sdo_silent_after:
                 self.stats.sdo_ignored += 1
                 return "ignore" if cfg.sdo_silent_mode == "request" else "mute"

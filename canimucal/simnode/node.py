@@ -55,6 +55,9 @@ class SimulatedImuNode:
 
     ``truth`` defaults to a nominal unit; ``state_file`` is the node's non-volatile memory
     (JSON); ``time_scale`` is simulated seconds per wall second; ``seed`` seeds the noise.
+    A truth whose ``faults`` name a ``twin_serial`` brings a second unit with that serial,
+    answering as the same node-id on the same network (:attr:`twin`): two devices set to
+    one node-id, as a misconfigured bus has them (docs/design.md §9).
     """
 
     def __init__(
@@ -66,6 +69,7 @@ class SimulatedImuNode:
         state_file: Path | None = None,
         time_scale: float = 1.0,
         seed: int | None = None,
+        _twin_of: SimulatedImuNode | None = None,
     ) -> None:
         if not 1 <= int(node_id) <= 127:
             raise InputError(f"node id must be 1..127, got {node_id}")
@@ -125,7 +129,10 @@ class SimulatedImuNode:
         self._pending_plan: Plan | None = None
         self._started = False
         self._booting = False
+        self._is_twin = _twin_of is not None
         self._load_defaults(comm_only=False)  # od_value() answers before start() too
+        self.twin = self._make_twin(state_file, seed)
+        """The second unit answering as this node-id (truth ``faults.twin_serial``), or None."""
 
     # -- public API --------------------------------------------------------------------------
 
@@ -164,11 +171,35 @@ class SimulatedImuNode:
         """Simulated seconds the clock ran behind ``time_scale`` because the host lagged."""
         return self._producer.clock_slip_s
 
+    def _make_twin(self, state_file: Path | None, seed: int | None) -> SimulatedImuNode | None:
+        """Build the unit that shares this node-id, when the truth asks for one."""
+        serial = self.faults.config.twin_serial
+        if serial is None or self._is_twin:
+            return None
+        doc = {**self.truth.to_dict(), "serial": serial, "faults": {}}
+        twin_state = None
+        if state_file is not None:
+            twin_state = state_file.with_name(f"{state_file.stem}.twin{state_file.suffix}")
+        return SimulatedImuNode(
+            self._network,
+            self.node_id,
+            Truth.from_dict(doc),
+            state_file=twin_state,
+            time_scale=self.time_scale,
+            seed=None if seed is None else seed + 1,
+            _twin_of=self,
+        )
+
     def start(self) -> SimulatedImuNode:
         """Join the network, send the boot-up message, enter PRE-OPERATIONAL, start sampling."""
         if self._started:
             return self
-        self._network.add_node(self._node)
+        if self.twin is not None:
+            self.twin.start()
+        if self._is_twin:  # the network's node table keeps the first unit under this id
+            self._node.associate_network(self._network)
+        else:
+            self._network.add_node(self._node)
         self._network.subscribe(NMT_COB_ID, self._on_nmt)
         self._network.subscribe(SYNC_COB_ID, self._on_sync)
         self._boot(reload=None)
@@ -189,6 +220,10 @@ class SimulatedImuNode:
         self._network.unsubscribe(SYNC_COB_ID, self._on_sync)
         if self._network.nodes.get(self.node_id) is self._node:
             del self._network[self.node_id]
+        elif self._is_twin:
+            self._node.remove_network()
+        if self.twin is not None:
+            self.twin.stop()
         self._stop_own_notifier()
         log.info(
             "simulated IMU node %d stopped (its clock slipped %.3g s behind %g× wall time)",

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from canimucal.device import od
 from canimucal.errors import InputError
+from canimucal.schema import parse_json, read_text
 from canimucal.sim.truth import Truth
 
 log = logging.getLogger(__name__)
@@ -141,7 +142,7 @@ class NonVolatileStore:
 
 def _read_state(path: Path) -> dict[Key, bytes]:
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        doc = parse_json(read_text(path), f"simulated node state {path}")
         if doc.get("schema") != STATE_SCHEMA:
             raise InputError(f"{path}: schema must be {STATE_SCHEMA!r}")
         return {od.parse_key(k): bytes.fromhex(v) for k, v in doc["objects"].items()}

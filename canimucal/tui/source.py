@@ -17,6 +17,7 @@ from typing import Protocol
 
 from canimucal.analysis.acceptance import AcceptanceConfig
 from canimucal.analysis.calibrate import SiteConditions
+from canimucal.device.answerers import refuse_second_answerer
 from canimucal.device.busload import BusLoad
 from canimucal.device.client import CalibrationReadout, Identity, ImuClient
 from canimucal.model.mounting import MountingMap
@@ -146,6 +147,7 @@ class DeviceSource:
         out = []
         for node_id, client in self.devices.clients.items():
             how = client.find_node(FIND_NODE_TIMEOUT_S)
+            refuse_second_answerer(client, "nothing read, the session does not start")
             out.append(read_status(client, how))
             self.statuses[node_id] = out[-1]
         return out

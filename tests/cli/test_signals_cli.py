@@ -1,4 +1,4 @@
-"""Interrupts at any moment of a command: one line, exit 130 (Ctrl-C) or 143 (SIGTERM)."""
+"""Interrupts at any moment of a command: one line, exit 130 (Ctrl-C), 143 (SIGTERM), 129 (HUP)."""
 
 from __future__ import annotations
 
@@ -42,22 +42,67 @@ def test_interrupt_while_importing_the_command_is_one_line(
     assert signal.getsignal(signal.SIGINT) is not signal.SIG_IGN  # handlers put back
 
 
-def test_sigterm_during_a_command_exits_143_with_the_notes(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+@pytest.mark.parametrize(
+    ("signum", "code", "word"),
+    [(signal.SIGTERM, 143, "terminated"), (signal.SIGHUP, 129, "hung up")],
+)
+def test_a_signal_during_a_command_exits_with_its_status_and_the_notes(
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    signum: int,
+    code: int,
+    word: str,
 ) -> None:
-    def build_parser(verb: str | None = None) -> NoReturn:
+    from canimucal.cli import plan_cmd
+
+    def run(args: Any) -> NoReturn:
         try:
-            os.kill(os.getpid(), signal.SIGTERM)  # the handler main installed raises here
+            os.kill(os.getpid(), signum)  # the handler main installed raises here
         except Terminated as term:
             term.add_note("previous calibration restored from /b/1.json")
             raise
-        raise AssertionError("SIGTERM was not turned into Terminated")
+        raise AssertionError("the signal was not turned into an interrupt")
 
-    previous = signal.getsignal(signal.SIGTERM)
+    previous = signal.getsignal(signum)
+    monkeypatch.setattr(plan_cmd, "run", run)
+    assert cli_main.main(["plan"]) == code
+    assert capsys.readouterr().err == f"{word}; previous calibration restored from /b/1.json\n"
+    assert signal.getsignal(signum) is previous
+
+
+def test_a_signal_while_the_command_is_imported_waits_for_the_imports(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # a Ctrl-C inside a C extension's import comes out as an ImportError (numpy's): held
+    real = cli_main.build_parser
+
+    def build_parser(verb: str | None = None) -> Any:
+        os.kill(os.getpid(), signal.SIGTERM)  # arrives while "importing"
+        return real(verb)
+
     monkeypatch.setattr(cli_main, "build_parser", build_parser)
-    assert cli_main.main(["write-params", "c.json"]) == 143
-    assert capsys.readouterr().err == ("terminated; previous calibration restored from /b/1.json\n")
-    assert signal.getsignal(signal.SIGTERM) is previous
+    assert cli_main.main(["plan"]) == 143
+    assert capsys.readouterr().err == "terminated\n"
+
+
+def test_a_second_signal_cannot_replace_the_first_and_its_notes(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from canimucal.cli import plan_cmd
+
+    def run(args: Any) -> NoReturn:
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+        except KeyboardInterrupt as interrupt:
+            interrupt.add_note("previous calibration restored from /b/2.json")
+            os.kill(os.getpid(), signal.SIGINT)  # a second Ctrl-C, in the clean-up
+            os.kill(os.getpid(), signal.SIGTERM)
+            raise
+        raise AssertionError("Ctrl-C was not turned into KeyboardInterrupt")
+
+    monkeypatch.setattr(plan_cmd, "run", run)
+    assert cli_main.main(["plan"]) == 130
+    assert capsys.readouterr().err == "interrupted; previous calibration restored from /b/2.json\n"
 
 
 def test_sim_stops_with_0_on_either_signal(monkeypatch: pytest.MonkeyPatch) -> None:

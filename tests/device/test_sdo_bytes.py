@@ -100,12 +100,14 @@ def test_transactional_write_byte_script(
     assert crc == report.crc
     block_writes = [download(i, s, od.encode(code, values[(i, s)])) for i, s, code in od.CRC_ORDER]
     expected = (
-        [upload(od.IDENTITY, sub) for sub in (1, 2, 3, 4)]
+        [upload(od.IDENTITY, 4)]  # one answer only: no second device as node 16 (DESIGN §9)
+        + [upload(od.IDENTITY, sub) for sub in (1, 2, 3, 4)]
         + [upload(od.DEVICE_NAME, 0)]
         + [upload(od.HARDWARE_VERSION, 0), upload(od.SOFTWARE_VERSION, 0)]  # 0x1009, 0x100A
         + [upload(od.NOMINAL, 1), upload(od.NOMINAL, 2)]
         + [upload(0x2011, 0)]  # which 0x1010 sub-index stores the calibration (issue 24)
         + [upload(od.STORE, 4)]  # 0x1010:04 offered ("save on command")? Before any write
+        + [upload(od.HEARTBEAT, 0)]  # its heartbeat period: a gap while writing is a restart
         + [upload(i, s) for i, s, _ in od.CALIBRATION_OBJECTS]  # step 3: the backup
         + [bytes.fromhex("2f21210500000000")]  # step 4: valid = 0, first write
         + block_writes  # step 5, CRC order
@@ -114,6 +116,7 @@ def test_transactional_write_byte_script(
         + [bytes.fromhex("2f21210501000000")]  # step 8: valid = 1, last calibration write
         + [upload(0x2121, 6), upload(0x2121, 5)]  # step 9
         + [bytes.fromhex("2310100473617665")]  # step 10: 'save' to 0x1010:04
+        + [upload(od.IDENTITY, 4), upload(0x2121, 5), upload(0x2121, 6)]  # read back after it
     )
     assert len(requests) == len(expected)
     for n, (got, want) in enumerate(zip(requests, expected, strict=True)):

@@ -33,6 +33,7 @@ from tests.device.test_write_faults import (
     calibration,
     either_loop_rig,  # noqa: F401  (a fixture)
 )
+from tests.support.claims import claimed
 
 SEED = 20261124
 RUNS = 40
@@ -82,6 +83,14 @@ def check_outcome(rig: LoopRig, old: Raw, new: Raw, plan: dict[int, int], raised
     first = plan[min(plan)]
     assert isinstance(raised, Terminated) == (first == signal.SIGTERM), raised
     notes = getattr(raised, "__notes__", [])
+    if notes and "the store had begun" in notes[0]:  # the commit point passed: completed
+        assert claimed(notes[0]) == ("new", "new") and state == new, f"{plan}: {notes}"
+        if rig.device.kind == "simulated":  # its non-volatile memory is readable in process
+            assert rig.stored() == new, f"{plan}: the store was said to be done"
+        return "stored"
+    if notes and notes[0].startswith("nothing written"):  # between the backup and writing
+        assert state == old and str(rig.backups) in notes[0], f"{plan}: {notes}"
+        return "before writing"
     if notes:  # interrupted after the backup: rolled back to the old set, backup named
         assert state == old, f"{plan}: interrupt reported a rollback, device does not hold old"
         assert notes[0].startswith(f"previous calibration restored from {rig.backups}")
@@ -122,6 +131,18 @@ def test_second_interrupt_during_the_rollback_is_held_back(
     assert isinstance(raised, Terminated)
     assert rig.raw() == old and count > 62
     assert "previous calibration restored from" in raised.__notes__[0]
+
+
+def test_an_interrupt_at_the_store_completes_it_and_says_so(
+    either_loop_rig: LoopRig,  # noqa: F811
+) -> None:
+    rig = either_loop_rig
+    old, new, n_requests = _old_and_new(rig)
+    rig.load(old)
+    k_store = n_requests - 3  # the store, then serial, valid and CRC read back
+    raised, _ = interrupted_write(rig, {k_store: signal.SIGINT, k_store + 1: signal.SIGTERM})
+    assert type(raised) is KeyboardInterrupt  # the first signal's, the second dropped
+    assert check_outcome(rig, old, new, {k_store: signal.SIGINT}, raised) == "stored"
 
 
 @pytest.fixture(autouse=True)

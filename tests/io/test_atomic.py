@@ -50,7 +50,7 @@ def test_failure_during_write_keeps_old_file_and_no_temporary(
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(atomic.os, "fsync", broken_fsync)
-    with pytest.raises(InputError, match="cannot write .*No space left"):
+    with pytest.raises(InputError, match="cannot write .*: no space left on device"):
         write_text_atomic(target, "new", overwrite=True)
     assert target.read_text() == "old"
     assert _names(tmp_path) == ["out.json"]

@@ -13,6 +13,6 @@ from tests.support import tcpbus
 
 if __name__ == "__main__":
     tcpbus.register()
-    from canimucal.cli.main import main
+    from canimucal.cli.entry import run_main
 
-    sys.exit(main(sys.argv[1:]))
+    sys.exit(run_main(sys.argv[1:]))

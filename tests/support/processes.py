@@ -1,10 +1,11 @@
 """The CLI in separate processes on one :mod:`tests.support.tcpbus` hub, forked cheaply.
 
 :func:`fork_cli` forks this (already imported) test process and runs
-``canimucal.cli.main.main(argv)`` in the child, its stdout and stderr going to files, and
-exits with the command's return code, so a process costs milliseconds instead of the ~1 s
-of a fresh interpreter. The child starts with Python's own SIGINT handler and the default
-SIGTERM disposition, as a command started from a shell does; anything escaping ``main``
+``canimucal.cli.entry.run_main(argv)`` in the child (what the ``canimucal`` script runs), its
+stdout and stderr going to files, and exits with the command's return code, so a process
+costs milliseconds instead of the ~1 s of a fresh interpreter. The child starts with
+Python's own SIGINT handler and the default SIGTERM and SIGHUP dispositions, as a command
+started from a shell does, until ``run_main`` takes them over; anything escaping it
 (which must never happen) is written to stderr as a traceback and exits 99.
 :class:`CliProcess` waits for it and reads what it printed.
 """
@@ -102,15 +103,16 @@ def fork_cli(argv: list[str], workdir: Path, name: str) -> CliProcess:
     try:  # the child: never return into the test runner
         signal.signal(signal.SIGINT, signal.default_int_handler)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        signal.signal(signal.SIGHUP, signal.SIG_DFL)
         for fd, path in ((1, out), (2, err)):
             target = os.open(path, os.O_WRONLY | os.O_TRUNC)
             os.dup2(target, fd)
             os.close(target)
         sys.stdout = open(1, "w", closefd=False)  # noqa: SIM115 (the process ends below)
         sys.stderr = open(2, "w", closefd=False)  # noqa: SIM115
-        from canimucal.cli.main import main
+        from canimucal.cli.entry import run_main
 
-        code = main(argv)
+        code = run_main(argv)
     except BaseException:  # noqa: BLE001  (reported as the test's failure, never swallowed)
         try:
             traceback.print_exc()
@@ -130,12 +132,21 @@ def bus_flags(hub: tcpbus.TcpHub, node_id: int = 0x10) -> list[str]:
 
 
 def start_sim_node(
-    hub: tcpbus.TcpHub, workdir: Path, truth: dict[str, Any], *, node_id: int = 0x10
+    hub: tcpbus.TcpHub,
+    workdir: Path,
+    truth: dict[str, Any],
+    *,
+    node_id: int = 0x10,
+    state: Path | None = None,
 ) -> CliProcess:
-    """``canimucal sim`` in its own process on ``hub``; returns once it printed ``ready``."""
+    """``canimucal sim`` in its own process on ``hub``; returns once it printed ``ready``.
+
+    ``state``: the node's non-volatile memory (``--state``), where its stores go.
+    """
     path = workdir / f"truth-{node_id}.json"
     path.write_text(json.dumps(truth))
     argv = ["sim", *bus_flags(hub, node_id), "--truth", str(path)]
+    argv += ["--state", str(state)] if state is not None else []
     proc = fork_cli(argv, workdir, f"sim-{node_id}")
     deadline = time.monotonic() + 30.0
     while not proc.stdout.startswith("ready"):

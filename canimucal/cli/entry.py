@@ -1,0 +1,41 @@
+"""The process entry point of ``canimucal`` and ``python -m canimucal`` (docs/design.md §9).
+
+It holds SIGINT, SIGTERM and SIGHUP from its first line, before the command line's modules
+are imported, so a Ctrl-C that early cannot print a traceback: :func:`canimucal.cli.main.main`
+raises the first held signal inside its own handling (one line, exit 130/143/129). The
+holding handlers stay in place after ``main`` returns, so a late second signal cannot turn
+the chosen exit status into a death by signal. Only this module installs them on a process;
+``main`` itself, called in process (tests, scripts), puts back what it found.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+
+TYPE_CHECKING = False  # typing not imported: every millisecond before the hold counts
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+    from types import FrameType
+
+_HOLD = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+def run_main(argv: Sequence[str]) -> int:
+    """Run ``canimucal ARGV`` as a whole process would; return its exit status."""
+    pending: list[int] = []
+
+    def hold(signum: int, frame: FrameType | None) -> None:
+        pending.append(signum)
+
+    for signum in _HOLD:
+        if signal.getsignal(signum) is not signal.SIG_IGN:  # nohup, a background job
+            signal.signal(signum, hold)
+    from canimucal.cli.main import main
+
+    return main(list(argv), early=pending)
+
+
+def run() -> None:
+    """Run the command and exit with its status (the console script)."""
+    sys.exit(run_main(sys.argv[1:]))

@@ -1,0 +1,69 @@
+"""Ctrl-C in the first second of a command, once or twice (issue 25, item 10 and "Smaller").
+
+A fresh interpreter runs ``python -X importtime -m canimucal plan --plan five``; the test
+reads its import log and, once the command line's entry module has been imported (the
+first moment the tool's own code runs), sends SIGINT after a seeded delay of up to 1 s,
+the span of the command's imports (numpy, scipy: a Ctrl-C inside a C extension's import
+came out as an ImportError, "internal error"). Twice: the second 1–50 ms later. Every run
+must end with exit 130 and the one line ``interrupted`` (a death by SIGINT, status -2, was
+the other way a late second Ctrl-C ended it). Before the entry module runs, the
+interpreter's own start-up is beyond the tool's reach.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+SEED = 20261127
+RUNS = 6
+ENTRY_LINES = ("| canimucal.cli.entry", "| canimucal.cli.main")
+"""The import-log line after which the tool's own code runs (``cli.main``: before issue 25)."""
+
+
+def interrupted_start(delay_s: float, gap_s: float | None) -> tuple[int, str]:
+    """Run the command, SIGINT it ``delay_s`` after its entry module (and ``gap_s`` later)."""
+    argv = [sys.executable, "-X", "importtime", "-m", "canimucal", "plan", "--plan", "five"]
+    proc = subprocess.Popen(
+        argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+    )
+    assert proc.stderr is not None
+    lines = []
+    try:
+        for line in proc.stderr:
+            lines.append(line)
+            if line.rstrip().endswith(ENTRY_LINES):
+                time.sleep(delay_s)
+                proc.send_signal(signal.SIGINT)
+                if gap_s is not None:
+                    time.sleep(gap_s)
+                    proc.send_signal(signal.SIGINT)
+                break
+        lines += proc.stderr.read().splitlines(keepends=True)
+        code = proc.wait(60.0)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    said = "".join(line for line in lines if not line.startswith("import time:"))
+    return code, said
+
+
+@pytest.mark.parametrize("twice", [False, True], ids=["once", "twice"])
+def test_ctrl_c_while_the_command_starts_is_one_line_and_130(twice: bool) -> None:
+    rng = np.random.default_rng(SEED + twice)
+    outcomes = []
+    for _ in range(RUNS):
+        delay_s = float(rng.uniform(0.0, 1.0))
+        gap_s = float(rng.uniform(0.001, 0.05)) if twice else None
+        code, said = interrupted_start(delay_s, gap_s)
+        outcomes.append((round(delay_s, 3), code, said.strip().splitlines()[-1:]))
+        assert code == 130 and said == "interrupted\n", outcomes
