@@ -157,8 +157,6 @@ def plan_writes(
     return tuple(writes)
 
 
-
-
 def _target(
     record: Calibration, accel_lsb: float, gyro_lsb: float
 ) -> tuple[od.CalibrationBlock, dict[ObjectKey, float | int], int, int, bool]:

@@ -16,8 +16,6 @@ session's instructions: the one asked for, else the one saved for the unit's ser
 from __future__ import annotations
 
 import logging
-import os
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 

@@ -108,6 +108,7 @@ HUGE = "9" * 5001
 DEEP = "[" * 5000 + "]" * 5000
 
 
+@pytest.mark.parametrize("verb", ["solve", "tui", "demo"])
 @pytest.mark.parametrize(
     ("text", "fragment"),
     [(f"max_bias_sigma_mg = {HUGE}\n", "more than 4300 digits"), (f"x = {DEEP}\n", "nested")],
@@ -119,12 +120,19 @@ def test_acceptance_limits_with_a_huge_integer_or_deep_arrays(
     monkeypatch: pytest.MonkeyPatch,
     text: str,
     fragment: str,
+    verb: str,
 ) -> None:
+    """The shells read the user's limits before anything opens: the TUI never starts on them."""
     config = tmp_path / "config" / "canimucal"
     config.mkdir(parents=True)
     (config / "acceptance.toml").write_text(text)
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
-    run = cli(["solve", simulated("five", "diag", 10.0).path])
+    argv = {
+        "solve": ["solve", simulated("five", "diag", 10.0).path],
+        "tui": ["tui", "--sim"],
+        "demo": ["demo", "--headless", "--seconds", "2", "--out", tmp_path / "out"],
+    }[verb]
+    run = cli(argv)
     one_line_error(run, 2, "acceptance.toml", fragment)
 
 
