@@ -30,9 +30,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.support
 
 from canimucal.analysis.discrepancy import analyse_discrepancy, effect_sigmas
 from canimucal.analysis.report import analyse_recording
-from canimucal.io.importers import load_any
 from canimucal.model.positions import Plan
 from canimucal.model.vocabulary.effects import EFFECTS
+from canimucal.runtime.inputs import read_recording
 from canimucal.sim.effects import hide_effect, warm_up_profile
 from canimucal.sim.truth import Truth
 from tests.support.plans import twelve
@@ -126,7 +126,7 @@ def real_data() -> None:
         if not all(p.exists() for p in paths):
             print(f"{name}: data absent ({DATA}), skipped")
             continue
-        rec = load_any(str(paths[0]), str(paths[1]), fmt=None, sample_rate_hz=rate)
+        rec = read_recording(paths[0], second=paths[1], sample_rate_hz=rate)
         t0 = time.perf_counter()
         a = analyse_recording(rec, g=g)
         r = a.result

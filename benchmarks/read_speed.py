@@ -14,7 +14,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.support
 
-from canimucal.io.recording import read_recording
+from canimucal.io.recording import read_recording_csv
 from tests.support.recordings import write_bulk_recording
 
 TARGETS_S = {72_000: 3.0, 720_000: 10.0}
@@ -25,7 +25,7 @@ def main() -> None:
         for n, target in TARGETS_S.items():
             path = write_bulk_recording(Path(tmp) / f"r{n}.csv", n)
             wall, cpu = time.perf_counter(), time.process_time()
-            rec = read_recording(path)
+            rec = read_recording_csv(path)
             wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
             assert rec.n_rows == n
             print(

@@ -26,23 +26,22 @@ if TYPE_CHECKING:
 
     from canimucal.analysis.acceptance import AcceptanceConfig, AcceptanceLimits
     from canimucal.analysis.report import Analysis, analyze
-    from canimucal.analysis.solve import calibrate
     from canimucal.analysis.static_noise import StaticAnalysis, analyze_static
     from canimucal.errors import CanimucalError, DeviceError, InputError, ModelError
     from canimucal.io.calibration import Calibration
-    from canimucal.io.importers import read_any as read_recording
     from canimucal.io.recording import Recording
     from canimucal.model.plan import BoundTable, plan_bounds
     from canimucal.model.positions import Plan, Pose, PositionAverage, average_position
+    from canimucal.runtime.inputs import calibrate, read_recording
 
 _PUBLIC = {
-    "read_recording": ("canimucal.io.importers", "read_any"),
+    "read_recording": ("canimucal.runtime.inputs", "read_recording"),
     "Recording": ("canimucal.io.recording", "Recording"),
     "average_position": ("canimucal.model.positions", "average_position"),
     "Pose": ("canimucal.model.positions", "Pose"),
     "Plan": ("canimucal.model.positions", "Plan"),
     "PositionAverage": ("canimucal.model.positions", "PositionAverage"),
-    "calibrate": ("canimucal.analysis.solve", "calibrate"),
+    "calibrate": ("canimucal.runtime.inputs", "calibrate"),
     "Calibration": ("canimucal.io.calibration", "Calibration"),
     "plan_bounds": ("canimucal.model.plan", "plan_bounds"),
     "BoundTable": ("canimucal.model.plan", "BoundTable"),

@@ -42,10 +42,19 @@ native_ok() {
       >/dev/null 2>&1
 }
 
-pins() {  # the host venv's versions of what the VM needs (textual is not needed there)
+pins() {  # the host venv's versions of pyproject's dependencies (not textual: no TUI in the
+  # VM) and of durand (the independent responder the HIL tests run): read from pyproject.toml,
+  # so a dependency added there reaches the VM without a second list to keep
   "$PY" - <<'PYEOF'
 import importlib.metadata as m
-print(" ".join(f"{p}=={m.version(p)}" for p in ("numpy", "scipy", "python-can", "canopen", "durand")))
+import re
+import tomllib
+
+with open("pyproject.toml", "rb") as f:
+    deps = tomllib.load(f)["project"]["dependencies"]
+names = [re.match(r"[A-Za-z0-9_.-]+", d).group(0) for d in deps]
+names = [n for n in names if n.lower() != "textual"] + ["durand"]
+print(" ".join(f"{n}=={m.version(n)}" for n in names))
 PYEOF
 }
 

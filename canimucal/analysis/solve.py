@@ -15,7 +15,6 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
 
@@ -33,7 +32,7 @@ from canimucal.analysis.session_model import (
     session_model,
 )
 from canimucal.errors import InputError, ModelError
-from canimucal.io.calibration import Calibration, Device, RecordingRef, sha256_of
+from canimucal.io.calibration import Calibration, Device, RecordingRef
 from canimucal.io.grouping import (
     average_rows,
     has_angles,
@@ -41,7 +40,6 @@ from canimucal.io.grouping import (
     position_labels,
     position_rows,
 )
-from canimucal.io.importers import read_any
 from canimucal.io.recording import Recording
 from canimucal.model.layout import JointSpec
 from canimucal.model.positions import PositionAverage
@@ -217,7 +215,7 @@ def _header_int(rec: Recording, key: str) -> int | None:
 
 
 def calibrate(
-    source: Recording | str | os.PathLike[str] | Sequence[PositionAverage],
+    source: Recording | Sequence[PositionAverage],
     *,
     model: ModelName | None = None,
     tilt: bool | None = None,
@@ -228,8 +226,9 @@ def calibrate(
     latitude_deg: float | None = None,
     tolerance_deg: float | None = None,
     limits: Limits | None = None,
+    ref: RecordingRef | None = None,
 ) -> Calibration:
-    """Calibrate from a recording (or its path) or from position averages.
+    """Calibrate from a recording or from position averages.
 
     The defaults are ``canimucal solve``'s (the recording header's session model, else
     diagonal K without tilt), so ``calibrate(rec, model="full", tilt=True)`` gives the
@@ -239,7 +238,9 @@ def calibrate(
     ``limits`` (an :class:`~canimucal.analysis.acceptance.AcceptanceLimits`, or an
     :class:`~canimucal.analysis.acceptance.AcceptanceConfig` that picks them per plan), the
     built-in limits when None: no user file is read. A failed acceptance check is reported
-    in ``.acceptance``, never raised.
+    in ``.acceptance``, never raised. ``ref`` names the file a recording came from in the
+    result; ``cm.calibrate`` (:func:`canimucal.runtime.inputs.calibrate`) reads a path in any
+    input format and passes it.
     """
     choice = ModelChoice(
         model=model,
@@ -252,11 +253,9 @@ def calibrate(
         tolerance_deg=tolerance_deg,
     )
     if isinstance(source, str | os.PathLike):
-        path = Path(source)
-        ref = RecordingRef(file=path.name, sha256=sha256_of(path))
-        return solve_recording(read_any(path), choice, recording=ref, limits=limits).record
+        raise TypeError("a path is read by canimucal.calibrate (any input format), not here")
     if isinstance(source, Recording):
-        return solve_recording(source, choice, limits=limits).record
+        return solve_recording(source, choice, recording=ref, limits=limits).record
     return _calibrate_averages(list(source), choice, limits_for(limits, None))
 
 

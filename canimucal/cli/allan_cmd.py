@@ -20,9 +20,9 @@ from canimucal.analysis.static_noise import (
     static_document,
     static_rows,
 )
+from canimucal.cli.input_options import INPUT_HELP, SECOND_HELP, add_input_options, read_input
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.errors import InputError
-from canimucal.io.importers import FORMATS, load_any
 from canimucal.io.recording import Recording
 from canimucal.model.static import detect_static_intervals
 
@@ -44,10 +44,9 @@ def add_subparser(subparsers: Any) -> None:
         "intervals, a drift test, each axis's best averaging time and one for all axes with "
         "the limiting axis named.",
     )
-    p.add_argument("recording", help="recording CSV, imu_tk accelerometer file or imucal CSV")
-    p.add_argument("second", nargs="?", help="imu_tk gyro file, or imucal section JSON (optional)")
-    p.add_argument("--format", choices=FORMATS, help="input format (default: from content)")
-    p.add_argument("--sample-rate-hz", type=float, help="sample rate when the input has none")
+    p.add_argument("recording", help=INPUT_HELP)
+    p.add_argument("second", nargs="?", help=SECOND_HELP)
+    add_input_options(p, plan=False)
     p.add_argument("--position", type=int, help="analyse this labelled position")
     add_json_option(p)
     p.set_defaults(run=run)
@@ -56,7 +55,7 @@ def add_subparser(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Analyse and report."""
     check_outputs(args)
-    rec = load_any(args.recording, args.second, fmt=args.format, sample_rate_hz=args.sample_rate_hz)
+    rec = read_input(args, args.recording, args.second)
     start, stop, where = _still_stretch(rec, args.position)
     fs = rec.sample_rate_hz
     for name, data in (("accel", rec.accel), ("gyro", rec.gyro)):

@@ -30,10 +30,10 @@ from canimucal.analysis.static_noise import (
     static_rows,
 )
 from canimucal.cli.analyze_plots import check_plot_targets, write_plots
+from canimucal.cli.input_options import INPUT_HELP, SECOND_HELP, add_input_options, read_input
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.errors import InputError
 from canimucal.io.atomic import refuse_existing
-from canimucal.io.importers import FORMATS, load_any
 from canimucal.io.plans import plan_from_document, plan_to_dict, write_plan
 from canimucal.io.recording import Recording
 from canimucal.io.truth import write_truth
@@ -54,10 +54,9 @@ def add_subparser(subparsers: Any) -> None:
         + "; ".join(f"{e.name}, {e.wording}" for e in EFFECTS.values())
         + ".",
     )
-    p.add_argument("input", help="recording CSV, imu_tk accelerometer file or imucal CSV")
-    p.add_argument("second", nargs="?", help="imu_tk gyro file, or imucal section JSON (optional)")
-    p.add_argument("--format", choices=FORMATS, help="input format (default: from content)")
-    p.add_argument("--sample-rate-hz", type=float, help="sample rate when the input has none")
+    p.add_argument("input", help=INPUT_HELP)
+    p.add_argument("second", nargs="?", help=SECOND_HELP)
+    add_input_options(p)
     p.add_argument("--g", type=float, help="local gravity, m/s² (default: header, latitude)")
     p.add_argument("--latitude-deg", type=float, help="latitude (Earth rate in the gyro model)")
     p.add_argument(
@@ -106,7 +105,7 @@ def _checked_poses(analysis: Analysis, target: str | None) -> Plan | None:
 def run(args: argparse.Namespace) -> int:
     """Analyse and report."""
     _check_files(args)
-    rec = load_any(args.input, args.second, fmt=args.format, sample_rate_hz=args.sample_rate_hz)
+    rec = read_input(args, args.input, args.second)
     rows = static_rows(rec)
     if rows is not None:
         return _run_static(args, rec, rows)

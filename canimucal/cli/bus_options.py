@@ -146,6 +146,8 @@ def device_settings(args: argparse.Namespace, *, find: bool = True) -> DeviceSet
         sdo_timeout_s=args.sdo_timeout,
         sync_producer=bool(args.sync_producer),
         find=find,
+        bus_logs=tuple(Path(p) for p in getattr(args, "can_log", None) or ()),
+        overwrite_logs=bool(getattr(args, "overwrite", False)),
     )
 
 

@@ -37,6 +37,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "write-params": ("write_params_cmd", "write a calibration to the node, transactionally"),
     "record": ("record_cmd", "record one position or a whole plan to a recording CSV"),
     "analyze": ("analyze_cmd", "what the sensor model gets wrong on measured data"),
+    "import-log": ("import_log_cmd", "turn a CAN bus log into a recording CSV"),
     "tui": ("tui_cmd", "the guided calibration in the terminal UI (the default)"),
 }
 

@@ -14,7 +14,6 @@ from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.cli.spec_options import add_model_options, spec_from_args
 from canimucal.errors import InputError
 from canimucal.io.grouping import position_rows
-from canimucal.io.importers import load_any
 from canimucal.io.plans import plan_to_dict, resolve_plan
 from canimucal.model.layout import JointSpec
 from canimucal.model.plan import BoundTable, cramer_rao, plan_prior
@@ -33,6 +32,7 @@ from canimucal.procedure.averaging import (
     choose_time,
     describe_rule,
 )
+from canimucal.runtime.inputs import read_recording
 
 PLAN_SCHEMA = "canimucal.plan/1"
 """``plan --json``: one plan's bounds (docs/design.md §5)."""
@@ -130,7 +130,7 @@ def _averaging(noise: str | None, sensors: tuple[str, ...]) -> tuple[dict[str, A
     text = textwrap.fill(f"averaging: {rule}", 80, subsequent_indent="  ") + "\n"
     if noise is None:
         return doc, text
-    rec = load_any(noise)
+    rec = read_recording(noise)
     rows = static_rows(rec)
     if rows is None:
         rows = max(position_rows(rec)[0], key=len, default=np.arange(0))

@@ -3,7 +3,9 @@
 ``--json PATH`` writes, per node, the identity, the nominal values, the docs/design.md §5
 ``readback`` block (the device's values as read, valid flag, CRC check) and the calibration
 record of what the node holds, with the raw ``objects`` map (so the file restores it with
-``write-params``). Several ``--node-id``: one file per node, ``NAME.node<ID>.json``.
+``write-params``), and the TPDO communication and mapping objects as ``pdo``
+(``{"0x1800:01": 400, …}``: ``import-log --pdo-map`` decodes a log of the node with them).
+Several ``--node-id``: one file per node, ``NAME.node<ID>.json``.
 """
 
 from __future__ import annotations
@@ -63,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
 def read_document(client: ImuClient) -> dict[str, Any]:
     """Everything ``read-params`` reports about one node, as a JSON-ready dict."""
     from canimucal.device.calibration_map import readback_of, record_from_block
+    from canimucal.device.objects import format_key
     from canimucal.schema import to_plain
 
     identity = client.identity()
@@ -88,6 +91,7 @@ def read_document(client: ImuClient) -> dict[str, Any]:
         "readback": to_plain(readback_of(readout.block, readout.valid, readout.crc_ok)),
         "crc_stored": readout.crc_stored,
         "calibration": calibration,
+        "pdo": {format_key(*key): value for key, value in client.pdo_objects().items()},
         "bus_load": client.bus_load(full_window=True).as_dict(),
     }
 

@@ -5,6 +5,9 @@ One position: ``--position I --alpha-deg A --beta-deg B [--psi-deg P] --seconds 
 operator pose by pose on stdin, or, with ``--sim`` or ``--follow-schedule``, follows the
 pose schedule the unit runs by itself from the NMT start (``canimucal sim --poses P``).
 Ctrl-C keeps what was recorded (exit 130). Several ``--node-id``: ``OUT.node<ID>.csv``.
+``--can-log FILE`` (may repeat) also writes every frame of the bus, received and sent, through
+python-can's writer for the file's suffix (:mod:`canimucal.device.bus_log`); ``import-log``
+turns such a log back into a recording.
 A plan that holds K at a prior (``vehicle``) records the K each node applies now (read from
 the node, :func:`canimucal.device.factory_k.device_k`) in the header, for ``solve``.
 """
@@ -21,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from canimucal.cli.bus_options import add_bus_options, node_ids, open_from_args
+from canimucal.device.log_formats import check_log_target
 from canimucal.errors import DeviceError, InputError
 from canimucal.io.atomic import per_node_path, refuse_existing
 from canimucal.io.plans import resolve_plan
@@ -80,18 +84,43 @@ def add_subparser(subparsers: Any) -> None:
         help="record without checking that the unit is at each pose (5° first, then 3°)",
     )
     p.add_argument(
+        "--can-log",
+        action="append",
+        metavar="FILE",
+        help="also write the raw bus traffic to FILE through python-can's writer for its "
+        "suffix (.log candump, .asc, .blf, .trc, .csv, .db, .mf4; .gz compresses text "
+        "formats); may repeat",
+    )
+    p.add_argument(
         "--transient-s",
         type=float,
         default=POSE_TRANSIENT_S,
         help=f"move time between scheduled poses (default {POSE_TRANSIENT_S:g} s)",
     )
-    site = p.add_argument_group("site (recording header)")
+    add_site_options(p)
+    add_bus_options(p)
+    p.set_defaults(run=run)
+
+
+SITE_KEYS = ("g", "latitude_deg", "height_m", "heading_deg")
+"""The recording header's site keys, each a flag (``--latitude-deg``)."""
+
+
+def add_site_options(parser: argparse.ArgumentParser) -> None:
+    """``--g``, ``--latitude-deg``, ``--height-m``, ``--heading-deg``: the header's site."""
+    site = parser.add_argument_group("site (recording header)")
     site.add_argument("--g", type=float, help="local gravity, m/s²")
     site.add_argument("--latitude-deg", type=float, help="latitude (deg)")
     site.add_argument("--height-m", type=float, help="height (m)")
     site.add_argument("--heading-deg", type=float, help="azimuth of body z (deg)")
-    add_bus_options(p)
-    p.set_defaults(run=run)
+
+
+def site_flags(args: argparse.Namespace) -> dict[str, float]:
+    """Return the site the flags give (finite numbers; the header checks ranges)."""
+    site = {key: getattr(args, key) for key in SITE_KEYS}
+    for key, value in site.items():
+        _finite("--" + key.replace("_", "-"), value)
+    return {key: float(value) for key, value in site.items() if value is not None}
 
 
 def _finite(name: str, value: float | None) -> None:
@@ -117,6 +146,11 @@ def check_args(args: argparse.Namespace) -> Plan:
         plan = resolve_plan(args.plan)
         if args.seconds is not None:
             plan = plan.with_total_seconds(args.seconds * len(plan.positions))
+    logs = [Path(p) for p in args.can_log or ()]
+    if len(set(logs)) != len(logs):
+        raise InputError("--can-log names the same file twice")
+    for log in logs:  # a log is never appended to, with --append neither
+        check_log_target(log, overwrite=args.overwrite)
     ids = node_ids(args)
     for nid in ids:
         path = per_node_path(args.output, nid, len(ids) > 1)
@@ -217,6 +251,10 @@ def run(args: argparse.Namespace) -> int:
                 writers = [w for _, w, _ in channels]
                 if not any(w.failed or w.discarded for w in writers):
                     print(report(recorder.tallies, [w.path for w in writers]), end="")
+    if session.bus_log_failures:  # known once the devices are closed
+        raise InputError("; ".join(session.bus_log_failures))
+    for path, frames in session.bus_log.written if session.bus_log else ():
+        print(f"bus log: wrote {frames} frames to {path}")
     return 0
 
 

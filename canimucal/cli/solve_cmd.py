@@ -9,11 +9,11 @@ from typing import Any
 
 from canimucal.analysis.calibrate import Solution
 from canimucal.analysis.solve import solve_recording
+from canimucal.cli.input_options import INPUT_HELP, SECOND_HELP, add_input_options, read_input
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.cli.spec_options import add_model_options, choice_from_args
 from canimucal.cli.user_config import user_acceptance
 from canimucal.io.calibration import RecordingRef, sha256_of
-from canimucal.io.importers import FORMATS, detect_format, load_any
 from canimucal.model.vocabulary.units import QUANTITIES
 
 
@@ -28,10 +28,9 @@ def add_subparser(subparsers: Any) -> None:
         "parameter with its σ and the acceptance verdict; --json writes the calibration "
         "JSON; exit 3 when acceptance fails (after writing).",
     )
-    p.add_argument("recording", help="recording CSV, imu_tk accelerometer file or imucal CSV")
-    p.add_argument("second", nargs="?", help="imu_tk gyro file, or imucal section JSON (optional)")
-    p.add_argument("--format", choices=FORMATS, help="input format (default: from content)")
-    p.add_argument("--sample-rate-hz", type=float, help="sample rate when the input has none")
+    p.add_argument("recording", help=INPUT_HELP)
+    p.add_argument("second", nargs="?", help=SECOND_HELP)
+    add_input_options(p)
     add_model_options(p, default_tilt=False)
     p.set_defaults(model=None, tilt=None, tilt_model=None)  # None: from the header
     p.add_argument(
@@ -63,10 +62,7 @@ def add_subparser(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Solve and report."""
     check_outputs(args)
-    fmt = args.format or (
-        detect_format(args.recording) if Path(args.recording).is_file() else "recording"
-    )  # a missing file: the recording reader says "cannot read"
-    rec = load_any(args.recording, args.second, fmt=fmt, sample_rate_hz=args.sample_rate_hz)
+    rec = read_input(args, args.recording, args.second)
     ref = RecordingRef(file=Path(args.recording).name, sha256=sha256_of(args.recording))
     solved = solve_recording(rec, choice_from_args(args), recording=ref, limits=user_acceptance())
     for note in solved.notes:

@@ -11,6 +11,7 @@ run on the client's consumer thread (:mod:`canimucal.device.stream`).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import queue
@@ -32,8 +33,9 @@ from canimucal.device.events import (
     SerialChanged,
 )
 from canimucal.device.nmt_state import NmtFound, infer_nmt_state
+from canimucal.device.pdo_layout import read_layout
 from canimucal.device.sdo_tally import SdoAnswerTally
-from canimucal.device.stream import SampleLayout, SamplePairer, layout_from_mapping
+from canimucal.device.stream import SampleLayout, SamplePairer
 from canimucal.device.stream_consumer import StreamConsumer
 from canimucal.errors import DeviceError, DeviceSilentError, NoDeviceError, SdoAbort
 from canimucal.model.samples import SampleBlock, concat_blocks
@@ -60,18 +62,6 @@ ANSWER_WINDOW_FLOOR_S = 0.005
 """After the first answer to a serial read, how long at least to listen for a second device."""
 LSB_UNITS = (("accel", "m/s² per count"), ("gyro", "rad/s per count"))
 """What 0x2010:01 and 0x2010:02 scale, and their units."""
-RESTRICTED_COB_IDS = (
-    (0x000, 0x000, "NMT"),
-    (0x001, 0x07F, "reserved"),
-    (0x101, 0x180, "reserved (TIME and below TPDO1's range)"),
-    (0x581, 0x5FF, "SDO answers"),
-    (0x601, 0x67F, "SDO requests"),
-    (0x6E0, 0x6FF, "reserved"),
-    (0x701, 0x77F, "heartbeats and boot-ups"),
-    (0x780, 0x7FF, "reserved"),
-)
-"""CAN-IDs CiA 301 (§7.3.5) does not allow for a PDO: a TPDO there would be taken for an SDO
-answer, a heartbeat or an NMT command by every other device and tool on the bus."""
 NOTIFIER_CYCLE_S = 0.1
 """Receive-thread wake-up of a network the client makes itself (bounds :meth:`close`)."""
 
@@ -298,27 +288,31 @@ class ImuClient:
 
     def pdo_mapping(self) -> SampleLayout:
         """Read TPDO1–3 COB-IDs (0x1800–0x1802) and mappings (0x1A00–0x1A02) from the node."""
-        cob_ids: dict[int, int] = {}
-        entries: dict[int, list[int]] = {}
-        for number, (comm, mapping) in enumerate(
-            zip(od.TPDO_COMM, od.TPDO_MAP, strict=True), start=1
-        ):
-            cob = int(self.read_value(comm, 1, "u32"))
-            count = int(self.read_value(mapping, 0, "u8"))
-            if cob & 0x8000_0000 or count == 0:
-                continue  # PDO not valid or nothing mapped
-            cob_ids[number] = cob & (0x1FFF_FFFF if cob & 0x2000_0000 else 0x7FF)
-            if not cob & 0x2000_0000:
-                _refuse_restricted(number, cob_ids[number])
-            entries[number] = [
-                int(self.read_value(mapping, sub, "u32")) for sub in range(1, count + 1)
-            ]
-        if 1 not in entries or 2 not in entries:
-            raise DeviceError("TPDO1 and TPDO2 must be valid and mapped to stream samples")
+
+        def read(index: int, sub: int) -> int:
+            return int(self.read_value(index, sub, "u8" if sub == 0 else "u32"))
+
         try:
-            return layout_from_mapping(cob_ids, entries)
+            return read_layout(read)
         except ValueError as exc:
             raise DeviceError(f"unusable PDO mapping: {exc}") from exc
+
+    def pdo_objects(self) -> dict[tuple[int, int], int]:
+        """Read the TPDO objects the mapping is built from (0x1800–0x1802:01, 0x1A00–0x1A02).
+
+        What ``read-params --json`` keeps, so ``import-log --pdo-map`` decodes a log of this
+        node with its own mapping; a mapping that cannot stream is returned as read all the
+        same (the objects up to the first TPDO that has none).
+        """
+        seen: dict[tuple[int, int], int] = {}
+
+        def read(index: int, sub: int) -> int:
+            seen[(index, sub)] = int(self.read_value(index, sub, "u8" if sub == 0 else "u32"))
+            return seen[(index, sub)]
+
+        with contextlib.suppress(ValueError):
+            read_layout(read)
+        return seen
 
     def read_calibration_block(self) -> CalibrationReadout:
         """Read every calibration object (docs/design.md §4), the valid flag and the stored CRC."""
@@ -638,13 +632,3 @@ class ImuClient:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def _refuse_restricted(number: int, cob_id: int) -> None:
-    """DeviceError when TPDO ``number`` sits on a CAN-ID CiA 301 reserves (11-bit IDs)."""
-    for low, high, what in RESTRICTED_COB_IDS:
-        if low <= cob_id <= high:
-            raise DeviceError(
-                f"unusable PDO mapping: TPDO{number} has COB-ID 0x{cob_id:03X}, which CiA 301 "
-                f"reserves ({what}, 0x{low:03X}-0x{high:03X}): check 0x{0x1800 + number - 1:04X}:01"
-            )

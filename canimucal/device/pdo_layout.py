@@ -3,16 +3,27 @@
 The client never assumes the EDS default: a device that orders the objects differently or
 maps them with other widths streams too, as long as each TPDO fits one classic CAN frame
 (8 bytes). INT32 raw values do not fit: x/y/z plus the counter would take 14 bytes, so such a
-mapping is refused with a clear error.
+mapping is refused with a clear error. :func:`read_layout` builds the layout from the
+communication and mapping objects however they are read (SDO uploads from the node, the
+uploads a bus log holds, a ``read-params --json`` document); :func:`default_layout` is the
+EDS default of a node id, what a bus log without any of these is decoded with.
 """
 
 from __future__ import annotations
 
 import struct
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
-from canimucal.device.objects import ACCEL_RAW, GYRO_RAW, OBJECTS, SAMPLE_INFO
+from canimucal.device.objects import (
+    ACCEL_RAW,
+    GYRO_RAW,
+    OBJECTS,
+    SAMPLE_INFO,
+    TPDO_COMM,
+    TPDO_MAP,
+    object_at,
+)
 from canimucal.model.vocabulary.constants import COUNTER_BITS
 
 SIGNED_OBJECTS = frozenset(o.key for o in OBJECTS if o.data_type == "i16")
@@ -178,3 +189,79 @@ def layout_from_mapping(
 def mapping_entry(index: int, sub: int, bits: int) -> int:
     """Return the CiA 301 mapping entry ``index << 16 | sub << 8 | bit length``."""
     return (index << 16) | (sub << 8) | bits
+
+
+ObjectReader = Callable[[int, int], int]
+"""Reads one unsigned object ``(index, sub)`` of the node: an SDO upload, a log, a document."""
+
+COB_ID_INVALID = 0x8000_0000
+"""Bit 31 of a TPDO COB-ID (0x180x:01): the PDO does not exist (CiA 301)."""
+COB_ID_EXTENDED = 0x2000_0000
+"""Bit 29 of a TPDO COB-ID: a 29-bit identifier."""
+
+
+RESTRICTED_COB_IDS = (
+    (0x000, 0x000, "NMT"),
+    (0x001, 0x07F, "reserved"),
+    (0x101, 0x180, "reserved (TIME and below TPDO1's range)"),
+    (0x581, 0x5FF, "SDO answers"),
+    (0x601, 0x67F, "SDO requests"),
+    (0x6E0, 0x6FF, "reserved"),
+    (0x701, 0x77F, "heartbeats and boot-ups"),
+    (0x780, 0x7FF, "reserved"),
+)
+"""CAN-IDs CiA 301 (§7.3.5) does not allow for a PDO: a TPDO there would be taken for an SDO
+answer, a heartbeat or an NMT command by every other device and tool on the bus."""
+
+
+def read_layout(read: ObjectReader) -> SampleLayout:
+    """Build the sample layout from TPDO1–3's COB-IDs (0x1800–0x1802:01) and mappings.
+
+    ``read(index, sub)`` returns an object's value; a TPDO whose COB-ID has the invalid bit
+    set or that maps nothing is left out. ``ValueError`` when TPDO1 or TPDO2 is not there,
+    an 11-bit COB-ID is one CiA 301 reserves (:data:`RESTRICTED_COB_IDS`), or the mapping
+    cannot be decoded (:class:`SampleLayout`).
+    """
+    cob_ids: dict[int, int] = {}
+    entries: dict[int, list[int]] = {}
+    for number, (comm, mapping) in enumerate(zip(TPDO_COMM, TPDO_MAP, strict=True), start=1):
+        cob = read(comm, 1)
+        count = read(mapping, 0)
+        if cob & COB_ID_INVALID or count == 0:
+            continue
+        cob_ids[number] = cob & (0x1FFF_FFFF if cob & COB_ID_EXTENDED else 0x7FF)
+        if not cob & COB_ID_EXTENDED:
+            _refuse_restricted(number, cob_ids[number])
+        entries[number] = [read(mapping, sub) for sub in range(1, count + 1)]
+    if 1 not in entries or 2 not in entries:
+        raise ValueError("TPDO1 and TPDO2 must be valid and mapped to stream samples")
+    return layout_from_mapping(cob_ids, entries)
+
+
+def _refuse_restricted(number: int, cob_id: int) -> None:
+    """ValueError when TPDO ``number`` sits on a CAN-ID CiA 301 reserves (11-bit IDs)."""
+    for low, high, what in RESTRICTED_COB_IDS:
+        if low <= cob_id <= high:
+            raise ValueError(
+                f"TPDO{number} has COB-ID 0x{cob_id:03X}, which CiA 301 reserves ({what}, "
+                f"0x{low:03X}-0x{high:03X}): check 0x{0x1800 + number - 1:04X}:01"
+            )
+
+
+def default_value(index: int, sub: int, node_id: int) -> int:
+    """Return the EDS default of an unsigned object of the object table, ``$NODEID`` resolved.
+
+    ``KeyError`` for an object the table does not hold or whose default is not an integer.
+    """
+    obj = object_at(index, sub)
+    default = obj.default if obj is not None else None
+    if isinstance(default, str) and default.startswith("$NODEID+"):
+        return node_id + int(default.removeprefix("$NODEID+"), 0)
+    if isinstance(default, int) and not isinstance(default, bool):
+        return default
+    raise KeyError(f"0x{index:04X}:{sub:02X} has no integer EDS default")
+
+
+def default_layout(node_id: int) -> SampleLayout:
+    """Return node ``node_id``'s EDS default layout (TPDOs at 0x180/0x280/0x380 + id)."""
+    return read_layout(lambda index, sub: default_value(index, sub, node_id))

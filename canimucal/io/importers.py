@@ -16,7 +16,9 @@
   (:data:`FERRARIS_POSES`: ``x_p`` = +x up, ``x_a`` = +x down, …); other static sections
   have none. The CSV has no time column: ``sample_rate_hz`` must be given.
 
-:func:`detect_format` tells the three formats apart by content, not by name.
+:func:`detect_format` tells the three formats apart by content, not by name. The one
+dispatcher over every input format, bus logs included, is
+:func:`canimucal.runtime.inputs.read_recording`.
 """
 
 from __future__ import annotations
@@ -34,7 +36,6 @@ from canimucal.io.recording import (
     HeaderValue,
     KnownTurn,
     Recording,
-    read_recording,
     recording_from_columns,
     require_memory,
 )
@@ -92,8 +93,8 @@ def detect_format(path: _PathLike) -> Format:
     if len(fields) == 4 and all(_is_number(f) for f in fields):
         return "imutk"
     raise InputError(
-        f"{path}: unknown format (not a canimucal recording, an imu_tk 't x y z' file or an "
-        "imucal CSV); name it with format=",
+        f"{path}: unknown format (not a canimucal recording, an imu_tk 't x y z' file, an "
+        "imucal CSV or a CAN bus log); name it with format=",
         options=("format=",),
     )
 
@@ -238,32 +239,3 @@ def _sections(path: _PathLike) -> list[tuple[str, int, int]]:
             raise InputError(f"{path}: section {name!r} needs an integer 'end' after 'start'")
         out.append((str(name), int(sec["start"]), int(sec["end"])))
     return out
-
-
-def read_any(
-    path: _PathLike,
-    format: Format | None = None,  # noqa: A002 (the public API's name, as in `--format`)
-    *,
-    second: _PathLike | None = None,
-    sample_rate_hz: float | None = None,
-) -> Recording:
-    """Read a recording in any format ``analyze`` takes (``format`` None: from content)."""
-    return load_any(path, second, fmt=format, sample_rate_hz=sample_rate_hz)
-
-
-def load_any(
-    path: _PathLike,
-    second: _PathLike | None = None,
-    *,
-    fmt: Format | None = None,
-    sample_rate_hz: float | None = None,
-) -> Recording:
-    """Read ``path`` (and the imu_tk gyro file or imucal section JSON) in any known format."""
-    kind = fmt or detect_format(path)
-    if kind == "recording":
-        if second is not None:
-            raise InputError("a canimucal recording takes no second input")
-        return read_recording(path)
-    if kind == "imutk":
-        return read_imutk(path, second)
-    return read_imucal(path, second, sample_rate_hz)

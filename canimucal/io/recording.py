@@ -34,7 +34,7 @@ __all__ = [
     "HeaderValue",
     "KnownTurn",
     "Recording",
-    "read_recording",
+    "read_recording_csv",
     "recording_from_columns",
 ]
 
@@ -322,7 +322,7 @@ def require_memory(source: str, size_bytes: int, per_byte: float = MEMORY_PER_FI
         )
 
 
-def read_recording(path: str | os.PathLike[str]) -> Recording:
+def read_recording_csv(path: str | os.PathLike[str]) -> Recording:
     """Read and validate a recording CSV; every problem is an :class:`InputError`.
 
     A file too large for the memory left is refused before it is read

@@ -313,28 +313,20 @@ class Recorder:
         first_index: int = 0,
     ) -> None:
         """Record a plan the unit follows by itself from the NMT start (module doc)."""
-        trajectory = PoseTrajectory()
-        trajectory.follow(0.0, plan, transient_s)
-        end_s = float(trajectory.end_s or 0.0)
-        angles = np.vstack([np.rad2deg(p.angles) for p in plan.positions])
-
-        def label(track: _Track, seq: NDArray[np.int64]) -> NDArray[np.int64]:
-            s = (seq - (track.seq0 or 0)) / track.rate_hz
-            index = trajectory.sample(s).index
-            steady = (trajectory.sample(s - guard_s).index == index) & (
-                trajectory.sample(s + guard_s).index == index
-            )
-            return np.where(steady & (index >= 0), index, -1)
+        schedule = ScheduleLabels(plan, transient_s=transient_s, guard_s=guard_s)
 
         def labeller(track: _Track, block: SampleBlock) -> Labels:
-            labels = label(track, track.unwrap(block.counter))
-            rows = np.where((labels >= 0)[:, None], angles[np.maximum(labels, 0)], np.nan)
+            seq = track.unwrap(block.counter)
+            labels = schedule.labels((seq - (track.seq0 or 0)) / track.rate_hz)
+            rows = np.where(
+                (labels >= 0)[:, None], schedule.angles_deg[np.maximum(labels, 0)], np.nan
+            )
             return np.where(labels >= 0, labels + first_index, -1), rows
 
         def done() -> bool:
             return all(
                 t.seq_last is not None
-                and (t.seq_last - (t.seq0 or 0)) / t.rate_hz > end_s + guard_s
+                and (t.seq_last - (t.seq0 or 0)) / t.rate_hz > schedule.end_s + guard_s
                 for t in self._tracks
             )
 
@@ -434,6 +426,32 @@ class Recorder:
             if track.check_rate:
                 _check_rate(track, block)
             track.write(block, *labeller(track, block))
+
+
+class ScheduleLabels:
+    """Which position a unit that follows ``plan`` by itself is steady at, by schedule time.
+
+    The schedule starts at 0 s (the NMT start) and moves ``transient_s`` between positions
+    (:class:`~canimucal.sim.schedule.PoseTrajectory`); a sample at schedule time ``s`` is
+    labelled when the schedule holds the same position ``guard_s`` before and after it.
+    ``record`` labels a scheduled session so, and ``import-log --follow-schedule`` labels
+    its log the same way.
+    """
+
+    def __init__(self, plan: Plan, *, transient_s: float, guard_s: float = DEFAULT_GUARD_S):
+        self.trajectory = PoseTrajectory()
+        self.trajectory.follow(0.0, plan, transient_s)
+        self.end_s = float(self.trajectory.end_s or 0.0)
+        self.guard_s = guard_s
+        self.angles_deg = np.vstack([np.rad2deg(p.angles) for p in plan.positions])
+
+    def labels(self, seconds: NDArray[np.float64]) -> NDArray[np.int64]:
+        """Position index of each schedule time (-1: moving, or within the guard of a move)."""
+        index = self.trajectory.sample(seconds).index
+        steady = (self.trajectory.sample(seconds - self.guard_s).index == index) & (
+            self.trajectory.sample(seconds + self.guard_s).index == index
+        )
+        return np.where(steady & (index >= 0), index, -1)
 
 
 def _note_skew(track: _Track) -> None:

@@ -29,6 +29,7 @@ from canimucal.analysis.calibrate import SiteConditions
 from canimucal.analysis.session_model import read_factory_k
 from canimucal.device.answerers import refuse_second_answerer
 from canimucal.device.bus import BusSettings, describe, open_bus
+from canimucal.device.bus_log import BusLogWriter, LoggingNetwork
 from canimucal.device.client import NOTIFIER_CYCLE_S, Identity, ImuClient
 from canimucal.device.factory_k import device_k
 from canimucal.errors import InputError, NoDeviceError
@@ -85,6 +86,9 @@ class DeviceSettings:
     sync_producer: bool = False
     find: bool = True
     """Find every node on a real bus while opening (heartbeat, else an SDO probe)."""
+    bus_logs: tuple[Path, ...] = ()
+    """Log files (python-can's formats, by suffix) that get every frame of the clients' bus."""
+    overwrite_logs: bool = False
 
 
 def demo_settings(
@@ -142,7 +146,14 @@ class Devices:
         self._buses: list[can.BusABC] = []
         self._networks: list[canopen.Network] = []
         self.where = SIMULATED_WHERE
+        self.bus_log: BusLogWriter | None = None
+        self.sim_channel: str | None = None
+        """The private virtual channel of the simulated nodes (None on a real bus)."""
+        self.bus_log_failures: list[str] = []
+        """What went wrong writing the bus logs (known once closed): one line per file."""
         try:
+            if settings.bus_logs:
+                self.bus_log = BusLogWriter(settings.bus_logs, overwrite=settings.overwrite_logs)
             self._open()
         except BaseException:
             self.close()
@@ -152,7 +163,8 @@ class Devices:
         settings = self.settings
         bitrate: Any = None
         if settings.sim is not None:
-            network = self._network(self._start_sim(settings.sim))
+            bus = self._start_sim(settings.sim)
+            network = self._network(bus, self.sim_channel)
         else:
             config = settings.bus.resolve()
             bus = open_bus(settings.bus)
@@ -160,7 +172,7 @@ class Devices:
             enlarge_receive_buffer(bus)
             self.where = describe(config)
             bitrate = settings.bus.bitrate or config.get("bitrate")
-            network = self._network(bus)
+            network = self._network(bus, config.get("channel"))
         census = HeartbeatCensus(network)
         for nid in settings.node_ids:
             self.clients[nid] = ImuClient(
@@ -187,8 +199,11 @@ class Devices:
             hint = f"no node is heartbeating on {self.where}: check power, wiring, bit rate"
             raise NoDeviceError(f"{exc}; {hint}") from exc
 
-    def _network(self, bus: can.BusABC) -> canopen.Network:
-        network = canopen.Network(bus)
+    def _network(self, bus: can.BusABC, channel: Any = None) -> canopen.Network:
+        if self.bus_log is not None:
+            network: canopen.Network = LoggingNetwork(bus, self.bus_log, channel)
+        else:
+            network = canopen.Network(bus)
         network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
         network.connect()
         self._networks.append(network)
@@ -196,7 +211,10 @@ class Devices:
 
     def _start_sim(self, sim: SimSettings) -> can.BusABC:
         """Start the simulated nodes on a private virtual bus; return the clients' bus."""
-        channel = f"canimucal-sim-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        # private to this process; python-can's log writers number a channel by the name's
+        # last digits (BLF holds 16 bits), so the name ends in bus 0 like vcan0
+        channel = f"canimucal-sim-{os.getpid()}-{uuid.uuid4().hex[:8]}-can0"
+        self.sim_channel = channel
         ids = self.settings.node_ids
         for i, nid in enumerate(ids):
             bus = can.Bus(interface="virtual", channel=channel)
@@ -369,6 +387,8 @@ class Devices:
         for network in self._networks:
             if network.notifier is not None:
                 network.notifier.stop(network.NOTIFIER_SHUTDOWN_TIMEOUT)
+        if self.bus_log is not None and not self.bus_log_failures:
+            self.bus_log_failures = self.bus_log.close()  # idempotent: [] once closed
         for node in self.sim_nodes.values():
             node.stop()
         for bus in self._buses:

@@ -16,9 +16,9 @@ from canimucal.analysis.report import analyse_recording, analysis_document
 from canimucal.analysis.settling import fit_settling, trim_mask
 from canimucal.analysis.simulated import simulate_plan_recording
 from canimucal.io.grouping import position_rows
-from canimucal.io.importers import load_any
 from canimucal.io.recording import Recording
 from canimucal.model.vocabulary.plans import RECOMMENDED
+from canimucal.runtime.inputs import read_recording
 from canimucal.sim.effects import hide_effect
 from canimucal.sim.truth import Truth
 
@@ -136,7 +136,7 @@ def test_hand_held_poses_give_no_bias_drift() -> None:
     """
     if not all(p.exists() for p in HAND_HELD):
         pytest.skip(f"imu_tk data absent ({HAND_HELD[0].parent})")
-    rec = load_any(str(HAND_HELD[0]), str(HAND_HELD[1]))
+    rec = read_recording(HAND_HELD[0], second=HAND_HELD[1])
     static = max(position_rows(rec)[0], key=len)
     bound = allan_walk_upper([(rec.t[static], rec.accel[static])])
     a = analyse_recording(rec, g=9.81744)

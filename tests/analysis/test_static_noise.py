@@ -12,9 +12,9 @@ import pytest
 from canimucal.analysis.static_noise import analyse_static, recording_lsb, static_rows
 from canimucal.cli.main import main
 from canimucal.io.grouping import position_rows
-from canimucal.io.importers import load_any
 from canimucal.io.recording import Recording, recording_from_columns
 from canimucal.io.recording_writer import write_recording
+from canimucal.runtime.inputs import read_recording
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 HAND_HELD = (DATA / "imutk_xsens_acc.mat", DATA / "imutk_xsens_gyro.mat")
@@ -95,7 +95,7 @@ def test_allan_takes_one_static_file(tmp_path: Path, capsys: Any) -> None:
 def test_several_poses_are_not_one_static_record() -> None:
     if not all(p.exists() for p in HAND_HELD):
         pytest.skip(f"imu_tk data absent ({DATA})")
-    rec = load_any(str(HAND_HELD[0]), str(HAND_HELD[1]))
+    rec = read_recording(HAND_HELD[0], second=HAND_HELD[1])
     assert static_rows(rec) is None
 
 
@@ -103,7 +103,7 @@ def test_real_static_stretch_gives_per_axis_times() -> None:
     """The Xsens file's still start (about 50 s): terms with intervals, a time per axis."""
     if not all(p.exists() for p in HAND_HELD):
         pytest.skip(f"imu_tk data absent ({DATA})")
-    rec = load_any(str(HAND_HELD[0]), str(HAND_HELD[1]))
+    rec = read_recording(HAND_HELD[0], second=HAND_HELD[1])
     rows = max(position_rows(rec)[0], key=len)
     sa = analyse_static(rec, rows, recording_lsb(rec), where="the still start")
     for name, s in sa.sensors.items():
@@ -128,6 +128,6 @@ def test_the_public_api_analyses_a_static_file_and_points_each_kind_to_its_funct
     with pytest.raises(cm.InputError, match="use canimucal.analyze_static"):
         cm.analyze(rec)
     if all(p.exists() for p in HAND_HELD):  # several poses: the other way round
-        poses = load_any(str(HAND_HELD[0]), str(HAND_HELD[1]))
+        poses = read_recording(HAND_HELD[0], second=HAND_HELD[1])
         with pytest.raises(cm.InputError, match="several poses.*use canimucal.analyze"):
             cm.analyze_static(poses)

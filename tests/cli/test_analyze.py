@@ -14,13 +14,13 @@ import pytest
 from canimucal.analysis.report import analyse_recording
 from canimucal.analysis.simulated import simulate_plan_recording
 from canimucal.cli.main import main
-from canimucal.io.importers import load_any
 from canimucal.io.plans import read_plan
 from canimucal.io.recording_writer import write_recording
 from canimucal.io.truth import load_truth
 from canimucal.model.frames import EARTH_RATE_RAD_S
 from canimucal.model.vocabulary.plans import RECOMMENDED
 from canimucal.procedure.warmup import DEFAULT_THRESHOLD_C_PER_MIN
+from canimucal.runtime.inputs import read_recording
 from canimucal.sim.effects import warm_up_profile
 from canimucal.sim.truth import Truth
 
@@ -210,9 +210,9 @@ def test_imucal_gyro_misfit_is_the_earth_rate_not_g_sensitivity(
     (measured 1.06e-4 ± 1.6e-5 rad/s against 7.29e-5), and gyro_g_sensitivity, which passed
     an in-sample test when the Earth rate was left out, is neither chosen nor written to
     ``--truth-out``."""
-    rec = load_any(
+    rec = read_recording(
         DATA / "imucal_example_ferraris_session.csv",
-        DATA / "imucal_example_ferraris_session_list.json",
+        second=DATA / "imucal_example_ferraris_session_list.json",
         sample_rate_hz=102.4,
     )
     result = analyse_recording(rec, g=9.81).result

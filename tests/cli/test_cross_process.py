@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from canimucal.device import od
-from canimucal.io.recording import read_recording
+from canimucal.runtime.inputs import read_recording
 from tests.support import tcpbus
 from tests.support.canbus import FrameRecorder
 from tests.support.processes import bus_flags, fork_cli

@@ -10,8 +10,8 @@ from typing import Any
 
 from canimucal.io.calibration import read_calibration
 from canimucal.io.grouping import position_averages
-from canimucal.io.recording import read_recording
 from canimucal.io.truth import load_truth
+from canimucal.runtime.inputs import read_recording
 
 Cli = Callable[[Sequence[Any]], Any]  # conftest.cli: argv -> CliRun(code, out, err)
 

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from canimucal.io.recording import read_recording
+from canimucal.runtime.inputs import read_recording
 from canimucal.runtime.readback_check import readback_deviations
 from canimucal.sim.truth import Truth
 from tests.support.user_dirs import UserDirs

@@ -26,8 +26,8 @@ from canimucal.cli.record_cmd import report
 from canimucal.device import od
 from canimucal.device.calibration_map import block_from_record, readback_of
 from canimucal.io.calibration import read_calibration
-from canimucal.io.recording import read_recording
 from canimucal.io.truth import write_truth
+from canimucal.runtime.inputs import read_recording
 from canimucal.runtime.recorder import NodeTally
 from canimucal.schema import to_plain
 from canimucal.sim.truth import Truth

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from canimucal.io import recording_writer
-from canimucal.io.recording import read_recording
 from canimucal.io.truth import write_truth
+from canimucal.runtime.inputs import read_recording
 from tests.cli.conftest import CliRun
 from tests.cli.test_device_cmds import make_truth, sim_flags
 from tests.io.test_file_faults import full_disk_after

@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from canimucal.io.recording import read_recording
 from canimucal.io.truth import write_truth
+from canimucal.runtime.inputs import read_recording
 from canimucal.sim.truth import Truth
 from tests.cli.test_device_cmds import SERIAL, Cli, calibration_file, make_truth, sim_flags
 

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from canimucal.io.calibration import read_calibration
-from canimucal.io.recording import header_matrix, read_recording
+from canimucal.io.recording import header_matrix
 from canimucal.io.truth import write_truth
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB
+from canimucal.runtime.inputs import read_recording
 from canimucal.sim.truth import Truth
 from tests.support.device_state import state_file
 

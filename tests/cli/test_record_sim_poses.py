@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 
 from canimucal.cli.main import main
-from canimucal.io.recording import read_recording
 from canimucal.model.frames import position_dcm, specific_force_level
 from canimucal.model.vocabulary.plans import RECOMMENDED
+from canimucal.runtime.inputs import read_recording
 from canimucal.sim.schedule import set_by_operator
 from canimucal.sim.truth import Truth
 

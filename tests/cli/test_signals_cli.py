@@ -13,7 +13,7 @@ from typing import Any, NoReturn
 import pytest
 
 from canimucal.cli import main as cli_main
-from canimucal.io.recording import read_recording
+from canimucal.runtime.inputs import read_recording
 from canimucal.signals import Terminated
 
 

@@ -43,9 +43,9 @@ from canimucal.device import od
 from canimucal.device.client import ImuClient
 from canimucal.io.calibration import read_calibration
 from canimucal.io.plans import write_plan
-from canimucal.io.recording import read_recording
 from canimucal.model.plan import builtin_plan
 from canimucal.model.positions import Plan
+from canimucal.runtime.inputs import read_recording
 from tests.support.firmware_node import NODE_BINARY, FirmwareNode
 
 pytestmark = pytest.mark.vcan

@@ -21,10 +21,10 @@ from canimucal.device.calibration_map import block_from_record, readback_of
 from canimucal.device.od import CalibrationBlock
 from canimucal.io.calibration import read_calibration
 from canimucal.io.plans import write_plan
-from canimucal.io.recording import read_recording
 from canimucal.io.truth import write_truth
 from canimucal.model.positions import Plan
 from canimucal.model.vocabulary.plans import builtin_plan
+from canimucal.runtime.inputs import read_recording
 from canimucal.schema import to_plain
 from canimucal.sim.truth import Truth
 

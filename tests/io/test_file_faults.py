@@ -12,7 +12,7 @@ import pytest
 
 from canimucal.errors import InputError
 from canimucal.io import recording_writer
-from canimucal.io.recording import read_recording
+from canimucal.io.recording import read_recording_csv
 from canimucal.io.recording_writer import RecordingWriter
 
 HEADER = {"sample_rate_hz": 200.0}
@@ -57,7 +57,7 @@ def test_a_regular_leftover_is_replaced_with_overwrite(tmp_path: Path) -> None:
     (tmp_path / "out.csv.partial").write_text("junk\n")
     with RecordingWriter.open(target, HEADER, overwrite=True) as writer:
         writer.write_rows(**_rows(0, 10))
-    assert read_recording(target).n_rows == 10
+    assert read_recording_csv(target).n_rows == 10
 
 
 def test_append_refuses_a_symlinked_recording(tmp_path: Path) -> None:
@@ -110,7 +110,7 @@ def test_disk_full_keeps_the_partial_cut_at_its_last_complete_row(
     assert writer.close() == writer.partial_path  # never renamed
     assert not target.exists()
     monkeypatch.undo()
-    assert read_recording(writer.partial_path).n_rows == 100
+    assert read_recording_csv(writer.partial_path).n_rows == 100
 
 
 def test_disk_full_inside_the_context_manager_renames_nothing(
@@ -124,7 +124,7 @@ def test_disk_full_inside_the_context_manager_renames_nothing(
                 writer.write_rows(**_rows(start, 50))
     monkeypatch.undo()
     assert not target.exists()
-    kept = read_recording(writer.partial_path)
+    kept = read_recording_csv(writer.partial_path)
     assert kept.n_rows == writer.rows_written > 0
     np.testing.assert_array_equal(kept.counter, np.arange(kept.n_rows))
 
@@ -135,4 +135,4 @@ def test_utf8_bom_is_skipped(tmp_path: Path) -> None:
         writer.write_rows(**_rows(0, 5))
     bom = tmp_path / "bom.csv"
     bom.write_bytes(b"\xef\xbb\xbf" + target.read_bytes())
-    assert read_recording(bom).n_rows == 5
+    assert read_recording_csv(bom).n_rows == 5

@@ -19,7 +19,7 @@ from hypothesis import HealthCheck, given, settings
 from canimucal.errors import InputError
 from canimucal.io.calibration import read_calibration
 from canimucal.io.plans import read_plan
-from canimucal.io.recording import read_recording
+from canimucal.io.recording import read_recording_csv
 from tests.support.fuzzing import byte_mutations
 
 RECORDING = (
@@ -85,7 +85,7 @@ def _only_input_errors(reader: Callable[[Path], Any], path: Path, data: bytes) -
 
 def test_the_valid_bases_are_valid(scratch: Path) -> None:
     for name, data, reader in [
-        ("r.csv", RECORDING, read_recording),
+        ("r.csv", RECORDING, read_recording_csv),
         ("c.json", CALIBRATION, read_calibration),
         ("p.json", PLAN_JSON, read_plan),
         ("p.toml", PLAN_TOML, read_plan),
@@ -97,7 +97,7 @@ def test_the_valid_bases_are_valid(scratch: Path) -> None:
 @FUZZ
 @given(data=byte_mutations(RECORDING))
 def test_fuzz_recording(scratch: Path, data: bytes) -> None:
-    _only_input_errors(read_recording, scratch / "r.csv", data)
+    _only_input_errors(read_recording_csv, scratch / "r.csv", data)
 
 
 @FUZZ

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from canimucal.errors import InputError
-from canimucal.io.importers import detect_format, load_any, read_imucal, read_imutk
+from canimucal.io.importers import detect_format, read_imucal, read_imutk
 from canimucal.io.recording import recording_from_columns
 from canimucal.io.recording_writer import write_recording
+from canimucal.runtime.inputs import read_recording
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 
@@ -105,7 +106,7 @@ def test_recording_is_detected_and_unknown_text_refused(tmp_path: Path) -> None:
     )
     path = write_recording(tmp_path / "r.csv", rec, overwrite=False)
     assert detect_format(path) == "recording"
-    assert load_any(path).n_rows == 5
+    assert read_recording(path).n_rows == 5
     other = tmp_path / "other.txt"
     other.write_text("hello world\n")
     with pytest.raises(InputError, match="unknown format"):
@@ -129,20 +130,20 @@ def test_a_byte_order_mark_is_read_in_every_format(tmp_path: Path) -> None:
     )
     recording = _with_bom(write_recording(tmp_path / "r.csv", rec, overwrite=False))
     assert detect_format(recording) == "recording"
-    assert np.array_equal(load_any(recording).accel, rec.accel)
+    assert np.array_equal(read_recording(recording).accel, rec.accel)
 
     t = 0.02 + np.arange(50) / 100.0
     acc = _with_bom(_imutk(tmp_path / "acc.mat", t, np.full((50, 3), 32768.0)))
     gyr = _with_bom(_imutk(tmp_path / "gyr.mat", t, np.full((50, 3), 32000.0)))
     assert detect_format(acc) == "imutk"
-    both = load_any(acc, gyr)
+    both = read_recording(acc, second=gyr)
     assert both.n_rows == 50 and np.all(both.gyro == 32000.0) and both.t[0] == pytest.approx(0.02)
 
     csv, sections = _imucal(tmp_path)
     plain = read_imucal(csv, sections, 102.4)
     csv, sections = _with_bom(csv), _with_bom(sections)
     assert detect_format(csv) == "imucal"
-    bommed = load_any(csv, sections, sample_rate_hz=102.4)
+    bommed = read_recording(csv, second=sections, sample_rate_hz=102.4)
     assert np.array_equal(bommed.accel, plain.accel)
     assert np.array_equal(bommed.position, plain.position) and bommed.turns == plain.turns
 
@@ -152,7 +153,7 @@ needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared data absent a
 
 @needs_data
 def test_real_imutk_set_loads() -> None:
-    rec = load_any(DATA / "imutk_xsens_acc.mat", DATA / "imutk_xsens_gyro.mat")
+    rec = read_recording(DATA / "imutk_xsens_acc.mat", second=DATA / "imutk_xsens_gyro.mat")
     assert rec.sample_rate_hz == 100.0
     assert rec.n_rows > 50_000
     assert 30_000 < float(np.median(rec.accel[:, 0])) < 36_000
@@ -160,9 +161,9 @@ def test_real_imutk_set_loads() -> None:
 
 @needs_data
 def test_real_imucal_set_loads() -> None:
-    rec = load_any(
+    rec = read_recording(
         DATA / "imucal_example_ferraris_session.csv",
-        DATA / "imucal_example_ferraris_session_list.json",
+        second=DATA / "imucal_example_ferraris_session_list.json",
         sample_rate_hz=102.4,
     )
     assert sorted(set(rec.position.tolist())) == [-1, 0, 1, 2, 3, 4, 5]

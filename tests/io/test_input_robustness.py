@@ -12,7 +12,7 @@ import pytest
 from canimucal.cli.main import main
 from canimucal.errors import InputError
 from canimucal.io import recording as recording_module
-from canimucal.io.recording import read_recording
+from canimucal.io.recording import read_recording_csv
 from canimucal.io.recording_writer import RecordingWriter
 from canimucal.schema import parse_json
 
@@ -75,13 +75,13 @@ def test_duplicate_counters_and_rows_are_counted_and_reported(
     doubled.insert(24, ",".join(counter_only))
     path.write_text("".join(lines[:head] + doubled))
     with caplog.at_level(logging.WARNING):
-        rec = read_recording(path)
+        rec = read_recording_csv(path)
     assert (rec.duplicate_counters, rec.duplicate_rows) == (4, 3)
     assert "4 rows repeat an earlier row's counter, 3 rows are exact copies" in caplog.text
 
 
 def test_clean_recording_reports_no_duplicates(tmp_path: Path) -> None:
-    rec = read_recording(_still(tmp_path / "ok.csv", lambda n: np.zeros((n, 3)), 1.0))
+    rec = read_recording_csv(_still(tmp_path / "ok.csv", lambda n: np.zeros((n, 3)), 1.0))
     assert (rec.duplicate_counters, rec.duplicate_rows) == (0, 0)
 
 
@@ -95,7 +95,7 @@ def test_out_of_memory_while_parsing_is_a_clear_message(
 
     monkeypatch.setattr(recording_module, "parse_rows", no_memory)
     with pytest.raises(InputError, match="not enough memory to read"):
-        read_recording(path)
+        read_recording_csv(path)
     assert main(["analyze", str(path)]) == 2
     assert "not enough memory" in capsys.readouterr().err
 
@@ -114,14 +114,14 @@ def test_repeats_further_back_than_the_row_before_are_counted(
     retimed = [f"{i / 200.0!r}," + row.split(",", 1)[1] for i, row in enumerate(pasted)]
     path.write_text("".join(lines[:head] + retimed))  # times go on: the samples came again
     with caplog.at_level(logging.WARNING):
-        rec = read_recording(path)
+        rec = read_recording_csv(path)
     assert (rec.duplicate_counters, rec.duplicate_rows) == (11, 10)
     assert "11 rows repeat an earlier row's counter, 10 rows are exact copies" in caplog.text
 
 
 def test_a_wrapped_counter_is_not_a_repeat(tmp_path: Path) -> None:
     # 70,000 samples: the 16-bit counter wraps once, every value recurs 65,536 rows later
-    rec = read_recording(_still(tmp_path / "w.csv", lambda n: np.zeros((n, 3)), 350.0))
+    rec = read_recording_csv(_still(tmp_path / "w.csv", lambda n: np.zeros((n, 3)), 350.0))
     assert rec.n_rows == 70_000 and rec.counter[65_536] == rec.counter[0]
     assert (rec.duplicate_counters, rec.duplicate_rows) == (0, 0)
 
@@ -138,7 +138,7 @@ def test_a_file_too_large_for_the_memory_left_is_refused_before_reading(
 
     monkeypatch.setattr(recording_module, "parse_recording", never)
     with pytest.raises(InputError, match=r"big.csv: not enough memory to read 0 MB \(needs"):
-        read_recording(path)
+        read_recording_csv(path)
     assert main(["analyze", str(path)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and err.count("\n") == 1 and "available" in err

@@ -11,7 +11,7 @@ from canimucal.errors import InputError
 from canimucal.io.recording import (
     COLUMN_LINE,
     Recording,
-    read_recording,
+    read_recording_csv,
     recording_from_columns,
 )
 from canimucal.io.recording_writer import RecordingWriter, write_recording
@@ -81,7 +81,7 @@ def _random_recording(rng: np.random.Generator, n: int) -> Recording:
 
 
 def test_sample_is_parsed_with_types_and_empties(tmp_path: Path) -> None:
-    rec = read_recording(_write(tmp_path, SAMPLE))
+    rec = read_recording_csv(_write(tmp_path, SAMPLE))
     assert rec.header == {
         "schema": "canimucal.recording/1",
         "sample_rate_hz": 200.0,
@@ -104,30 +104,30 @@ def test_sample_is_parsed_with_types_and_empties(tmp_path: Path) -> None:
 
 
 def test_arrays_are_read_only(tmp_path: Path) -> None:
-    rec = read_recording(_write(tmp_path, SAMPLE))
+    rec = read_recording_csv(_write(tmp_path, SAMPLE))
     with pytest.raises(ValueError):
         rec.accel[0, 0] = 1.0
 
 
 def test_crlf_file_reads_the_same(tmp_path: Path) -> None:
-    a = read_recording(_write(tmp_path, SAMPLE))
-    b = read_recording(_write(tmp_path, SAMPLE.replace("\n", "\r\n"), "crlf.csv"))
+    a = read_recording_csv(_write(tmp_path, SAMPLE))
+    b = read_recording_csv(_write(tmp_path, SAMPLE.replace("\n", "\r\n"), "crlf.csv"))
     _same(a, b)
 
 
 def test_missing_last_newline_is_fine(tmp_path: Path) -> None:
-    rec = read_recording(_write(tmp_path, SAMPLE.rstrip("\n")))
+    rec = read_recording_csv(_write(tmp_path, SAMPLE.rstrip("\n")))
     assert rec.n_rows == 6
 
 
 def test_header_and_columns_only_is_an_empty_recording(tmp_path: Path) -> None:
-    rec = read_recording(_write(tmp_path, HEADER + COLUMN_LINE + "\n"))
+    rec = read_recording_csv(_write(tmp_path, HEADER + COLUMN_LINE + "\n"))
     assert rec.n_rows == 0 and rec.accel.shape == (0, 3)
 
 
 def test_sample_rate_is_inferred_from_t_and_flagged(tmp_path: Path) -> None:
     text = SAMPLE.replace("# sample_rate_hz: 200\n", "")
-    rec = read_recording(_write(tmp_path, text))
+    rec = read_recording_csv(_write(tmp_path, text))
     assert rec.sample_rate_inferred
     assert rec.sample_rate_hz == 200.0  # snapped to the device rate
 
@@ -135,14 +135,14 @@ def test_sample_rate_is_inferred_from_t_and_flagged(tmp_path: Path) -> None:
 def test_inferred_rate_off_the_device_rates_is_kept(tmp_path: Path) -> None:
     rows = [f"{k / 119.0:.6f},{k},,,,,1,2,3,,,," for k in range(50)]
     text = "# schema: canimucal.recording/1\n" + COLUMN_LINE + "\n" + "\n".join(rows) + "\n"
-    rec = read_recording(_write(tmp_path, text))
+    rec = read_recording_csv(_write(tmp_path, text))
     assert rec.sample_rate_hz == pytest.approx(119.0, rel=1e-3)
 
 
 def test_sample_rate_cannot_be_inferred_from_one_row(tmp_path: Path) -> None:
     text = HEADER.replace("# sample_rate_hz: 200\n", "") + COLUMN_LINE + "\n" + ROWS[0] + "\n"
     with pytest.raises(InputError, match="no sample_rate_hz header and t does not give one"):
-        read_recording(_write(tmp_path, text))
+        read_recording_csv(_write(tmp_path, text))
 
 
 def _replace_row(index: int, new: str) -> str:
@@ -198,7 +198,7 @@ def test_malformed_recording_is_a_located_input_error(
     path = tmp_path / "bad.csv"
     path.write_bytes(text.encode(encoding))
     with pytest.raises(InputError) as info:
-        read_recording(path)
+        read_recording_csv(path)
     message = str(info.value)
     assert "\n" not in message
     assert message.startswith(str(path))
@@ -209,7 +209,7 @@ def test_malformed_recording_is_a_located_input_error(
 
 def test_missing_file_is_an_input_error(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="cannot read"):
-        read_recording(tmp_path / "nope.csv")
+        read_recording_csv(tmp_path / "nope.csv")
 
 
 # ------------------------------------------------------------------------------ writing
@@ -218,15 +218,15 @@ def test_missing_file_is_an_input_error(tmp_path: Path) -> None:
 def test_round_trip_write_then_read_is_exact(tmp_path: Path) -> None:
     rec = _random_recording(np.random.default_rng(1), 2000)
     path = write_recording(tmp_path / "out.csv", rec, overwrite=False)
-    back = read_recording(path)
+    back = read_recording_csv(path)
     _same(rec, back)
     assert not back.sample_rate_inferred
 
 
 def test_read_then_write_reproduces_the_file(tmp_path: Path) -> None:
-    rec = read_recording(_write(tmp_path, SAMPLE))
+    rec = read_recording_csv(_write(tmp_path, SAMPLE))
     out = write_recording(tmp_path / "again.csv", rec, overwrite=False)
-    _same(rec, read_recording(out))
+    _same(rec, read_recording_csv(out))
     again = out.read_text().splitlines()
     assert again[-6:][3] == "1700000000.015000,4,1,22.5,2.5,0,-780,-1890,80,1,2,3,25.5"
 
@@ -237,11 +237,11 @@ def test_t_has_at_least_six_decimals_and_stays_exact(tmp_path: Path) -> None:
     path = write_recording(tmp_path / "t.csv", rec, overwrite=False)
     cells = [line.split(",")[0] for line in path.read_text().splitlines()[3:]]
     assert all(len(cell.split(".")[1]) >= 6 for cell in cells), cells
-    np.testing.assert_array_equal(read_recording(path).t, t)
+    np.testing.assert_array_equal(read_recording_csv(path).t, t)
 
 
 def test_write_refuses_to_overwrite(tmp_path: Path) -> None:
-    rec = read_recording(_write(tmp_path, SAMPLE))
+    rec = read_recording_csv(_write(tmp_path, SAMPLE))
     with pytest.raises(InputError, match="exists; use overwrite=True"):
         write_recording(tmp_path / "rec.csv", rec, overwrite=False)
     write_recording(tmp_path / "rec.csv", rec, overwrite=True)
@@ -301,7 +301,7 @@ def test_interrupted_recording_keeps_what_was_written(tmp_path: Path) -> None:
             writer.write_rows(**blocks[0])
             writer.write_rows(**blocks[1])
             raise KeyboardInterrupt
-    back = read_recording(target)
+    back = read_recording_csv(target)
     assert back.n_rows == 200
     np.testing.assert_array_equal(back.t, rec.t[:200])
 
@@ -313,7 +313,7 @@ def test_killed_recorder_leaves_the_partial_file_readable(tmp_path: Path) -> Non
     writer.write_rows(**_blocks(rec, 150)[0])
     # no close(): as if the process died; blocks are flushed as they are written
     assert not target.exists()
-    assert read_recording(writer.partial_path).n_rows == 150
+    assert read_recording_csv(writer.partial_path).n_rows == 150
     with pytest.raises(InputError, match="interrupted recording"):
         RecordingWriter.open(target, rec.header)
     writer.close()
@@ -350,7 +350,7 @@ def test_writer_validates_blocks(tmp_path: Path) -> None:
         with pytest.raises(InputError, match="shape"):
             writer.write_rows(t=[3.0], accel=np.ones((2, 3)))
         assert writer.rows_written == 2
-    assert read_recording(tmp_path / "v.csv").n_rows == 2
+    assert read_recording_csv(tmp_path / "v.csv").n_rows == 2
 
 
 def test_append_adds_a_position(tmp_path: Path) -> None:
@@ -365,7 +365,7 @@ def test_append_adds_a_position(tmp_path: Path) -> None:
             beta_deg=[5, 5],
             psi_deg=[0, 0],
         )
-    rec = read_recording(target)
+    rec = read_recording_csv(target)
     assert rec.n_rows == 8
     np.testing.assert_array_equal(rec.position[-2:], [2, 2])
     assert rec.header["node_id"] == 16  # the file's header is kept
@@ -411,7 +411,7 @@ def test_append_to_a_file_without_final_newline(tmp_path: Path) -> None:
     header = {"sample_rate_hz": 200.0, "device_serial": 42}
     with RecordingWriter.open(target, header, append=True) as writer:
         writer.write_rows(t=[1700000001.0], accel=[[1, 2, 3]])
-    assert read_recording(target).n_rows == 7
+    assert read_recording_csv(target).n_rows == 7
 
 
 def test_append_to_missing_file(tmp_path: Path) -> None:
@@ -426,7 +426,7 @@ def test_append_to_missing_file(tmp_path: Path) -> None:
 def test_reading_one_hour_at_200_hz(tmp_path: Path) -> None:
     """720 000 rows (50 MB) read whole; its speed is measured by benchmarks/read_speed.py."""
     path = write_bulk_recording(tmp_path / "hour.csv", 720_000)
-    back = read_recording(path)
+    back = read_recording_csv(path)
     assert back.n_rows == 720_000
     assert np.isnan(back.temp_c).all() and back.position[-1] == 59
     np.testing.assert_array_equal(back.counter[:3], [0, 1, 2])

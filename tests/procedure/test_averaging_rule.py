@@ -9,13 +9,14 @@ import numpy as np
 import pytest
 
 from canimucal.cli.main import main
-from canimucal.io.recording import read_recording, recording_from_columns
+from canimucal.io.recording import recording_from_columns
 from canimucal.io.recording_writer import write_recording
 from canimucal.model.layout import JointSpec
 from canimucal.model.vocabulary.plans import TWO
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy, choose_time, noise_choice
 from canimucal.procedure.config import ResumeState
+from canimucal.runtime.inputs import read_recording
 from canimucal.sim.truth import Truth
 from tests.support.procedure_bench import Bench, of
 

@@ -15,12 +15,12 @@ import numpy as np
 
 from canimucal.device import od
 from canimucal.errors import DeviceError
-from canimucal.io.recording import read_recording
 from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.procedure.machine import Phase
+from canimucal.runtime.inputs import read_recording
 from canimucal.runtime.recorder import Recorder
 from canimucal.runtime.session import Session, SessionCommand
 from canimucal.runtime.wiring import Devices, demo_settings, open_devices

@@ -15,11 +15,12 @@ from canimucal.device.factory_k import device_k
 from canimucal.errors import DeviceError, InputError
 from canimucal.flag_words import worded_for_flags
 from canimucal.io.calibration import read_calibration
-from canimucal.io.recording import normalise_header, read_recording
+from canimucal.io.recording import normalise_header
 from canimucal.model.plan import plan_prior
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB
 from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.procedure.averaging import AveragingPolicy
+from canimucal.runtime.inputs import read_recording
 from canimucal.runtime.operator import run_automatic
 from canimucal.runtime.wiring import DeviceSettings, SimSettings, open_devices
 from canimucal.sim.truth import Truth

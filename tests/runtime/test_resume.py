@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from canimucal.cli.main import main
-from canimucal.io.recording import read_recording
 from canimucal.model.vocabulary.plans import builtin_plan
+from canimucal.runtime.inputs import read_recording
 from canimucal.runtime.readback_check import readback_deviations
 from canimucal.runtime.resume import load_resume_state
 from canimucal.sim.truth import Truth

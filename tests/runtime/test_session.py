@@ -9,11 +9,11 @@ import pytest
 
 from canimucal.errors import DeviceError
 from canimucal.io.calibration import read_calibration
-from canimucal.io.recording import read_recording
 from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.procedure.machine import Phase
+from canimucal.runtime.inputs import read_recording
 from canimucal.runtime.operator import run_automatic
 from canimucal.runtime.session import WriteOptions
 from canimucal.runtime.wiring import Devices, demo_settings, open_devices

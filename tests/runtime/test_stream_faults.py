@@ -18,9 +18,9 @@ from canimucal.device.pdo_layout import (
     mapping_entry,
 )
 from canimucal.errors import DeviceError
-from canimucal.io.recording import read_recording
 from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.vocabulary.plans import builtin_plan
+from canimucal.runtime.inputs import read_recording
 from canimucal.runtime.recorder import Recorder
 from canimucal.runtime.wiring import demo_settings, open_devices
 from canimucal.sim.truth import Truth
