@@ -221,7 +221,7 @@ def write_calibration_transaction(
     still held: a caller interrupted after that can still say what was done.
     """
     marks = _Marks(client.foreign_sdo_requests, client.extra_sdo_answers)  # from now on abort
-    refuse_second_answerer(client, "nothing written")  # one device per node-id (DESIGN §9)
+    refuse_second_answerer(client, "nothing written")  # one device per node-id (docs/design.md §9)
     identity = client.identity()  # step 1
     forced = _check_serial(identity, record, force)
     accel_lsb, gyro_lsb = client.nominal_lsb()  # step 2

@@ -101,7 +101,7 @@ def test_targets_are_checked_before_anything_is_opened(tmp_path: Path) -> None:
     for target, words in (
         (tmp_path / "x.txt", "named by its format"),
         (tmp_path / "x.db.gz", "no compressed python-can SQLite"),
-        (existing, "exists; use --overwrite"),
+        (existing, "exists; use overwrite=True"),
         (tmp_path / "new.trc", "interrupted log"),
     ):
         with pytest.raises(InputError, match=words):

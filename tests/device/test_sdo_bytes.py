@@ -100,7 +100,7 @@ def test_transactional_write_byte_script(
     assert crc == report.crc
     block_writes = [download(i, s, od.encode(code, values[(i, s)])) for i, s, code in od.CRC_ORDER]
     expected = (
-        [upload(od.IDENTITY, 4)]  # one answer only: no second device as node 16 (DESIGN §9)
+        [upload(od.IDENTITY, 4)]  # one answer only: no second device as node 16 (docs/design.md §9)
         + [upload(od.IDENTITY, sub) for sub in (1, 2, 3, 4)]
         + [upload(od.DEVICE_NAME, 0)]
         + [upload(od.HARDWARE_VERSION, 0), upload(od.SOFTWARE_VERSION, 0)]  # 0x1009, 0x100A
