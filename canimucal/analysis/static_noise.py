@@ -20,7 +20,7 @@ labels and every still interval found has the same orientation (within
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,6 +31,7 @@ from canimucal.analysis.drift import (
     drift_test,
     walk_consistent,
 )
+from canimucal.analysis.repeats import unique_samples
 from canimucal.errors import InputError
 from canimucal.io.grouping import position_rows
 from canimucal.io.recording import Recording
@@ -134,13 +135,15 @@ def analyze_static(recording: Recording) -> StaticAnalysis:
     A recording holding several poses is an :class:`InputError` that points to
     ``canimucal.analyze``.
     """
+    recording, held = unique_samples(recording)
     rows = static_rows(recording)
     if rows is None:
         raise InputError(
             f"{recording.source or 'recording'}: holds several poses, not one static record: "
             "use canimucal.analyze"
         )
-    return analyse_static(recording, rows, recording_lsb(recording))
+    sa = analyse_static(recording, rows, recording_lsb(recording))
+    return sa if held is None else replace(sa, warnings=(held.line(), *sa.warnings))
 
 
 def analyse_static(

@@ -7,11 +7,13 @@ one for all axes (:mod:`canimucal.analysis.static_noise`; docs/design.md §2 con
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from canimucal.analysis.repeats import unique_samples
 from canimucal.analysis.static_noise import (
     DRIFT_SEGMENTS,
     StaticAnalysis,
@@ -55,7 +57,7 @@ def add_subparser(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Analyse and report."""
     check_outputs(args)
-    rec = read_input(args, args.recording, args.second)
+    rec, held = unique_samples(read_input(args, args.recording, args.second))
     start, stop, where = _still_stretch(rec, args.position)
     fs = rec.sample_rate_hz
     for name, data in (("accel", rec.accel), ("gyro", rec.gyro)):
@@ -64,6 +66,8 @@ def run(args: argparse.Namespace) -> int:
             _refuse_constant(x, name, where)
     rows = np.arange(start, stop)
     sa = analyse_static(rec, rows, recording_lsb(rec), where=where, min_seconds=MIN_SENSOR_SECONDS)
+    if held is not None:
+        sa = replace(sa, warnings=(held.line(), *sa.warnings))
     emit(args, _document(sa), _report(sa))
     return 0
 
