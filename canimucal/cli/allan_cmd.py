@@ -18,6 +18,7 @@ from canimucal.analysis.static_noise import (
     DRIFT_SEGMENTS,
     StaticAnalysis,
     analyse_static,
+    best_averaging_text,
     recording_lsb,
     static_document,
     static_rows,
@@ -155,7 +156,8 @@ def _report(sa: StaticAnalysis) -> str:
                 f"bias instability {terms.bias_instability[axis]:.3g} counts "
                 f"[{_band(ci.bias_instability[axis])}], "
                 f"random walk {terms.random_walk[axis]:.3g} counts/√s "
-                f"[{_band(ci.random_walk[axis])}], best averaging {_best(s.optima_s[axis])}"
+                f"[{_band(ci.random_walk[axis])}], best averaging "
+                f"{best_averaging_text(sa, name, axis)}"
             )
         verdict = "bias_drift" if s.drift_named else "no bias_drift"
         if s.drift.p_value < 0.01 and not s.drift_named:
@@ -176,7 +178,3 @@ def _report(sa: StaticAnalysis) -> str:
 
 def _band(pair: NDArray[np.float64]) -> str:
     return f"{pair[0]:.3g}–{pair[1]:.3g}"
-
-
-def _best(value: float) -> str:
-    return "none (white)" if not np.isfinite(value) else f"{value:.3g} s"
