@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.analysis.conditions import recording_conditions
-from canimucal.analysis.data import Ambiguity, DiscrepancyResult, SessionData
+from canimucal.analysis.data import FAMILY_ALPHA, Ambiguity, DiscrepancyResult, SessionData
 from canimucal.analysis.discrepancy import analyse_discrepancy
 from canimucal.analysis.repeats import unique_samples
 from canimucal.analysis.session import session_from_recording
@@ -246,7 +246,41 @@ def analysis_document(a: Analysis) -> dict[str, Any]:
         "findings": findings,
         "untestable": untestable,
         "ambiguous": [_ambiguity(x) for x in a.result.ambiguous],
+        "base_fit": base_fit_summary(a.result),
         "noise": noise,
+    }
+
+
+def base_fit_summary(result: DiscrepancyResult) -> dict[str, Any]:
+    """Return the base model's lack of fit and, when nothing is named, the line saying so.
+
+    ``summary`` is None when a cause is named; else "no cause named; the base model fits"
+    or "… is rejected, χ²/dof N: the misfit is not one of the candidates" (p below the
+    family-wise level), the text's line and the JSON's ``base_fit.summary`` alike.
+    """
+    chi2, dof, p = result.lack_of_fit
+    ratio = chi2 / max(dof, 1)
+    rejected = bool(np.isfinite(p) and p < FAMILY_ALPHA)
+    summary = None
+    if not result.findings:
+        if not rejected:
+            summary = f"no cause named; the base model fits (χ²/dof {ratio:.2f}, p = {p:.2g})"
+        elif result.ambiguous:
+            summary = (
+                f"no cause named; the base model is rejected, χ²/dof {ratio:.4g}: the "
+                "candidates that could explain it cannot be told apart (ambiguous below)"
+            )
+        else:
+            summary = (
+                f"no cause named; the base model is rejected, χ²/dof {ratio:.4g}: the misfit "
+                "is not one of the candidates"
+            )
+    return {
+        "chi2": chi2,
+        "dof": dof,
+        "p_value": _finite(p),
+        "rejected": rejected,
+        "summary": summary,
     }
 
 

@@ -20,6 +20,7 @@ from canimucal.analysis.report import (
     Analysis,
     analyse_recording,
     analysis_document,
+    base_fit_summary,
     extended_truth,
     observed_poses,
 )
@@ -194,8 +195,9 @@ def report_text(a: Analysis, reference: Reference | None, replayed: list[ReplayR
         "Findings (Holm-adjusted p, family-wise 1 %):",
     ]
     lines += [f"  {f.effect} ({f.sensor}): {f.evidence}; p = {f.p_value:.2g}" for f in r.findings]
-    if not r.findings:
-        lines.append("  none: the base model explains the data")
+    summary = base_fit_summary(r)["summary"]
+    if summary is not None:
+        lines.append(f"  {summary}")
     for x in r.ambiguous:
         lines.append(
             f"  ambiguous ({x.sensor}): {x.candidates[0]} or {x.candidates[1]} (estimates "
