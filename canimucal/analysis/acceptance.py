@@ -166,7 +166,13 @@ def _relative_sigmas(
 ) -> tuple[list[float], list[float]]:
     """σ of each estimated accel bias (mg) and diagonal scale factor (ppm of its value)."""
     joint = solution.joint
-    assert joint is not None
+    if joint is None:  # the scalar |f| = g fit: every bias and diagonal K is a parameter
+        assert solution.scalar is not None
+        fit = solution.scalar
+        bias = [float(s) * abs(accel_lsb) / g * 1000.0 for s in fit.bias_sigma]
+        k_sigma = np.diag(fit.K_sigma)
+        scale = [float(s / abs(k)) * 1e6 for s, k in zip(k_sigma, np.diag(fit.K), strict=True)]
+        return bias, scale
     sigma = np.sqrt(np.clip(np.diag(joint.covariance), 0.0, None))
     diag = [f"accel.K[{i}][{i}]" for i in range(3)]
     bias_mg, scale_ppm = [], []
@@ -183,12 +189,19 @@ def _relative_sigmas(
 def check_acceptance(
     solution: Solution, limits: AcceptanceLimits, accel_lsb: float, g: float
 ) -> AcceptanceReport:
-    """Check one node's solution against ``limits``."""
+    """Check one node's solution against ``limits``.
+
+    A calibration that determined no accelerometer parameter (every one held at nominal)
+    fails; a fit whose χ² p-value is below ``min_fit_p`` fails with the reason ("model does
+    not fit: χ²/dof N"). The scalar ``|f| = g`` fit is checked as the joint one.
+    """
     joint = solution.joint
-    if joint is None:
+    if joint is None and solution.scalar is None:
         return AcceptanceReport(())
     bias_mg, scale_ppm = _relative_sigmas(solution, accel_lsb, g)
     checks = []
+    if not bias_mg and not scale_ppm:
+        checks.append(Check("accelerometer parameters determined", 0, 1, "", False))
     if bias_mg:
         worst = max(bias_mg)
         checks.append(
@@ -213,15 +226,21 @@ def check_acceptance(
                 "max_scale_sigma_ppm",
             )
         )
-    rms = float(joint.rms_accel_ms2)
+    if joint is not None:
+        rms, chi2, dof = float(joint.rms_accel_ms2), float(joint.chi2), joint.dof
+    else:
+        assert solution.scalar is not None
+        fit = solution.scalar
+        rms, chi2, dof = fit.rms_mps2, fit.reduced_chi2 * fit.dof, fit.dof
     passed = rms <= limits.max_rms_ms2
     checks.append(Check("fit rms", rms, limits.max_rms_ms2, "m/s²", passed, "max_rms_ms2"))
-    if joint.dof > 0:
-        p = float(chi2_distribution.sf(joint.chi2, joint.dof))
-        checks.append(
-            Check("fit p-value", p, limits.min_fit_p, "", p >= limits.min_fit_p, "min_fit_p")
-        )
-    return AcceptanceReport(tuple(checks), tuple(sorted(joint.undetermined)))
+    if dof > 0:
+        p = float(chi2_distribution.sf(chi2, dof))
+        passed = p >= limits.min_fit_p
+        name = "fit p-value" if passed else f"model does not fit: χ²/dof {chi2 / dof:.4g}, p"
+        checks.append(Check(name, p, limits.min_fit_p, "", passed, "min_fit_p"))
+    held = () if joint is None else tuple(sorted(joint.undetermined))
+    return AcceptanceReport(tuple(checks), held)
 
 
 def acceptance_block(report: AcceptanceReport, limits: AcceptanceLimits) -> Acceptance:

@@ -290,6 +290,7 @@ def fit_scalar_base(data: SessionData) -> tuple[PreparedBase, ScalarFit]:
     sigmas = list(fit.bias_sigma) + list(np.diag(fit.K_sigma))
     table = resid_a[:, None]
     labels: tuple[str, ...] = ("|f| - g (m/s²)",)
+    earth_unit: Array | None = None  # accelerometer only: no gyro rows, no Earth rate
     if gyro:
         est, est_sigma, earth_unit = _scalar_gyro_rows(
             data, unit if earth else None, (cov, jac, resid)

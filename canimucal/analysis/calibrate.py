@@ -10,7 +10,7 @@ Known angles: the joint estimator (model/joint.py). No angles: the scalar |f| = 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.stats import chi2 as chi2_distribution
@@ -35,6 +35,51 @@ from canimucal.model.vocabulary.plans import CUSTOM, SCALAR, plan_of_poses
 
 LACK_OF_FIT_P = 1e-3
 """A fit whose χ² has a p-value below this gets a lack-of-fit warning."""
+MISFIT_P = 0.01
+"""Below this p-value of the fit's χ² the model is rejected and its σ are inflated by the
+Birge factor √(χ²/dof) (docs/design.md §10, σ under misfit)."""
+
+
+@dataclass(frozen=True)
+class FitQuality:
+    """The fit's χ² against the noise it was weighted with, and the σ inflation applied."""
+
+    chi2: float
+    dof: int
+    inflation: float = 1.0
+
+    @property
+    def p_value(self) -> float:
+        """χ² tail probability (NaN without residual dof)."""
+        return float(chi2_distribution.sf(self.chi2, self.dof)) if self.dof > 0 else float("nan")
+
+    @property
+    def rejected(self) -> bool:
+        """Whether the model is rejected (p below :data:`MISFIT_P`)."""
+        return self.dof > 0 and self.p_value < MISFIT_P
+
+    def line(self, against: str = "the within-position noise") -> str:
+        """One line: χ²/dof ``against`` the noise the fit used, p, what was done with σ."""
+        ratio = self.chi2 / self.dof if self.dof > 0 else float("nan")
+        text = (
+            f"fit χ²/dof {ratio:.4g} on {self.dof} dof against {against} (p = {self.p_value:.2g})"
+        )
+        if self.inflation > 1.0:
+            text += (
+                f": the model does not fit, σ inflated ×{self.inflation:.3g} "
+                "(Birge factor √(χ²/dof))"
+            )
+        return text
+
+
+def birge(chi2: float, dof: int) -> FitQuality:
+    """Return the fit's quality and, when the model is rejected, its Birge factor √(χ²/dof)."""
+    quality = FitQuality(chi2, dof)
+    if quality.rejected and chi2 > dof:
+        return FitQuality(chi2, dof, float(np.sqrt(chi2 / dof)))
+    return quality
+
+
 _ANGLE_MATCH_RAD = float(np.deg2rad(0.05))
 
 
@@ -70,6 +115,9 @@ class Solution:
     scalar: ScalarFit | None = None
     undetermined: dict[str, str] = field(default_factory=dict)
     warnings: tuple[str, ...] = ()
+    quality: FitQuality | None = None
+    """χ²/dof against the within-position noise (and pose scatter) the fit used, and the
+    Birge inflation of every σ when the model is rejected."""
 
 
 def plan_name_of(averages: Sequence[PositionAverage]) -> str:
@@ -107,6 +155,9 @@ def solve_positions(
         allow_undetermined=True,
         prior=prior,
     )
+    quality = birge(result.chi2, result.dof)
+    if quality.inflation > 1.0:
+        result = replace(result, covariance=result.covariance * quality.inflation**2)
     keep = [i for i, n in enumerate(result.names) if n not in result.undetermined]
     names = [result.names[i] for i in keep]
     record = record_from_estimates(
@@ -129,7 +180,13 @@ def solve_positions(
     warnings += _plan_warnings(averages, spec, site, warnings) + _lack_of_fit_warning(result)
     if not result.converged:
         warnings += (f"the least-squares fit did not converge: {result.message}",)
-    return Solution(record, joint=result, undetermined=dict(result.undetermined), warnings=warnings)
+    return Solution(
+        record,
+        joint=result,
+        undetermined=dict(result.undetermined),
+        warnings=warnings,
+        quality=quality,
+    )
 
 
 def _prior_warnings(
@@ -247,6 +304,9 @@ def solve_scalar(
     fit = fit_scalar_averages(
         averages, site.g, model="9" if full else "6", accel_lsb=site.accel_lsb
     )
+    quality = birge(fit.reduced_chi2 * fit.dof, fit.dof)
+    if quality.inflation > 1.0:
+        fit = replace(fit, covariance=fit.covariance * quality.inflation**2)
     names = [f"accel.{n}" for n in fit.param_names]
     record = record_from_estimates(
         names,
@@ -262,4 +322,4 @@ def solve_scalar(
     warnings: tuple[str, ...] = ()
     if not fit.converged:
         warnings = (f"the scalar fit did not converge: {fit.message}",)
-    return Solution(record, scalar=fit, warnings=warnings)
+    return Solution(record, scalar=fit, warnings=warnings, quality=quality)

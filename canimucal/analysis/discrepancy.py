@@ -15,7 +15,8 @@ then
    Holm's procedure weighted by each candidate's number of entries, at a family-wise
    ``alpha`` (:mod:`.significance`);
 3. keeps a chosen term only if leave-one-position-out cross-validation agrees, and names it
-   only if no rival explains the misfit as well in the model holding both (docs/design.md §6);
+   when it is significant beside each rival in the model holding both (both named when both
+   are; the pair ambiguous, the term dropped, when neither is: docs/design.md §6);
 4. refits with the chosen terms and reports rms/cv_rms before and after, per sensor, the
    held-out cv_rms by refitting without each position, selection included
    (:mod:`.holdout`); a sensor with under 10 residual dof whose extension predicts the
@@ -134,6 +135,22 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
         problem = _whitened(prepared, scatter, tau.value)
         columns = {k: problem.whiten @ col for k, col in raw_columns.items()}
     chosen = confirm_by_cv(problem.linear, columns, chosen)
+    duel, also, dropped = _head_to_head(
+        problem.linear, columns, chosen, alpha, (weights, family), use_f
+    )
+    if joint is not None:
+        nuisance = prepared.names[len(joint[1].names) :]
+        enough = separated_noncentrality(alpha / family)
+        duel = [
+            _separate(
+                x, data, joint[1], problem.linear, columns, chosen, tau.value, nuisance, enough
+            )
+            for x in duel
+        ]
+    unresolved = {f"{a.sensor}.{a.candidates[0]}" for a in duel} | set(dropped)
+    # an ambiguous term is neither named nor kept in the extended model; a rival significant
+    # beside its term (and the term beside it) is named with it
+    chosen = [c for c in chosen if c not in unresolved] + [r for r in also if r not in chosen]
     tests = _final_tests(
         problem.linear, columns, chosen, use_f, weights, drifts, drifting, prepared, data
     )
@@ -141,15 +158,6 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
     if use_f:
         fit = _on_residual_scale(fit)
     findings = _findings(tests, fit, {c.key: c for c in candidates}, drifts, prepared, data, alpha)
-    duel = _head_to_head(problem.linear, columns, chosen, alpha, (weights, family), use_f)
-    if joint is not None:
-        nuisance = prepared.names[len(joint[1].names) :]
-        duel = [
-            _separate(x, data, joint[1], problem.linear, columns, chosen, tau.value, nuisance)
-            for x in duel
-        ]
-    unresolved = {f"{a.sensor}.{a.candidates[0]}" for a in duel}
-    findings = [f for f in findings if f"{f.sensor}.{f.effect}" not in unresolved]
     select = _selector(alpha, family, use_f, weights)
     held = refit_holdout(problem.linear, columns, select, extended=chosen)
     refuted = _refuted(chosen, held)
@@ -176,7 +184,7 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
         findings=tuple(findings),
         untestable=untestable,
         tests=tuple(tests),
-        scores=_scores(problem.linear, sparse, chosen, held, _earth_rate_in_base(data)),
+        scores=_scores(problem.linear, sparse, kept, held, _earth_rate_in_base(data)),
         params=_extended(prepared, fit_terms(problem.linear, sparse, kept), drifts, drifting, data),
         base_values=values,
         base_sigmas=sigmas,
@@ -189,8 +197,15 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
     )
 
 
-RIVAL_P = 0.05
-"""A cause is named only when each rival, in the model holding both, has p above this."""
+def separated_noncentrality(level: float, power: float = 0.9) -> float:
+    """Non-centrality at which a one-entry χ² test at ``level`` has ``power``.
+
+    A pair whose head-to-head non-centrality (:mod:`.separation` eq. 3) already reaches it
+    is separated by the recording's own positions: no position is proposed for it.
+    """
+    critical = float(stats.chi2.isf(level, 1))
+    z = float(stats.norm.ppf(power))
+    return (np.sqrt(critical) + z) ** 2
 
 
 def _head_to_head(
@@ -200,35 +215,38 @@ def _head_to_head(
     alpha: float,
     family: tuple[Mapping[str, float], float],
     use_f: bool,
-) -> list[Ambiguity]:
+) -> tuple[list[Ambiguity], list[str], list[str]]:
     """Pit each chosen term against each rival that could stand in for it (docs/design.md §6).
 
     ``family`` holds each term's weight ``w`` and the family's total weight ``W``. Every
     p-value here is that of the per-entry test (:func:`~.significance.entry_test`: the
     largest single-entry test, Bonferroni over the candidate's entries), the test that chose
-    the term. A rival is a candidate of the same sensor, not chosen, that is significant
-    (weighted Holm at the family's first step, ``p / w · W < alpha``) in place of the term.
-    In the model holding both, the term must stay significant (``p / w · W < alpha``) and
-    the rival must not: ``n · p > RIVAL_P`` with ``n`` the term's rivals (none of its entries
-    stands out, after the same Bonferroni correction over its entries and over the rivals,
-    so that "no rival stands in" is one statement at RIVAL_P: with a per-rival 5 % a true
-    cause with two look-alikes was reported ambiguous on ~10 % of data sets at any size).
-    Otherwise the pair is ambiguous and the term is not named.
+    the term, and "significant" is at the family-wise level: ``p / w · W < alpha`` (weighted
+    Holm's first step). A rival is a candidate of the same sensor, not chosen, significant in
+    place of the term. In the model holding both:
+
+    - the term significant beside the rival: the term is named (whatever the rival does;
+      the evidence for it grows with its size, so a large true effect is never held back by
+      a look-alike's leftover);
+    - both significant beside each other: both are named (the rival is returned in the
+      second list, to join the model);
+    - only the rival significant beside the term: the rival is named in its place (second
+      list), the term dropped (third list);
+    - neither significant beside the other: the pair is ambiguous, the term not named.
 
     The term is tested beside the rival as the rival stood in for it: the one entry whose
     test made it significant, or all its entries when its group test did. A rival's other
     entries explain nothing the term leaves (they did not stand out in its place) and only
-    take power from the term's test. A z quadratic at 5σ, exact poses, τ estimated
-    (``benchmarks/discrepancy.py --oracle --seeds 100 --sizes 5 --tolerances 0``): named 84,
-    ambiguous 15 with cross_axis's six entries held beside it (commit f2f4f56); named 87,
-    ambiguous 12 with its one standing-in entry; wrong 1 both.
+    take power from the term's test.
     """
     weights, total = family
 
     def level(p: float, term: str) -> float:
         return p / weights[term] * total if weights[term] > 0 else float("inf")
 
-    out = []
+    out: list[Ambiguity] = []
+    also: list[str] = []
+    dropped: list[str] = []
     for term in chosen:
         sensor = term.split(".", 1)[0]
         others = [c for c in chosen if c != term]
@@ -243,12 +261,20 @@ def _head_to_head(
             held = columns if k is None else {**columns, rival: columns[rival][:, k : k + 1]}
             p_term = entry_test(problem, held, [*others, rival], term, use_f=use_f).p_value
             p_rival = entry_test(problem, columns, [*others, term], rival, use_f=use_f).p_value
-            if level(p_term, term) < alpha and p_rival * len(rivals) > RIVAL_P:
+            term_stands, rival_stands = level(p_term, term) < alpha, level(p_rival, rival) < alpha
+            if term_stands:
+                if rival_stands and rival not in also:
+                    also.append(rival)
+                continue
+            if rival_stands:  # the rival explains it, the term nothing beside it: the rival
+                dropped.append(term)
+                if rival not in also:
+                    also.append(rival)
                 continue
             r = pair_correlation(problem, columns, [*others, term, rival], term, rival)
             pair = (term.split(".", 1)[1], rival.split(".", 1)[1])
             out.append(Ambiguity(sensor, pair, r))
-    return out
+    return out, also, dropped
 
 
 def _separate(
@@ -260,11 +286,17 @@ def _separate(
     chosen: Sequence[str],
     tau: float,
     nuisance: Sequence[str],
+    enough: float,
 ) -> Ambiguity:
-    """Add the position that would separate an ambiguous pair best (:mod:`.separation`)."""
+    """Add the position that would separate an ambiguous pair best (:mod:`.separation`).
+
+    None when the recording's own head-to-head non-centrality is ``enough`` already.
+    """
     term, rival = (f"{pair.sensor}.{c}" for c in pair.candidates)
     others = [c for c in chosen if c != term]
-    where = separating_position(data, joint, problem, columns, others, (term, rival), tau, nuisance)
+    where = separating_position(
+        data, joint, problem, columns, others, (term, rival), tau, nuisance, enough
+    )
     return dataclasses.replace(pair, separating=where)
 
 

@@ -77,9 +77,11 @@ def fit_scatter(
 
     With fewer than :data:`MIN_SCATTER_DOF` residual degrees of freedom the scatter cannot
     be told from the fit's own residuals: the plan default (0.1°) is returned, source
-    ``"assumed"``.
+    ``"assumed"``. Only the accelerometer's residuals carry the poses (the gyro's see them
+    through the Earth rate alone, far below its noise), so the dof are theirs:
+    :func:`accel_dof`.
     """
-    dof = len(averages) * spec.channels - ParameterLayout.of(spec).size
+    dof = accel_dof(len(averages), spec)
     if dof < MIN_SCATTER_DOF:
         tol = DEFAULT_TOLERANCE_RAD
         return with_tolerance(averages, tol), ScatterEstimate(tol, (tol, tol), "assumed", np.nan)
@@ -93,6 +95,12 @@ def fit_scatter(
         estimate = scatter_of(res, current, ModelContext.build(g, latitude, heading, gyro_lsb))
         current = with_tolerance(averages, estimate.value)
     return current, estimate
+
+
+def accel_dof(n_positions: int, spec: JointSpec) -> int:
+    """Residual dof of the accelerometer: 3 per position less its parameters (and tilt)."""
+    own = [n for n in ParameterLayout.of(spec).names if not n.startswith("gyro.")]
+    return 3 * n_positions - len(own)
 
 
 def scatter_of(

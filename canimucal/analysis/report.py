@@ -18,8 +18,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.analysis.conditions import recording_conditions
-from canimucal.analysis.data import Ambiguity, DiscrepancyResult, SessionData
+from canimucal.analysis.data import FAMILY_ALPHA, Ambiguity, DiscrepancyResult, SessionData
 from canimucal.analysis.discrepancy import analyse_discrepancy
+from canimucal.analysis.repeats import unique_samples
 from canimucal.analysis.session import session_from_recording
 from canimucal.analysis.static_noise import static_rows
 from canimucal.errors import InputError
@@ -73,6 +74,8 @@ class Analysis:
     result: DiscrepancyResult
     allan: Mapping[str, AllanCheck]
     g_source: str
+    notes: tuple[str, ...] = ()
+    """Data-quality lines about the input (held repeats: :mod:`.repeats`)."""
 
 
 def analyze(
@@ -87,6 +90,7 @@ def analyze(
     One long static recording has no calibration terms to test: :class:`InputError`
     pointing to ``canimucal.analyze_static`` (its noise terms and averaging times).
     """
+    recording, held = unique_samples(recording)
     if static_rows(recording) is not None:
         raise InputError(
             f"{recording.source or 'recording'}: one static record (one pose): no calibration "
@@ -103,6 +107,7 @@ def analyze(
         latitude=latitude,
         heading=cond.heading_rad,
         tolerance_deg=tolerance_deg,
+        notes=() if held is None else (held.line(),),
     )
 
 
@@ -114,11 +119,14 @@ def analyse_recording(
     latitude: float | None = None,
     heading: float = 0.0,
     tolerance_deg: float | None = None,
+    notes: tuple[str, ...] = (),
 ) -> Analysis:
     """Run the discrepancy loop on ``rec`` (``latitude``/``heading`` radians).
 
     ``tolerance_deg`` fixes the pose-setting scatter; None takes the recording's
-    ``tolerance_deg`` header, else estimates it from the data.
+    ``tolerance_deg`` header, else estimates it from the data. ``rec`` is taken as it is:
+    held repeats are removed before (:func:`.repeats.unique_samples`, whose line goes in
+    ``notes``).
     """
     session = session_from_recording(
         rec, g=g, latitude=latitude, heading=heading, tolerance_deg=tolerance_deg
@@ -131,7 +139,7 @@ def analyse_recording(
     allan = {"accel": _allan(rec, longest.accel)}
     if session.has_gyro and longest.gyro is not None:
         allan["gyro"] = _allan(rec, longest.gyro)
-    return Analysis(rec, session, result, allan, g_source)
+    return Analysis(rec, session, result, allan, g_source, notes)
 
 
 def _allan(rec: Recording, x: Array) -> AllanCheck:
@@ -206,7 +214,7 @@ def analysis_document(a: Analysis) -> dict[str, Any]:
         "gyro_white": input_referred_white(a, "gyro"),
         "best_averaging_s": best,
     }
-    noise["warnings"] = list(a.result.warnings)
+    noise["warnings"] = [*a.notes, *a.result.warnings]
     terms = {k: c.terms for k, c in a.allan.items() if c.terms is not None}
     if terms:
         choice = choose_averaging(terms)
@@ -238,7 +246,41 @@ def analysis_document(a: Analysis) -> dict[str, Any]:
         "findings": findings,
         "untestable": untestable,
         "ambiguous": [_ambiguity(x) for x in a.result.ambiguous],
+        "base_fit": base_fit_summary(a.result),
         "noise": noise,
+    }
+
+
+def base_fit_summary(result: DiscrepancyResult) -> dict[str, Any]:
+    """Return the base model's lack of fit and, when nothing is named, the line saying so.
+
+    ``summary`` is None when a cause is named; else "no cause named; the base model fits"
+    or "… is rejected, χ²/dof N: the misfit is not one of the candidates" (p below the
+    family-wise level), the text's line and the JSON's ``base_fit.summary`` alike.
+    """
+    chi2, dof, p = result.lack_of_fit
+    ratio = chi2 / max(dof, 1)
+    rejected = bool(np.isfinite(p) and p < FAMILY_ALPHA)
+    summary = None
+    if not result.findings:
+        if not rejected:
+            summary = f"no cause named; the base model fits (χ²/dof {ratio:.2f}, p = {p:.2g})"
+        elif result.ambiguous:
+            summary = (
+                f"no cause named; the base model is rejected, χ²/dof {ratio:.4g}: the "
+                "candidates that could explain it cannot be told apart (ambiguous below)"
+            )
+        else:
+            summary = (
+                f"no cause named; the base model is rejected, χ²/dof {ratio:.4g}: the misfit "
+                "is not one of the candidates"
+            )
+    return {
+        "chi2": chi2,
+        "dof": dof,
+        "p_value": _finite(p),
+        "rejected": rejected,
+        "summary": summary,
     }
 
 

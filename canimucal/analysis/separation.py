@@ -170,13 +170,16 @@ def separating_position(
     pair: tuple[str, str],
     tau: float,
     nuisance: Sequence[str] = (),
-) -> SeparatingPosition:
+    enough: float = np.inf,
+) -> SeparatingPosition | None:
     """Find the grid pose that minimises the pair's correlation ρ of eq. (2) (module doc).
 
     ``columns`` are whitened as ``problem``; ``pair`` the term and its rival (keys
     ``sensor.effect``); ``others`` the other terms in the model; ``tau`` radians;
     ``nuisance`` the base parameters ``problem`` holds beyond ``joint``'s (see
-    :func:`_pose_rows`).
+    :func:`_pose_rows`). None when the recording's own head-to-head non-centrality (eq. 3,
+    the smaller of the two) is already ``enough``: no added position is needed to tell
+    them apart.
     """
     a, b = pair
     keys = [*others, a, b]
@@ -191,6 +194,8 @@ def separating_position(
     limit = DEFAULT_TILT_LIMIT_DEG if data.tilt_limit_deg is None else data.tilt_limit_deg
     before = np.linalg.pinv(info0, hermitian=True)[None]
     lam0 = min(float(_noncentrality(before, slices[t], gamma[t])[0]) for t in (a, b))
+    if lam0 >= enough:
+        return None
 
     def scored(grid_deg: Array) -> tuple[Array, Array, Array, Array]:
         """ρ (eq. 2), min λ (eq. 3) and Σ of every pose of ``grid_deg``."""

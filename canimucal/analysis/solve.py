@@ -24,6 +24,7 @@ from canimucal.analysis.conditions import recording_conditions
 from canimucal.analysis.gravity_moves import solve_gravity_moves_recording
 from canimucal.analysis.gyro_moves import solve_gyro_moves
 from canimucal.analysis.pose_scatter import fit_scatter
+from canimucal.analysis.repeats import unique_samples
 from canimucal.analysis.session_model import (
     GyroChoice,
     ModelChoice,
@@ -94,9 +95,10 @@ def solve_recording(
     model, tolerance and plan prior). ``limits``: the acceptance limits, or a config that
     picks them for the session's plan; None, the built-in limits.
     """
+    rec, held = unique_samples(rec)
     choice, session = session_model(rec, choice or ModelChoice())
     accept = limits_for(limits, session.plan_name)
-    notes: tuple[str, ...] = ()
+    notes: tuple[str, ...] = () if held is None else (held.line(),)
     site, g_source = site_of(rec, choice)
     serial, node_id = _header_int(rec, "device_serial"), _header_int(rec, "node_id")
     device = Device(serial=serial or 0, node_id=node_id)
@@ -104,7 +106,8 @@ def solve_recording(
         averages = session.tolerances(position_averages(rec, tolerance_deg=session.tolerance_deg))
         spec = choice.spec(has_gyro=all(a.mean_gyro is not None for a in averages))
         if session.tolerance_source == "default":  # no flag, no header: the data say
-            averages, notes = _estimated_scatter(averages, spec, site)
+            averages, scatter = _estimated_scatter(averages, spec, site)
+            notes += scatter
         solution = solve_positions(
             averages,
             spec,

@@ -20,7 +20,7 @@ labels and every still interval found has the same orientation (within
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,6 +31,7 @@ from canimucal.analysis.drift import (
     drift_test,
     walk_consistent,
 )
+from canimucal.analysis.repeats import unique_samples
 from canimucal.errors import InputError
 from canimucal.io.grouping import position_rows
 from canimucal.io.recording import Recording
@@ -134,13 +135,15 @@ def analyze_static(recording: Recording) -> StaticAnalysis:
     A recording holding several poses is an :class:`InputError` that points to
     ``canimucal.analyze``.
     """
+    recording, held = unique_samples(recording)
     rows = static_rows(recording)
     if rows is None:
         raise InputError(
             f"{recording.source or 'recording'}: holds several poses, not one static record: "
             "use canimucal.analyze"
         )
-    return analyse_static(recording, rows, recording_lsb(recording))
+    sa = analyse_static(recording, rows, recording_lsb(recording))
+    return sa if held is None else replace(sa, warnings=(held.line(), *sa.warnings))
 
 
 def analyse_static(
@@ -176,20 +179,21 @@ def analyse_static(
 def _misfits(sensors: dict[str, SensorStatic]) -> tuple[str, ...]:
     """Name the axes the three-term Allan model does not describe.
 
-    A large χ²/dof, or a fitted N or q outside the interval the ADEV points allow.
+    A large χ²/dof, or a fitted curve outside the ADEV points' band (the intervals were then
+    widened to hold it: :func:`~canimucal.model.noise.noise_intervals`).
     """
     out = []
     for name, s in sensors.items():
-        ci = s.intervals
-        outside = np.zeros(s.terms.reduced_chi2.size, dtype=bool)
-        for value, band in ((s.terms.white_noise_density, ci.white_noise_density),
-                            (s.terms.random_walk, ci.random_walk)):  # fmt: skip
-            outside |= (value < band[:, 0] * 0.999) | (value > band[:, 1] * 1.001)
-        for axis in np.flatnonzero((s.terms.reduced_chi2 > MISFIT_CHI2) | outside):
+        widening = s.intervals.widening
+        for axis in np.flatnonzero((s.terms.reduced_chi2 > MISFIT_CHI2) | (widening > 1.0)):
+            how = (
+                f"its intervals widened ×{widening[axis]:.2g} to hold the fitted curve"
+                if widening[axis] > 1.0
+                else "the intervals are what the ADEV points allow"
+            )
             out.append(
                 f"{name} {'xyz'[axis]}: the three-term Allan model misfits (χ²/dof = "
-                f"{s.terms.reduced_chi2[axis]:.1f}: coloured or filtered noise); the intervals "
-                "bound what the ADEV points allow, the fitted values may lie outside them"
+                f"{s.terms.reduced_chi2[axis]:.1f}: coloured or filtered noise); {how}"
             )
     return tuple(out)
 
@@ -235,7 +239,7 @@ def static_document(sa: StaticAnalysis) -> dict[str, object]:
             "random_walk_counts_per_sqrt_s": _pairs(
                 s.terms.random_walk, s.intervals.random_walk, 1.0
             ),
-            "best_averaging_s": [float(v) for v in s.optima_s],
+            "best_averaging_s": [float(v) for v in sa.choice.optima_s[name]],
             "drift": {
                 "statistic": s.drift.statistic,
                 "df": s.drift.df,
@@ -293,7 +297,7 @@ def static_report(sa: StaticAnalysis) -> str:
                 f"  {label}: white {n:.4g} counts/√Hz ({nl:.4g}–{nh:.4g}; {n * lsb:.3g} {si}), "
                 f"bias instability {s.terms.bias_instability[axis]:.3g} counts "
                 f"({bl:.3g}–{bh:.3g}), random walk {s.terms.random_walk[axis]:.3g} counts/√s "
-                f"({ql:.3g}–{qh:.3g}), best averaging {_seconds(s.optima_s[axis])}"
+                f"({ql:.3g}–{qh:.3g}), best averaging {best_averaging_text(sa, name, axis)}"
             )
         verdict = "named bias_drift" if s.drift_named else "no bias_drift named"
         if s.drift.p_value < DRIFT_ALPHA and not s.drift_named:
@@ -312,5 +316,11 @@ def static_report(sa: StaticAnalysis) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _seconds(value: float) -> str:
-    return "none (white: longer is better)" if not np.isfinite(value) else f"{value:.3g} s"
+def best_averaging_text(sa: StaticAnalysis, sensor: str, axis: int) -> str:
+    """One axis's best averaging time as the JSON gives it (``choice.optima_s``, clipped).
+
+    A white axis (no minimum inside the data) gives the range's top, and says so.
+    """
+    value = float(sa.choice.optima_s[sensor][axis])
+    white = not np.isfinite(sa.sensors[sensor].optima_s[axis])
+    return f"{value:.3g} s" + (" (white: the range's top)" if white else "")

@@ -7,15 +7,18 @@ one for all axes (:mod:`canimucal.analysis.static_noise`; docs/design.md §2 con
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from canimucal.analysis.repeats import unique_samples
 from canimucal.analysis.static_noise import (
     DRIFT_SEGMENTS,
     StaticAnalysis,
     analyse_static,
+    best_averaging_text,
     recording_lsb,
     static_document,
     static_rows,
@@ -55,7 +58,7 @@ def add_subparser(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Analyse and report."""
     check_outputs(args)
-    rec = read_input(args, args.recording, args.second)
+    rec, held = unique_samples(read_input(args, args.recording, args.second))
     start, stop, where = _still_stretch(rec, args.position)
     fs = rec.sample_rate_hz
     for name, data in (("accel", rec.accel), ("gyro", rec.gyro)):
@@ -64,6 +67,8 @@ def run(args: argparse.Namespace) -> int:
             _refuse_constant(x, name, where)
     rows = np.arange(start, stop)
     sa = analyse_static(rec, rows, recording_lsb(rec), where=where, min_seconds=MIN_SENSOR_SECONDS)
+    if held is not None:
+        sa = replace(sa, warnings=(held.line(), *sa.warnings))
     emit(args, _document(sa), _report(sa))
     return 0
 
@@ -151,7 +156,8 @@ def _report(sa: StaticAnalysis) -> str:
                 f"bias instability {terms.bias_instability[axis]:.3g} counts "
                 f"[{_band(ci.bias_instability[axis])}], "
                 f"random walk {terms.random_walk[axis]:.3g} counts/√s "
-                f"[{_band(ci.random_walk[axis])}], best averaging {_best(s.optima_s[axis])}"
+                f"[{_band(ci.random_walk[axis])}], best averaging "
+                f"{best_averaging_text(sa, name, axis)}"
             )
         verdict = "bias_drift" if s.drift_named else "no bias_drift"
         if s.drift.p_value < 0.01 and not s.drift_named:
@@ -172,7 +178,3 @@ def _report(sa: StaticAnalysis) -> str:
 
 def _band(pair: NDArray[np.float64]) -> str:
     return f"{pair[0]:.3g}–{pair[1]:.3g}"
-
-
-def _best(value: float) -> str:
-    return "none (white)" if not np.isfinite(value) else f"{value:.3g} s"

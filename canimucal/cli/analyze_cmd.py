@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -12,12 +13,14 @@ from numpy.typing import NDArray
 from canimucal.analysis.base_fit import EARTH_RATE_NAMES, EARTH_RATE_VERTICAL
 from canimucal.analysis.conditions import recording_conditions
 from canimucal.analysis.reference import Reference, reference_for
+from canimucal.analysis.repeats import unique_samples
 from canimucal.analysis.replay import ReplayRow, replay, replay_ratios
 from canimucal.analysis.report import (
     ANALYSIS_SCHEMA,
     Analysis,
     analyse_recording,
     analysis_document,
+    base_fit_summary,
     extended_truth,
     observed_poses,
 )
@@ -105,10 +108,11 @@ def _checked_poses(analysis: Analysis, target: str | None) -> Plan | None:
 def run(args: argparse.Namespace) -> int:
     """Analyse and report."""
     _check_files(args)
-    rec = read_input(args, args.input, args.second)
+    rec, held = unique_samples(read_input(args, args.input, args.second))
+    notes = () if held is None else (held.line(),)
     rows = static_rows(rec)
     if rows is not None:
-        return _run_static(args, rec, rows)
+        return _run_static(args, rec, rows, notes)
     reference = reference_for(args.input)
     g_flag = args.g if args.g is not None else (reference.g if reference else None)
     cond = recording_conditions(rec, g_flag)
@@ -123,6 +127,7 @@ def run(args: argparse.Namespace) -> int:
         latitude=latitude,
         heading=cond.heading_rad,
         tolerance_deg=args.tolerance_deg,
+        notes=notes,
     )
     plan = _checked_poses(analysis, args.poses_out)
     replayed = replay(analysis)
@@ -140,7 +145,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_static(args: argparse.Namespace, rec: Recording, rows: NDArray[np.intp]) -> int:
+def _run_static(
+    args: argparse.Namespace, rec: Recording, rows: NDArray[np.intp], notes: tuple[str, ...]
+) -> int:
     """One static pose: noise terms, drift and averaging times, no calibration terms."""
     for flag, value in (("--truth-out", args.truth_out), ("--poses-out", args.poses_out),
                         ("--plots", args.plots)):  # fmt: skip
@@ -149,6 +156,7 @@ def _run_static(args: argparse.Namespace, rec: Recording, rows: NDArray[np.intp]
                 f"{flag}: {args.input} is one static record (one pose): no model to write"
             )
     sa = analyse_static(rec, rows, recording_lsb(rec))
+    sa = replace(sa, warnings=(*notes, *sa.warnings))
     noise = static_document(sa)
     document = {
         "schema": ANALYSIS_SCHEMA,
@@ -175,6 +183,7 @@ def report_text(a: Analysis, reference: Reference | None, replayed: list[ReplayR
     kind = "known angles: joint model" if a.session.known_positions else "no angles: |f| = g fit"
     lines = [
         f"{n} static positions ({kind}); g = {a.session.g:.5f} m/s² ({a.g_source})",
+        *(f"note: {note}" for note in a.notes),
         "",
         *_estimates(a, reference),
         "",
@@ -186,8 +195,9 @@ def report_text(a: Analysis, reference: Reference | None, replayed: list[ReplayR
         "Findings (Holm-adjusted p, family-wise 1 %):",
     ]
     lines += [f"  {f.effect} ({f.sensor}): {f.evidence}; p = {f.p_value:.2g}" for f in r.findings]
-    if not r.findings:
-        lines.append("  none: the base model explains the data")
+    summary = base_fit_summary(r)["summary"]
+    if summary is not None:
+        lines.append(f"  {summary}")
     for x in r.ambiguous:
         lines.append(
             f"  ambiguous ({x.sensor}): {x.candidates[0]} or {x.candidates[1]} (estimates "

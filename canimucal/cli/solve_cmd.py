@@ -100,6 +100,9 @@ def solution_report(solution: Solution, g_source: str) -> str:
         lines.append(f"not determined: {name}: {reason}")
     if r.fit is not None and r.fit.rms is not None:
         lines.append(f"fit: rms {r.fit.rms:.3g} m/s² after correction, dof {r.fit.dof}")
+    if solution.quality is not None:
+        scatter = " and the pose scatter" if solution.joint is not None else ""
+        lines.append(solution.quality.line(f"the within-position noise{scatter}"))
     return "\n".join(lines) + "\n"
 
 

@@ -23,12 +23,12 @@ segments whose squared second differences are pooled.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import stats
-from scipy.optimize import nnls
+from scipy.optimize import linprog, nnls
 
 from canimucal.errors import ModelError
 
@@ -435,11 +435,16 @@ def choose_averaging(
 
 @dataclass(frozen=True)
 class NoiseIntervals:
-    """95 % intervals ``(n_axes, 2)`` of the fitted terms (units of :class:`NoiseTerms`)."""
+    """95 % intervals ``(n_axes, 2)`` of the fitted terms (units of :class:`NoiseTerms`).
+
+    ``widening`` per axis: the factor by which the ADEV points' confidence band was widened
+    so that the fitted curve lies within it (1: the three-term curve fits the band).
+    """
 
     white_noise_density: Array
     bias_instability: Array
     random_walk: Array
+    widening: Array = field(default_factory=lambda: np.ones(0))
 
 
 def _rw_edf(m: NDArray[np.int64], n_phase: float) -> Array:
@@ -457,35 +462,71 @@ def noise_intervals(allan: AllanResult, terms: NoiseTerms) -> NoiseIntervals:
     """95 % intervals of the white density N, the random walk q and the bias instability B.
 
     Each of the K Allan variance points has the χ² interval ``σ̂²·edf/χ²_edf(1 − 0.025/K) …
-    σ̂²·edf/χ²_edf(0.025/K)`` (Bonferroni over the points, as the bounds below take a minimum
-    or maximum over them), with edf the smaller of the white-noise and the random-walk value
-    (Howe, Allan & Barnes 1981), so a point where the walk dominates is not trusted beyond
-    what a walk allows. Since every term of ``σ² = N²/τ + B_f² + q²τ/3`` is non-negative, a
-    term's coefficient is at most ``min_τ σ²_high(τ)/b(τ)`` (b its basis function) and at least
-    ``max_τ (σ²_low(τ) − the other fitted terms at τ)/b(τ)`` (clipped at 0). B, read off as
-    the smallest ADEV over 0.664, takes the interval of that point. When the points admit no
-    curve of the three terms (coloured or filtered noise), an interval can come out empty
-    (lower above upper) or miss the fitted value: the fit's ``reduced_chi2`` then says so.
+    σ̂²·edf/χ²_edf(0.025/K)`` (Bonferroni over the points: a simultaneous band), with edf the
+    smaller of the white-noise and the random-walk value (Howe, Allan & Barnes 1981), so a
+    point where the walk dominates is not trusted beyond what a walk allows. The interval of
+    N² (of q²) is the smallest and largest coefficient of any curve ``N²/τ + B_f² + q²τ/3``
+    with non-negative terms that stays inside the band at every point (two small linear
+    programs). When the fitted curve leaves the band (coloured or filtered noise; the fit's
+    ``reduced_chi2`` says so), the band is first widened about each point by the smallest
+    factor that takes the fitted curve in (:attr:`NoiseIntervals.widening`), so every
+    interval holds its estimate and has its lower end below its upper. B, read off as the
+    smallest ADEV over 0.664, takes the interval of that point.
     """
     tau = allan.taus_s
     m = np.round(tau * allan.sample_rate_hz).astype(np.int64)
     n_phase = allan.n_samples + 1.0
     edf = np.maximum(np.minimum(allan.edf, _rw_edf(m, n_phase)), 1.0)[:, None]
     avar = allan.avar
-    tail = 0.025 / tau.size  # Bonferroni: the bounds take a min/max over the τ points
+    tail = 0.025 / tau.size  # Bonferroni: the bounds hold at every τ point at once
     high = avar * edf / stats.chi2.ppf(tail, edf)
     low = avar * edf / stats.chi2.isf(tail, edf)
     basis = np.column_stack((1.0 / tau, np.ones_like(tau), tau / 3.0))
     coef = np.vstack([terms.white_noise_density**2, terms.floor_adev**2, terms.random_walk**2])
-    out = []
-    for k in (0, 2):
-        others = basis @ coef - basis[:, k : k + 1] * coef[k]
-        up = np.min(high / basis[:, k : k + 1], axis=0)
-        down = np.max((low - others) / basis[:, k : k + 1], axis=0)
-        out.append(np.column_stack((np.sqrt(np.clip(down, 0.0, None)), np.sqrt(up))))
+    n_axes = avar.shape[1]
+    bands = np.zeros((2, n_axes, 2))
+    widening = np.ones(n_axes)
+    for axis in range(n_axes):
+        fitted = basis @ coef[:, axis]
+        widening[axis] = _widening(fitted, low[:, axis], high[:, axis])
+        lo, hi = low[:, axis] / widening[axis], high[:, axis] * widening[axis]
+        for i, k in enumerate((0, 2)):
+            down, up = _coefficient_range(basis, lo, hi, k)
+            value = coef[k, axis]
+            bands[i, axis] = np.sqrt([min(down, value), max(up, value)])
     steady = allan.edf >= MIN_EDF_FOR_FLOOR
     idx = np.flatnonzero(steady) if np.any(steady) else np.arange(tau.size)
     j = idx[np.argmin(allan.adev[idx], axis=0)]
-    axes = np.arange(allan.adev.shape[1])
+    axes = np.arange(n_axes)
     b = np.column_stack((np.sqrt(low[j, axes]), np.sqrt(high[j, axes]))) / FLICKER_FACTOR
-    return NoiseIntervals(out[0], b, out[1])
+    return NoiseIntervals(bands[0], b, bands[1], widening)
+
+
+def _widening(fitted: Array, low: Array, high: Array) -> float:
+    """Smallest factor ``w ≥ 1`` with ``low/w ≤ fitted ≤ high·w`` at every point."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratios = np.concatenate([fitted / high, low / fitted])
+    ratios = ratios[np.isfinite(ratios)]
+    worst = float(np.max(ratios)) if ratios.size else 0.0
+    return 1.0 if worst <= 1.0 else worst * (1.0 + 1e-9)  # a hair more: the LP stays feasible
+
+
+def _coefficient_range(basis: Array, low: Array, high: Array, k: int) -> tuple[float, float]:
+    """Least and largest coefficient ``k`` of ``c ≥ 0`` with ``low ≤ basis·c ≤ high``.
+
+    Rows are scaled by ``high`` and each coefficient by its largest possible value
+    (``min high/basis``), so the linear programs are well conditioned. An infeasible or
+    failed program gives ``(inf, -inf)``: the caller's estimate is then the interval.
+    """
+    caps = np.min(high[:, None] / basis, axis=0)
+    caps = np.where(np.isfinite(caps) & (caps > 0), caps, 1.0)
+    a = basis * caps / high[:, None]
+    a_ub = np.vstack([a, -a])
+    b_ub = np.concatenate([np.ones_like(high), -low / high])
+    out = []
+    for sign in (1.0, -1.0):
+        cost = np.zeros(basis.shape[1])
+        cost[k] = sign
+        res = linprog(cost, A_ub=a_ub, b_ub=b_ub, bounds=(0.0, None), method="highs")
+        out.append(float(res.x[k] * caps[k]) if res.status == 0 else sign * np.inf)
+    return out[0], out[1]

@@ -255,3 +255,40 @@ def test_every_json_output_names_its_schema(
     assert document["schema"] == schema
     for plan in document.get("plans", []):
         assert plan["schema"] == "canimucal.plan/1"
+
+
+def test_allan_text_and_json_agree_and_every_interval_holds_its_value(
+    cli: Cli, still_recording: Path
+) -> None:
+    """Issue 21 item 11: one source for the text and the JSON; lo ≤ value ≤ hi everywhere."""
+    text = cli(["allan", still_recording])
+    doc = json.loads(cli(["allan", still_recording, "--json", "-"]).out)
+    assert text.code == 0, text.err
+    common = re.search(r"recommended averaging time: ([0-9.]+) s", text.out)
+    assert common is not None and float(common.group(1)) == pytest.approx(
+        doc["best_averaging_s"], abs=0.5
+    )
+    pattern = (
+        r"  ([xyz]): white ([0-9.e+-]+) counts/√Hz \(.*?\) \[([0-9.e+-]+)–([0-9.e+-]+)\], "
+        r"bias instability ([0-9.e+-]+) counts \[([0-9.e+-]+)–([0-9.e+-]+)\], "
+        r"random walk ([0-9.e+-]+) counts/√s \[([0-9.e+-]+)–([0-9.e+-]+)\], "
+        r"best averaging ([0-9.e+-]+) s"
+    )
+    rows = re.findall(pattern, text.out)
+    assert len(rows) == 6, text.out
+    for i, row in enumerate(rows):
+        sensor, axis = ("accel", "gyro")[i // 3], "xyz".index(row[0])
+        block = doc["sensors"][sensor]
+        numbers = [float(v) for v in row[1:]]
+        for j, key in enumerate(
+            ("white_noise_density_counts", "bias_instability_counts",
+             "random_walk_counts_per_sqrt_s")
+        ):  # fmt: skip
+            value, low, high = numbers[3 * j : 3 * j + 3]
+            assert low <= value <= high
+            entry = block[key][axis]
+            lo, hi = entry["ci95"]
+            assert lo <= entry["value"] <= hi
+            assert value == pytest.approx(entry["value"], rel=2e-3, abs=2e-3)
+        assert numbers[9] == pytest.approx(block["best_averaging_s"][axis], rel=2e-3)
+        assert block["best_averaging_s"][axis] == doc[sensor]["best_averaging_s_per_axis"][axis]

@@ -74,3 +74,35 @@ def test_noise_intervals_cover_the_simulated_terms() -> None:
         assert np.all(ci.bias_instability[:, 0] <= ci.bias_instability[:, 1])
     # 24 nominal 95 % intervals each: fewer than 21 covering has binomial probability < 1 %
     assert covered_n >= 21 and covered_q >= 21
+
+
+@pytest.mark.parametrize("kind", ["white+walk", "held", "filtered", "hump"])
+def test_every_interval_holds_its_estimate_and_is_ordered(kind: str) -> None:
+    """Issue 21 item 11: also where the three-term model misfits (held, filtered, a hump)."""
+    fs, n = 100.0, 20000
+    for seed in range(6):
+        rng = np.random.default_rng(2100 + seed)
+        x = rng.normal(0.0, 3.0, (n, 3)) + np.cumsum(rng.normal(0.0, 0.02, (n, 3)), axis=0)
+        if kind == "held":  # a 25 Hz sensor logged at 100 Hz
+            x = np.repeat(x[::4], 4, axis=0)
+        elif kind == "filtered":
+            box = np.ones(8) / 8.0
+            x = np.column_stack([np.convolve(x[:, i], box, "same") for i in range(3)])
+        elif kind == "hump":  # a Gauss–Markov bias, T = 5 s
+            phi = np.exp(-1.0 / (5.0 * fs))
+            b = np.zeros((n, 3))
+            for i in range(1, n):
+                b[i] = phi * b[i - 1] + rng.normal(0.0, 0.05, 3)
+            x += b
+        allan = allan_deviation(x, fs)
+        terms = fit_noise(allan)
+        ci = noise_intervals(allan, terms)
+        for value, band in (
+            (terms.white_noise_density, ci.white_noise_density),
+            (terms.random_walk, ci.random_walk),
+            (terms.bias_instability, ci.bias_instability),
+        ):
+            assert np.all(band[:, 0] <= band[:, 1])
+            assert np.all((band[:, 0] <= value) & (value <= band[:, 1])), (seed, value, band)
+        if kind == "white+walk":
+            assert np.all(ci.widening == 1.0)  # the band needs no widening where the model holds
