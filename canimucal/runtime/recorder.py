@@ -42,7 +42,7 @@ from canimucal.model.samples import SampleBlock, concat_blocks
 from canimucal.model.sensor import STANDARD_GRAVITY
 from canimucal.model.vocabulary.constants import COUNTER_MODULUS, OUTPUT_DATA_RATES_HZ
 from canimucal.procedure.config import ProcedureConfig
-from canimucal.procedure.posecheck import PoseCheck, check_pose, measured_force, predicted_force
+from canimucal.procedure.posecheck import FloorFit, PoseCheck, measured_force
 from canimucal.sim.schedule import PoseTrajectory
 
 log = logging.getLogger(__name__)
@@ -133,7 +133,7 @@ class _Track:
         self.rate_seq = 0
         self.check_rows: list[NDArray[np.float64]] = []
         self.accel_lsb: float | None = None
-        self.offset_ms2: NDArray[np.float64] | None = None
+        self.floor = FloorFit(STANDARD_GRAVITY)
 
     def unwrap(self, counter: NDArray[np.int64]) -> NDArray[np.int64]:
         """Unwrapped sequence numbers of a block's 16-bit counters."""
@@ -263,7 +263,7 @@ class Recorder:
                 checks = self.check_pose(position, settle_s=settle_s)
                 bad = [(t, c) for t, c in zip(self._tracks, checks, strict=True) if not c.passed]
                 if not bad:
-                    self.learn_offset(position)
+                    self.learn_floor(position)
                     settle = 0.0  # settled and checked just now
                     break
                 why = "; ".join(f"node {t.client.node_id}: {c.message()}" for t, c in bad)
@@ -274,9 +274,9 @@ class Recorder:
         """Check that every node is at ``position``, as the guided procedure does.
 
         After ``settle_s``, :data:`CHECK_WINDOW_S` of samples (written unlabelled) are
-        averaged; the nominal specific force, less the offset the first accepted pose
-        showed (bias and base tilt), must point within 5° (first pose) or 3° of the
-        target's (:func:`~canimucal.procedure.posecheck.check_pose`).
+        averaged; the nominal specific force must point within 5° (first pose) or 3° of the
+        target's as predicted with the floor slope and bias the accepted poses showed
+        (:class:`~canimucal.procedure.posecheck.FloorFit`).
         """
         for track in self._tracks:
             self._drain(track, _unlabelled)
@@ -290,19 +290,20 @@ class Recorder:
                 track.accel_lsb = float(track.client.nominal_lsb()[0])
             rows = np.vstack(track.check_rows)
             mean = np.nanmean(rows, axis=0)
-            f = measured_force(mean, track.accel_lsb, track.offset_ms2)
-            first = track.offset_ms2 is None
-            tolerance = FIRST_POSE_TOLERANCE_DEG if first else POSE_TOLERANCE_DEG
-            out.append(check_pose(position, f, STANDARD_GRAVITY, tolerance))
+            f = measured_force(mean, track.accel_lsb)
+            tolerance = FIRST_POSE_TOLERANCE_DEG if track.floor.empty else POSE_TOLERANCE_DEG
+            out.append(track.floor.check(position, f, tolerance))
         return out
 
-    def learn_offset(self, position: PlannedPosition) -> None:
-        """Take the last checked pose's offset (bias and base tilt) when none is known yet."""
+    def learn_floor(self, position: PlannedPosition) -> None:
+        """Take the last checked pose into each node's floor slope and bias.
+
+        They predict the next positions (:class:`~canimucal.procedure.posecheck.FloorFit`).
+        """
         for track in self._tracks:
-            if track.offset_ms2 is None and track.check_rows and track.accel_lsb is not None:
+            if track.check_rows and track.accel_lsb is not None:
                 mean = np.nanmean(np.vstack(track.check_rows), axis=0)
-                f = measured_force(mean, track.accel_lsb, None)
-                track.offset_ms2 = f - predicted_force(position, STANDARD_GRAVITY)
+                track.floor.add(position, measured_force(mean, track.accel_lsb))
 
     def record_scheduled(
         self,
