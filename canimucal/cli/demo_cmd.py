@@ -42,6 +42,7 @@ from canimucal.runtime.readback_check import comparison_table, readback_deviatio
 from canimucal.runtime.resume import load_resume_state
 from canimucal.runtime.session import Session, output_name
 from canimucal.runtime.wiring import demo_settings, open_devices
+from canimucal.signals import EXIT_INTERRUPTED
 from canimucal.sim.truth import Truth
 
 log = logging.getLogger(__name__)
@@ -184,10 +185,35 @@ def run(args: argparse.Namespace) -> int:
         history = run_automatic(session, write_anyway=True, deadline_s=_deadline_s(plan, args))
         truth_by_node = dict(rig.truths)
     documents, report = _results(session, history, truth_by_node, out)
+    if _cancelled(history):
+        return _report_cancelled(args, history, report, out)
     several = {"schema": DEMO_NODES_SCHEMA, "nodes": documents}
     document: Any = next(iter(documents.values())) if len(documents) == 1 else several
     emit(args, document, report)
     return 0 if all("readback" in d for d in documents.values()) else 3
+
+
+def _cancelled(history: list[ev.Event]) -> bool:
+    return any(isinstance(e, ev.ProcedureFinished) and e.cancelled for e in history)
+
+
+def _report_cancelled(
+    args: argparse.Namespace, history: list[ev.Event], report: str, out: Path
+) -> int:
+    """Tell why a session was cancelled (stderr), write no calibration JSON, return 130.
+
+    The exit status of an interrupted session (docs/design.md §7): what was recorded is kept
+    in ``out``; nothing was written to the node.
+    """
+    refusals = [e for e in history if isinstance(e, ev.PoseRefused)]
+    why = f" (last refusal: {refusals[-1].message})" if refusals else ""
+    if args.json != "-":
+        print(report)
+    print(
+        f"error: procedure cancelled{why}; no calibration written, the recording is kept in {out}",
+        file=sys.stderr,
+    )
+    return EXIT_INTERRUPTED
 
 
 def _deadline_s(plan: Plan, args: argparse.Namespace) -> float:
