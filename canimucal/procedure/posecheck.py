@@ -102,11 +102,15 @@ class FloorFit:
     g: float
     seen: list[tuple[Pose, Array]] = field(default_factory=list)
     _candidates: list[tuple[float, float, Array]] = field(default_factory=list, repr=False)
+    _slopes: Array = field(default_factory=lambda: np.zeros((0, 3, 3)), repr=False)
+    _biases: Array = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
 
     def add(self, pose: Pose, f_nominal: Array) -> None:
         """Take an accepted position's nominal specific force (m/s²) at its target ``pose``."""
         self.seen.append((pose, np.asarray(f_nominal, dtype=float)))
         self._candidates += self._fit(self.seen)
+        self._slopes = np.stack([position_dcm(0.0, 0.0, 0.0, a, b) for a, b, _ in self._candidates])
+        self._biases = np.stack([bias for _, _, bias in self._candidates])
 
     @property
     def empty(self) -> bool:
@@ -152,15 +156,15 @@ class FloorFit:
         if not self._candidates:
             return check_pose(pose, f, self.g, tolerance_deg)
         c = position_dcm(pose.alpha, pose.beta, pose.psi)
-        best: PoseCheck | None = None
-        for alpha0, beta0, bias in self._candidates:
-            slope = position_dcm(0.0, 0.0, 0.0, alpha0, beta0)
-            on_level_floor = c @ slope.T @ c.T @ (f - bias)
-            result = check_pose(pose, on_level_floor, self.g, tolerance_deg)
-            if best is None or result.error_deg < best.error_deg:
-                best = result
-        assert best is not None
-        return best
+        # every reading at once: the measurement referred to a level floor, m = C T0ᵀ Cᵀ (f − b)
+        turned = np.einsum("ij,njk,lk->nil", c, self._slopes.transpose(0, 2, 1), c)
+        on_level_floor = np.einsum("nij,nj->ni", turned, f[None, :] - self._biases)
+        target = predicted_force(pose, self.g)
+        cos = (on_level_floor @ target) / np.maximum(
+            np.linalg.norm(on_level_floor, axis=1) * np.linalg.norm(target), 1e-300
+        )
+        best = int(np.argmax(cos))
+        return check_pose(pose, on_level_floor[best], self.g, tolerance_deg)
 
 
 def check_pose(pose: Pose, f_measured: Array, g: float, tolerance_deg: float) -> PoseCheck:
