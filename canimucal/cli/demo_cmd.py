@@ -39,7 +39,7 @@ from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.runtime.operator import run_automatic
 from canimucal.runtime.readback_check import comparison_table, readback_deviations
-from canimucal.runtime.resume import load_resume_state
+from canimucal.runtime.resume import load_resume_state, recorded_plan, resumed_message
 from canimucal.runtime.session import Session, output_name
 from canimucal.runtime.wiring import demo_settings, open_devices
 from canimucal.signals import EXIT_INTERRUPTED
@@ -64,7 +64,10 @@ def add_subparser(subparsers: Any) -> None:
         "CAN bus, write the result into them and compare what they hold with the truth.",
     )
     p.add_argument("--headless", action="store_true", help="no TUI: an automatic operator")
-    p.add_argument("--plan", default=DEFAULT_PLAN, help=plan_help())
+    p.add_argument(
+        "--plan",
+        help=plan_help() + f" (default {DEFAULT_PLAN}; with --resume, the recording's)",
+    )
     p.add_argument("--truth", help="truth JSON for the simulated unit(s) (default: random)")
     p.add_argument("--seed", type=int, default=2026, help="random seed (truth and noise)")
     p.add_argument("--seconds", type=float, help="averaging seconds of every position")
@@ -149,6 +152,8 @@ def run(args: argparse.Namespace) -> int:
     """Run the demo and print the comparison of the read-back values with the truth."""
     check_outputs(args)
     _check_numbers(args)
+    if args.plan is None:  # --resume goes on with the plan its recording names
+        args.plan = recorded_plan(args.resume).name if args.resume else DEFAULT_PLAN
     plan = resolve_plan(args.plan)
     plan_name = plan.name if plan.name in builtin_names() else CUSTOM
     truths = _truths(args)
@@ -180,8 +185,7 @@ def run(args: argparse.Namespace) -> int:
         )
         resumed = session.procedure.config.resume_from
         if resumed is not None:
-            n = resumed.next_index
-            print(f"resuming {out}: {n} position(s) from the recording", file=sys.stderr)
+            print(resumed_message(resumed), file=sys.stderr)
         history = run_automatic(session, write_anyway=True, deadline_s=_deadline_s(plan, args))
         truth_by_node = dict(rig.truths)
     documents, report = _results(session, history, truth_by_node, out)
