@@ -255,3 +255,33 @@ def test_every_json_output_names_its_schema(
     assert document["schema"] == schema
     for plan in document.get("plans", []):
         assert plan["schema"] == "canimucal.plan/1"
+
+
+def test_plan_shows_each_limit_beside_the_sigma_the_session_will_get(
+    cli: Cli, simulated: Callable[[str, str, float], Any], own_user_dirs: Any
+) -> None:
+    """Issue 22: the vehicle plan failed acceptance every time, learnt after the jacking.
+
+    The forecast is the σ ``solve`` then reports (same bound, same tolerance and noise): the
+    two plan's scale σ is far beyond 3000 ppm, which ``plan`` says before any position.
+    """
+    rec = simulated("two", "level", 30.0)
+    run = cli(["solve", rec.path, "--no-check", "--json", "-"])
+    assert run.code == 0, run.err
+    got = json.loads(run.out)["acceptance"]["values"]
+    forecast = {r["key"]: r for r in plan_json(cli, "--plan", "two")["acceptance"]}
+    for key in ("max_bias_sigma_mg", "max_scale_sigma_ppm"):
+        assert forecast[key]["predicted"] == pytest.approx(got[key], rel=0.05), key
+    assert forecast["max_scale_sigma_ppm"]["meets"] is False
+    assert forecast["max_bias_sigma_mg"]["meets"] is True
+    assert forecast["min_fit_p"]["predicted"] is None  # the data decide
+    text = cli(["plan", "--plan", "vehicle"]).out
+    assert "worst bias σ ≤ 5 mg: plan predicts 10.1 mg, CANNOT meet it" in text
+    assert "this plan cannot meet max_bias_sigma_mg, max_scale_sigma_ppm" in text
+    # the limits in force are the user's: a department that accepts the vehicle plan says so
+    own_user_dirs.write_acceptance(
+        "[plan.vehicle]\nmax_bias_sigma_mg = 12.0\nmax_scale_sigma_ppm = 9000.0\n"
+    )
+    text = cli(["plan", "--plan", "vehicle"]).out
+    assert "worst bias σ ≤ 12 mg: plan predicts 10.1 mg, can meet it" in text
+    assert "can meet the limits known before the data" in text

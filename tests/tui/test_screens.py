@@ -313,3 +313,20 @@ async def test_a_failed_write_is_shown_in_a_modal(tmp_path: Path) -> None:
         await pilot.pause()
         assert isinstance(app.screen, ErrorModal)
         assert "Write failed" in screen_text(app)
+
+
+async def test_the_plan_screen_says_which_limits_a_plan_cannot_meet(tmp_path: Path) -> None:
+    """Issue 22: the vehicle plan's default limits are beyond it; say so before position 1."""
+    app = make_app(FakeSource(tmp_path), plan_name="vehicle", autoconnect=False)
+    async with app.run_test(size=(80, 60)) as pilot:
+        await app.push_screen(PlanScreen([node_status()], app.plans, plan_name=app.plan_name))
+        await pilot.pause()
+        text = screen_text(app)
+        assert "acceptance: this plan CANNOT meet max_bias_sigma_mg" in text
+        assert "worst bias σ ≤ 5 mg: plan predicts 10.1 mg, CANNOT meet it" in text
+        assert "[plan.vehicle]" in text  # shown as text, not taken for markup
+        await pilot.press("r")
+        await pilot.pause()
+        text = screen_text(app)
+        assert "acceptance: this plan can meet the limits known before the data" in text
+        assert "worst bias σ ≤ 5 mg: plan predicts 1.95 mg, can meet it" in text
