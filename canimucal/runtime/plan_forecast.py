@@ -51,7 +51,8 @@ class LimitForecast:
         if self.predicted is None:
             return f"{head}: checked on the data"
         verdict = "can meet it" if self.meets else "CANNOT meet it"
-        return f"{head}: plan predicts {self.predicted:.3g}{unit}, {verdict}"
+        value = f"{self.predicted:.3g}" if self.predicted < 100 else f"{self.predicted:.0f}"
+        return f"{head}: plan predicts {value}{unit}, {verdict}"
 
 
 def forecast(

@@ -210,6 +210,7 @@ def test_vehicle_plan_on_a_sloped_floor_completes(
     assert result.code == 0, result.err
     assert "rejected" not in result.out
     record = json.loads((tmp_path / "cal.json").read_text())
+    assert record["acceptance"]["passed"] is True  # the vehicle plan's own limits (§3)
     tilt = record["base_tilt_deg"]
     for i, key in enumerate(("alpha0", "beta0")):
         assert abs(tilt[key] - 1.5) < 4 * tilt["sigma"][i]
