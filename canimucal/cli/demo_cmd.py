@@ -39,9 +39,10 @@ from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.runtime.operator import run_automatic
 from canimucal.runtime.readback_check import comparison_table, readback_deviations
-from canimucal.runtime.resume import load_resume_state
+from canimucal.runtime.resume import load_resume_state, recorded_plan, resumed_message
 from canimucal.runtime.session import Session, output_name
 from canimucal.runtime.wiring import demo_settings, open_devices
+from canimucal.signals import EXIT_INTERRUPTED
 from canimucal.sim.truth import Truth
 
 log = logging.getLogger(__name__)
@@ -63,7 +64,10 @@ def add_subparser(subparsers: Any) -> None:
         "CAN bus, write the result into them and compare what they hold with the truth.",
     )
     p.add_argument("--headless", action="store_true", help="no TUI: an automatic operator")
-    p.add_argument("--plan", default=DEFAULT_PLAN, help=plan_help())
+    p.add_argument(
+        "--plan",
+        help=plan_help() + f" (default {DEFAULT_PLAN}; with --resume, the recording's)",
+    )
     p.add_argument("--truth", help="truth JSON for the simulated unit(s) (default: random)")
     p.add_argument("--seed", type=int, default=2026, help="random seed (truth and noise)")
     p.add_argument("--seconds", type=float, help="averaging seconds of every position")
@@ -148,6 +152,8 @@ def run(args: argparse.Namespace) -> int:
     """Run the demo and print the comparison of the read-back values with the truth."""
     check_outputs(args)
     _check_numbers(args)
+    if args.plan is None:  # --resume goes on with the plan its recording names
+        args.plan = recorded_plan(args.resume).name if args.resume else DEFAULT_PLAN
     plan = resolve_plan(args.plan)
     plan_name = plan.name if plan.name in builtin_names() else CUSTOM
     truths = _truths(args)
@@ -179,15 +185,39 @@ def run(args: argparse.Namespace) -> int:
         )
         resumed = session.procedure.config.resume_from
         if resumed is not None:
-            n = resumed.next_index
-            print(f"resuming {out}: {n} position(s) from the recording", file=sys.stderr)
+            print(resumed_message(resumed), file=sys.stderr)
         history = run_automatic(session, write_anyway=True, deadline_s=_deadline_s(plan, args))
         truth_by_node = dict(rig.truths)
     documents, report = _results(session, history, truth_by_node, out)
+    if _cancelled(history):
+        return _report_cancelled(args, history, report, out)
     several = {"schema": DEMO_NODES_SCHEMA, "nodes": documents}
     document: Any = next(iter(documents.values())) if len(documents) == 1 else several
     emit(args, document, report)
     return 0 if all("readback" in d for d in documents.values()) else 3
+
+
+def _cancelled(history: list[ev.Event]) -> bool:
+    return any(isinstance(e, ev.ProcedureFinished) and e.cancelled for e in history)
+
+
+def _report_cancelled(
+    args: argparse.Namespace, history: list[ev.Event], report: str, out: Path
+) -> int:
+    """Tell why a session was cancelled (stderr), write no calibration JSON, return 130.
+
+    The exit status of an interrupted session (docs/design.md §7): what was recorded is kept
+    in ``out``; nothing was written to the node.
+    """
+    refusals = [e for e in history if isinstance(e, ev.PoseRefused)]
+    why = f" (last refusal: {refusals[-1].message})" if refusals else ""
+    if args.json != "-":
+        print(report)
+    print(
+        f"error: procedure cancelled{why}; no calibration written, the recording is kept in {out}",
+        file=sys.stderr,
+    )
+    return EXIT_INTERRUPTED
 
 
 def _deadline_s(plan: Plan, args: argparse.Namespace) -> float:

@@ -12,6 +12,7 @@ from canimucal.analysis.gyro_bounds import GyroMoveBounds, gyro_move_bounds
 from canimucal.analysis.static_noise import static_rows
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.cli.spec_options import add_model_options, spec_from_args
+from canimucal.cli.user_config import user_acceptance
 from canimucal.errors import InputError
 from canimucal.io.grouping import position_rows
 from canimucal.io.plans import plan_to_dict, resolve_plan
@@ -20,6 +21,7 @@ from canimucal.model.plan import BoundTable, cramer_rao, plan_prior
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, STANDARD_GRAVITY
 from canimucal.model.vocabulary.plans import (
+    CUSTOM,
     DEFAULT_PLAN,
     PLANS,
     builtin_names,
@@ -33,6 +35,12 @@ from canimucal.procedure.averaging import (
     describe_rule,
 )
 from canimucal.runtime.inputs import read_recording
+from canimucal.runtime.plan_forecast import (
+    LimitForecast,
+    forecast,
+    forecast_document,
+    forecast_lines,
+)
 
 PLAN_SCHEMA = "canimucal.plan/1"
 """``plan --json``: one plan's bounds (docs/design.md §5)."""
@@ -115,6 +123,9 @@ def run(args: argparse.Namespace) -> int:
     averaging, text = _averaging(args.noise, averaged_sensors(args.gyro or "mems"))
     document["averaging"] = averaging
     report += text
+    rows = _acceptance_forecast(args, plan, spec)
+    document["acceptance"] = forecast_document(rows)
+    report += "\n".join(forecast_lines(rows, plan.name)) + "\n"
     emit(args, document, report)
     return 0
 
@@ -147,6 +158,22 @@ def _averaging(noise: str | None, sensors: tuple[str, ...]) -> tuple[dict[str, A
     later = f"from {noise}: later positions {event.describe()}"
     text += textwrap.fill(later, 80, initial_indent="  ", subsequent_indent="    ") + "\n"
     return doc, text
+
+
+def _acceptance_forecast(
+    args: argparse.Namespace, plan: Plan, spec: JointSpec
+) -> list[LimitForecast]:
+    """Each acceptance limit in force for ``plan`` beside the σ it predicts (runtime's forecast).
+
+    A built-in plan is judged with the model its session fits (the plan registry's); the
+    limits are the user's ``acceptance.toml`` over the plan's own defaults (docs/design.md §3).
+    """
+    name = plan.name if plan.name in builtin_names() else CUSTOM
+    entry = PLANS.get(name)
+    if entry is not None and entry.plan is not None:
+        spec = JointSpec(accel_k=entry.accel_k, tilt=entry.tilt, gyro=spec.gyro)
+    limits = user_acceptance().limits(name)
+    return forecast(plan, limits, spec, prior_k_sigma=args.prior_k_sigma)
 
 
 def _timed(args: argparse.Namespace, plan: Plan) -> Plan:

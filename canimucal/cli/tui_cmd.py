@@ -41,7 +41,10 @@ def add_subparser(subparsers: Any) -> None:
         "review the result and write it transactionally.",
     )
     add_bus_options(p)
-    p.add_argument("--plan", default=DEFAULT_PLAN, help=plan_help())
+    p.add_argument(
+        "--plan",
+        help=plan_help() + f" (default {DEFAULT_PLAN}; with --resume, the recording's)",
+    )
     p.add_argument("--gyro", choices=("mems", "nav"), default="mems", help="gyro grade")
     p.add_argument(
         "--gyro-g",
@@ -85,7 +88,8 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument(
         "--resume",
         metavar="DIR",
-        help="go on with the interrupted session in DIR (same plan; its files go to DIR)",
+        help="go on with the interrupted session in DIR (its plan unless --plan; its files "
+        "go to DIR)",
     )
     p.set_defaults(run=run)
 
@@ -168,9 +172,11 @@ def mount_choice(text: str | None) -> MountingMap | str | None:
 
 def run(args: argparse.Namespace) -> int:
     """Open the TUI on the bus the flags name."""
-    from canimucal.runtime.resume import load_resume_state
+    from canimucal.runtime.resume import load_resume_state, recorded_plan
     from canimucal.tui.app import make_app
 
+    if args.plan is None:  # --resume goes on with the plan its recording names
+        args.plan = recorded_plan(args.resume).name if args.resume else DEFAULT_PLAN
     plan, plan_name = plan_choice(args.plan)
     if args.resume:  # a different plan or an unreadable recording: exit 2 before the TUI
         load_resume_state(args.resume, plan)

@@ -31,13 +31,7 @@ from canimucal.procedure.events import Phase
 from canimucal.procedure.gyro_fit import ConfirmedMove, fit_confirmed_moves
 from canimucal.procedure.level import level_check
 from canimucal.procedure.movecheck import MoveTracker
-from canimucal.procedure.posecheck import (
-    PoseCheck,
-    check_pose,
-    describe_pose,
-    measured_force,
-    predicted_force,
-)
+from canimucal.procedure.posecheck import FloorFit, PoseCheck, describe_pose, measured_force
 from canimucal.procedure.tracks import Attempt, LabelledRows, NodeTrack, live_readout
 from canimucal.procedure.warmup import WarmupTracker, progress_event
 
@@ -127,7 +121,7 @@ class Procedure:
     def preload(self, node_id: int, averages: Mapping[int, PositionAverage]) -> None:
         """Take positions an interrupted session accepted (by plan index) as accepted.
 
-        The level position's average gives the pose check its offset, as on acceptance; the
+        Their averages teach the pose check the floor slope and bias, as on acceptance; the
         first-position long recording rule does not apply again (later positions use the
         averaging policy's later time).
         """
@@ -516,8 +510,8 @@ def check_poses(
     worst = None
     for track in tracks:
         accel, _ = track.recent_rows(settle_s)
-        f = measured_force(np.nanmean(accel, axis=0), track.accel_lsb, track.offset_ms2)
-        result = check_pose(target, f, g, tolerance_deg)
+        f = measured_force(np.nanmean(accel, axis=0), track.accel_lsb)
+        result = track.floor.check(target, f, tolerance_deg)
         if not result.passed:
             return (track.node_id, result), worst
         worst = result if worst is None or result.error_deg > worst.error_deg else worst
@@ -547,11 +541,15 @@ def average_attempts(
 
 
 def learn_from_average(track: NodeTrack, average: PositionAverage, pose: Pose, g: float) -> None:
-    """Learn a node's noise from an accepted average; the first one also gives its offset."""
+    """Learn a node's noise and its floor slope and bias from an accepted average.
+
+    The pose check predicts the next positions with them
+    (:class:`~canimucal.procedure.posecheck.FloorFit`).
+    """
     track.stillness.learn_noise(average.std_accel)
-    if track.offset_ms2 is None:
-        f_pred = predicted_force(pose, g)
-        track.offset_ms2 = track.accel_lsb * average.mean_accel - f_pred
+    if track.floor.empty:
+        track.floor = FloorFit(g)  # the site's g
+    track.floor.add(pose, measured_force(average.mean_accel, track.accel_lsb))
 
 
 def solve_nodes(

@@ -1,11 +1,14 @@
 """The pose check before averaging, and a target pose in words (docs/design.md §2 directions).
 
-The measured specific force ``f = lsb · U − offset`` (nominal K; ``offset`` is what the
-first accepted position showed beyond its prediction: bias and base tilt) is compared with
-the target's ``C(alpha, beta, psi) f_L``. The angle between the two vectors must be within
-the tolerance, so a tilt of the wrong sign (twice the tilt off) or the wrong size is refused.
-For display the measurement is turned back by the target's psi and read as (alpha, beta)
-with :func:`~canimucal.model.frames.gravity_direction_angles`.
+The measured specific force ``f = lsb · U`` (nominal K) is compared with the target's
+``C(alpha, beta, psi) T0 f_L + b``: ``T0`` the floor slope (a tilt fixed in the level frame,
+docs/design.md §2, so it turns with the pose) and ``b`` a bias in the unit's frame, both
+estimated by :class:`FloorFit` from the positions accepted so far. The angle between the two
+directions must be within the tolerance, so a tilt of the wrong sign (twice the tilt off) or
+the wrong size is refused. Where the accepted positions cannot tell slope from bias (after
+the first position only), every split between them is tried and the closest one counts.
+For display the measurement is referred to a level floor, turned back by the target's psi and
+read as (alpha, beta) with :func:`~canimucal.model.frames.gravity_direction_angles`.
 
 A target is worded in the unit's body axes (bench use) or, given a mounting map, as the
 vehicle's turn on the spot and front and side tilts read from the pose's rotation
@@ -14,7 +17,7 @@ vehicle's turn on the spot and front and side tilts read from the pose's rotatio
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -64,10 +67,104 @@ def predicted_force(pose: Pose, g: float) -> Array:
     return position_dcm(pose.alpha, pose.beta, pose.psi) @ specific_force_level(g)
 
 
-def measured_force(mean_counts: Array, accel_lsb: float, offset_ms2: Array | None) -> Array:
-    """Nominal specific force of a mean: ``lsb · U − offset`` (m/s²)."""
-    f = accel_lsb * np.asarray(mean_counts, dtype=float)
-    return f if offset_ms2 is None else f - offset_ms2
+def measured_force(mean_counts: Array, accel_lsb: float) -> Array:
+    """Nominal specific force of a mean: ``lsb · U`` (m/s²)."""
+    return accel_lsb * np.asarray(mean_counts, dtype=float)
+
+
+_SLOPE_JACOBIAN = np.array([[-1.0, 0.0], [0.0, 0.0], [0.0, 1.0]])
+"""``d(T0 f_L)/d(alpha0, beta0)`` at a level floor, per unit of g (docs/design.md §2)."""
+_SEPARABLE = 0.05
+"""Singular values below this share of the largest are directions the positions leave open."""
+_SPLITS = np.linspace(0.0, 1.0, 21)
+"""Splits tried between all-slope and all-bias along the directions left open."""
+
+
+@dataclass
+class FloorFit:
+    """What the accepted positions showed beyond their prediction: floor slope and bias.
+
+    The model of a nominal specific force at pose ``C``: ``C T0(alpha0, beta0) f_L + b``;
+    ``T0`` is the rigid base tilt of docs/design.md §2 (the floor's slope, fixed in the level
+    frame: it turns with the vehicle or the unit), ``b`` a bias in the unit frame (m/s²).
+    Linear least squares in the small slope; measured vectors are scaled to ``|f| = g`` first
+    (a scale error of the nominal K does not tilt anything). Directions of the parameters the
+    accepted positions do not determine are kept open: the readings run from the
+    all-slope to the all-bias one (after a level first position: the horizontal residual as
+    slope, or as bias). The readings of the first position, of the first two, … are all
+    kept (:meth:`candidates`): a scale or cross-axis error of the nominal K, not modelled
+    here, can pull a later fit off by a degree at a 45° pose, and the first position's
+    all-bias reading is the unit-frame offset the check used before the floor was modelled.
+    :meth:`check` takes the reading closest to the measurement: none of them is more than a
+    few degrees, so a tilt of the wrong sign or size is still refused.
+    """
+
+    g: float
+    seen: list[tuple[Pose, Array]] = field(default_factory=list)
+    _candidates: list[tuple[float, float, Array]] = field(default_factory=list, repr=False)
+    _slopes: Array = field(default_factory=lambda: np.zeros((0, 3, 3)), repr=False)
+    _biases: Array = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
+
+    def add(self, pose: Pose, f_nominal: Array) -> None:
+        """Take an accepted position's nominal specific force (m/s²) at its target ``pose``."""
+        self.seen.append((pose, np.asarray(f_nominal, dtype=float)))
+        self._candidates += self._fit(self.seen)
+        self._slopes = np.stack([position_dcm(0.0, 0.0, 0.0, a, b) for a, b, _ in self._candidates])
+        self._biases = np.stack([bias for _, _, bias in self._candidates])
+
+    @property
+    def empty(self) -> bool:
+        """Whether no position has been accepted yet."""
+        return not self.seen
+
+    def candidates(self) -> list[tuple[float, float, Array]]:
+        """``(alpha0, beta0, b)`` readings of what was seen (radians, m/s²); none when empty."""
+        return list(self._candidates)
+
+    def _fit(self, seen: list[tuple[Pose, Array]]) -> list[tuple[float, float, Array]]:
+        rows, residuals = [], []
+        for pose, f in seen:
+            norm = float(np.linalg.norm(f))
+            scaled = f * (self.g / norm) if norm > 0 else f
+            c = position_dcm(pose.alpha, pose.beta, pose.psi)
+            rows.append(np.hstack([c @ _SLOPE_JACOBIAN, np.eye(3)]))
+            residuals.append((scaled - c @ specific_force_level(self.g)) / self.g)
+        a, r = np.vstack(rows), np.concatenate(residuals)
+        u, s, vt = np.linalg.svd(a, full_matrices=True)
+        rank = int(np.sum(s > _SEPARABLE * s[0]))
+        q0 = vt[:rank].T @ ((u[:, :rank].T @ r) / s[:rank])
+        open_dirs = vt[rank:].T
+        if open_dirs.shape[1] == 0:
+            ends = [q0]
+        else:
+            ends = [
+                q0 - open_dirs @ (np.linalg.pinv(part @ open_dirs) @ (part @ q0))
+                for part in (np.eye(5)[2:], np.eye(5)[:2])  # no bias; no slope
+            ]
+        out = []
+        for lam in _SPLITS if len(ends) == 2 else (0.0,):
+            q = (1.0 - lam) * ends[0] + lam * ends[-1]
+            out.append((float(q[0]), float(q[1]), self.g * q[2:]))
+        return out
+
+    def check(self, pose: Pose, f_nominal: Array, tolerance_deg: float) -> PoseCheck:
+        """Check ``f_nominal`` (m/s²) against ``pose`` with the reading that fits it best.
+
+        Before any position was accepted: the plain :func:`check_pose`.
+        """
+        f = np.asarray(f_nominal, dtype=float)
+        if not self._candidates:
+            return check_pose(pose, f, self.g, tolerance_deg)
+        c = position_dcm(pose.alpha, pose.beta, pose.psi)
+        # every reading at once: the measurement referred to a level floor, m = C T0ᵀ Cᵀ (f − b)
+        turned = np.einsum("ij,njk,lk->nil", c, self._slopes.transpose(0, 2, 1), c)
+        on_level_floor = np.einsum("nij,nj->ni", turned, f[None, :] - self._biases)
+        target = predicted_force(pose, self.g)
+        cos = (on_level_floor @ target) / np.maximum(
+            np.linalg.norm(on_level_floor, axis=1) * np.linalg.norm(target), 1e-300
+        )
+        best = int(np.argmax(cos))
+        return check_pose(pose, on_level_floor[best], self.g, tolerance_deg)
 
 
 def check_pose(pose: Pose, f_measured: Array, g: float, tolerance_deg: float) -> PoseCheck:

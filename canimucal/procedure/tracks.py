@@ -15,9 +15,10 @@ from numpy.typing import NDArray
 
 from canimucal.model.positions import Pose
 from canimucal.model.samples import SampleBlock
+from canimucal.model.sensor import STANDARD_GRAVITY
 from canimucal.model.static import detect_disturbance
 from canimucal.procedure.events import SamplesReceived
-from canimucal.procedure.posecheck import check_pose, measured_force
+from canimucal.procedure.posecheck import FloorFit, measured_force
 from canimucal.procedure.stillness import StillnessDetector
 
 Array = NDArray[np.float64]
@@ -110,7 +111,8 @@ class NodeTrack:
         self.recent: list[SampleBlock] = []
         self.attempt: Attempt | None = None
         self.reference_std: tuple[Array, Array] | None = None
-        self.offset_ms2: Array | None = None
+        self.floor = FloorFit(STANDARD_GRAVITY)
+        """Floor slope and bias seen so far (the first accepted position sets the site's g)."""
         self.segments: list[LabelledRows] = []
         self.temp_c = float("nan")
         self.last_live_s = -np.inf
@@ -226,8 +228,9 @@ def live_readout(
     mean_a = _nanmean(accel)
     tilt = None
     if np.all(np.isfinite(mean_a)) and np.any(mean_a):
-        f = measured_force(mean_a, track.accel_lsb, track.offset_ms2)
-        tilt = check_pose(target, f, g, 0.0).tilt_error_deg
+        f = measured_force(mean_a, track.accel_lsb)
+        floor = FloorFit(g) if track.floor.empty else track.floor
+        tilt = floor.check(target, f, 0.0).tilt_error_deg
     return SamplesReceived(
         track.node_id,
         track.time_s,

@@ -77,13 +77,26 @@ def verification_of(
     )
 
 
-def _verification_text(v: Verification | None) -> str:
+def _verification_text(v: Verification | None, acceptance_passed: bool) -> str:
+    """Say what was verified; "PASSED" only when the calibration's acceptance passed too.
+
+    The verification re-reads the level pose after the write: it shows the device applies
+    the values, not that they are good enough, so a failed acceptance is never "PASSED"
+    beside it (issue 22).
+    """
     if v is None or not v.done:
         return "NOT DONE (the session ended before the re-read at level)"
     value = v.values.get("max_verify_norm_error_mg", float("nan"))
     limit = v.limits.get("max_verify_norm_error_mg", float("nan"))
-    verdict = "PASSED" if v.passed else "FAILED"
-    return f"{verdict}: abs(f) − g after the write {value:.3g} mg (limit {limit:g} mg)"
+    what = f"abs(f) − g at level re-read after the write {value:.3g} mg (limit {limit:g} mg)"
+    if not v.passed:
+        return f"FAILED: {what}"
+    if not acceptance_passed:
+        return (
+            f"re-read checked ({what}), but the calibration's acceptance FAILED: the device "
+            "applies the values written, their uncertainty is beyond the limits"
+        )
+    return f"PASSED: {what}"
 
 
 def _fmt(value: Any, sigma: Any) -> str:
@@ -176,7 +189,7 @@ def certificate_markdown(
         "",
         f"- Acceptance: {verdict}",
         f"- Written to the device: {'yes' if facts.written else 'no'}",
-        f"- Verification: {_verification_text(facts.verification)}",
+        f"- Verification: {_verification_text(facts.verification, acceptance.passed)}",
         f"- Warm-up: {facts.warmup}",
         "",
         "## Values",
@@ -296,8 +309,8 @@ def certificate_html(
         (
             "Verification",
             _mark(
-                e(_verification_text(facts.verification)),
-                facts.verification is not None and facts.verification.passed,
+                e(_verification_text(facts.verification, acceptance.passed)),
+                facts.verification is not None and facts.verification.passed and acceptance.passed,
             ),
         ),
         ("Warm-up", e(facts.warmup)),

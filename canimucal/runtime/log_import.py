@@ -18,14 +18,15 @@ From any log python-can reads (:mod:`canimucal.device.bus_log`), one IMU node's 
    (:func:`~canimucal.io.grouping.position_rows`: quiet accelerometer and gyro, so a turn
    about the vertical splits two poses too). Without a plan they are positions 0, 1, …
    without angles (scalar fits only). With ``plan`` they are matched to its positions in
-   order, each checked as ``record`` checks a pose (5° for the first, then 3° once the first
-   showed the offset): a stretch that does not fit the next position stays unlabelled, and
-   a position no stretch fits is an error. ``pose_check=False`` takes the stretches in order
-   and needs exactly one per position. A log of a unit that followed the plan by itself
-   from its NMT start (``sim --poses``, the in-process simulated node, a motorised rig) is
-   labelled by that schedule instead (``follow_schedule``), sample by sample as ``record``
-   labels it (:class:`~canimucal.runtime.recorder.ScheduleLabels`, counted from the node's
-   first sample in the log), so the two recordings label the same samples.
+   order, each checked as ``record`` checks a pose (5° for the first, then 3° against the
+   floor slope and bias the matched ones showed): a stretch that does not fit the next
+   position stays unlabelled, and a position no stretch fits is an error.
+   ``pose_check=False`` takes the stretches in order and needs exactly one per position. A
+   log of a unit that followed the plan by itself from its NMT start (``sim --poses``, the
+   in-process simulated node, a motorised rig) is labelled by that schedule instead
+   (``follow_schedule``), sample by sample as ``record`` labels it
+   (:class:`~canimucal.runtime.recorder.ScheduleLabels`, counted from the node's first
+   sample in the log), so the two recordings label the same samples.
 7. **The header**: ``node_id``, ``sample_rate_hz``, ``device_serial`` (0x1018:04),
    ``accel_lsb``/``gyro_lsb`` (0x2010:01/02) when the log shows them, ``plan`` and
    ``tolerance_deg`` with a plan, and whatever ``header`` adds (the site).
@@ -65,7 +66,7 @@ from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, STANDARD_GRAVITY
 from canimucal.model.vocabulary.constants import COUNTER_MODULUS, OUTPUT_DATA_RATES_HZ
 from canimucal.procedure.config import ProcedureConfig
-from canimucal.procedure.posecheck import check_pose, measured_force, predicted_force
+from canimucal.procedure.posecheck import FloorFit, measured_force
 from canimucal.runtime.recorder import DEFAULT_GUARD_S, ScheduleLabels
 
 logger = logging.getLogger(__name__)
@@ -487,7 +488,7 @@ def _matched(
 ) -> tuple[Stretch, ...]:
     """Match stretches to ``plan``'s positions in order, each by ``record``'s pose check."""
     out: list[Stretch] = []
-    offset: NDArray[np.float64] | None = None
+    floor = FloorFit(STANDARD_GRAVITY)
     nxt = 0
     last_miss = ""
     for stretch in bare:
@@ -497,15 +498,14 @@ def _matched(
         pose = plan.positions[nxt]
         rows = recording.accel[stretch.start : stretch.stop]
         mean = np.nanmean(rows, axis=0)
-        f = measured_force(mean, accel_lsb, offset)
-        tolerance = FIRST_POSE_TOLERANCE_DEG if offset is None else POSE_TOLERANCE_DEG
-        check = check_pose(pose, f, STANDARD_GRAVITY, tolerance)
+        f = measured_force(mean, accel_lsb)
+        tolerance = FIRST_POSE_TOLERANCE_DEG if floor.empty else POSE_TOLERANCE_DEG
+        check = floor.check(pose, f, tolerance)
         if not check.passed:
             last_miss = f"position {nxt}: {check.message()}"
             out.append(_given(stretch, -1, f"not position {nxt}: {check.message()}"))
             continue
-        if offset is None:
-            offset = f - predicted_force(pose, STANDARD_GRAVITY)
+        floor.add(pose, f)
         out.append(_given(stretch, nxt))
         nxt += 1
     if nxt < len(plan.positions):

@@ -14,7 +14,9 @@ Three ways to label:
 - :meth:`Recorder.record_prompted`: a whole plan, :meth:`record_pose` per position with a
   ``prompt(index, position)`` callback that returns when the unit is there. With a
   ``refused`` callback each pose is checked first, as the guided procedure checks it
-  (:meth:`Recorder.check_pose`): a unit not at the pose is refused and prompted again.
+  (:meth:`Recorder.check_pose`: the accelerometer's direction, and the turn the gyro
+  measured since the last recorded position, :meth:`Recorder.check_moves`): a unit not at
+  the pose, or a turn that was not made, is refused and prompted again.
 - :meth:`Recorder.record_scheduled`: the unit follows the plan by itself from the NMT start
   (``canimucal sim --poses``, the in-process simulated node, a motorised rig): each sample's
   schedule time is its counter distance from the first sample over the output data rate, and
@@ -42,7 +44,8 @@ from canimucal.model.samples import SampleBlock, concat_blocks
 from canimucal.model.sensor import STANDARD_GRAVITY
 from canimucal.model.vocabulary.constants import COUNTER_MODULUS, OUTPUT_DATA_RATES_HZ
 from canimucal.procedure.config import ProcedureConfig
-from canimucal.procedure.posecheck import PoseCheck, check_pose, measured_force, predicted_force
+from canimucal.procedure.movecheck import MoveCheck, MoveTracker
+from canimucal.procedure.posecheck import FloorFit, PoseCheck, measured_force
 from canimucal.sim.schedule import PoseTrajectory
 
 log = logging.getLogger(__name__)
@@ -70,7 +73,9 @@ CHECK_WINDOW_S = 0.5
 """Samples averaged for the pose check (after the settling)."""
 POSE_TOLERANCE_DEG = ProcedureConfig.pose_tolerance_deg
 FIRST_POSE_TOLERANCE_DEG = ProcedureConfig.first_pose_tolerance_deg
-"""The guided procedure's tolerances: the first pose (no offset known yet) and the others."""
+"""The guided procedure's tolerances: the first pose (no floor slope known yet) and the others."""
+MOVE_TOLERANCE_DEG = ProcedureConfig.move_tolerance_deg
+"""The guided procedure's tolerance of the gyro's move check."""
 
 
 @dataclass
@@ -133,7 +138,11 @@ class _Track:
         self.rate_seq = 0
         self.check_rows: list[NDArray[np.float64]] = []
         self.accel_lsb: float | None = None
-        self.offset_ms2: NDArray[np.float64] | None = None
+        self.floor = FloorFit(STANDARD_GRAVITY)
+        self.moves: MoveTracker | None = None
+        """The gyro integrated from the last recorded position (prompted plans only)."""
+        self.window_gyro: list[NDArray[np.float64]] = []
+        """Gyro rows of the position being labelled (its mean starts :attr:`moves`)."""
 
     def unwrap(self, counter: NDArray[np.int64]) -> NDArray[np.int64]:
         """Unwrapped sequence numbers of a block's 16-bit counters."""
@@ -236,6 +245,7 @@ class Recorder:
             track.remaining = max(int(round(position.seconds * track.rate_hz)), 2)
             track.index = index
             track.angles_deg = np.rad2deg(position.angles)
+            track.window_gyro = []
         self._pump(_window, lambda: all(t.remaining == 0 for t in self._tracks))
         for track in self._tracks:
             track.index = -1
@@ -261,22 +271,33 @@ class Recorder:
                 if refused is None:
                     break
                 checks = self.check_pose(position, settle_s=settle_s)
-                bad = [(t, c) for t, c in zip(self._tracks, checks, strict=True) if not c.passed]
+                bad: list[tuple[_Track, PoseCheck | MoveCheck]] = [
+                    (t, c) for t, c in zip(self._tracks, checks, strict=True) if not c.passed
+                ]
                 if not bad:
-                    self.learn_offset(position)
+                    moves = self.check_moves(position)
+                    bad = [
+                        (t, m)
+                        for t, m in zip(self._tracks, moves, strict=True)
+                        if m is not None and not m.passed
+                    ]
+                if not bad:
+                    self.learn_floor(position)
                     settle = 0.0  # settled and checked just now
                     break
                 why = "; ".join(f"node {t.client.node_id}: {c.message()}" for t, c in bad)
                 refused(first_index + i, why)
             self.record_pose(first_index + i, position, settle_s=settle)
+            if refused is not None:
+                self._start_moves(position)
 
     def check_pose(self, position: PlannedPosition, *, settle_s: float = 1.5) -> list[PoseCheck]:
         """Check that every node is at ``position``, as the guided procedure does.
 
         After ``settle_s``, :data:`CHECK_WINDOW_S` of samples (written unlabelled) are
-        averaged; the nominal specific force, less the offset the first accepted pose
-        showed (bias and base tilt), must point within 5° (first pose) or 3° of the
-        target's (:func:`~canimucal.procedure.posecheck.check_pose`).
+        averaged; the nominal specific force must point within 5° (first pose) or 3° of the
+        target's as predicted with the floor slope and bias the accepted poses showed
+        (:class:`~canimucal.procedure.posecheck.FloorFit`).
         """
         for track in self._tracks:
             self._drain(track, _unlabelled)
@@ -290,19 +311,48 @@ class Recorder:
                 track.accel_lsb = float(track.client.nominal_lsb()[0])
             rows = np.vstack(track.check_rows)
             mean = np.nanmean(rows, axis=0)
-            f = measured_force(mean, track.accel_lsb, track.offset_ms2)
-            first = track.offset_ms2 is None
-            tolerance = FIRST_POSE_TOLERANCE_DEG if first else POSE_TOLERANCE_DEG
-            out.append(check_pose(position, f, STANDARD_GRAVITY, tolerance))
+            f = measured_force(mean, track.accel_lsb)
+            tolerance = FIRST_POSE_TOLERANCE_DEG if track.floor.empty else POSE_TOLERANCE_DEG
+            out.append(track.floor.check(position, f, tolerance))
         return out
 
-    def learn_offset(self, position: PlannedPosition) -> None:
-        """Take the last checked pose's offset (bias and base tilt) when none is known yet."""
+    def check_moves(self, position: PlannedPosition) -> list[MoveCheck | None]:
+        """Check the gyro's move to ``position`` from the last recorded one, per node.
+
+        The guided procedure's own check (:class:`~canimucal.procedure.movecheck.MoveTracker`,
+        15°): the attitude change integrated since that position, against the plan's. None
+        for a node with nothing to compare yet (the first position).
+        """
+        return [
+            None if t.moves is None else t.moves.check(position, MOVE_TOLERANCE_DEG or 15.0)
+            for t in self._tracks
+        ]
+
+    def _start_moves(self, position: PlannedPosition) -> None:
+        """Integrate each node's gyro from the position just recorded (its mean as the bias)."""
         for track in self._tracks:
-            if track.offset_ms2 is None and track.check_rows and track.accel_lsb is not None:
+            rows = [r for r in track.window_gyro if r.size]
+            track.window_gyro = []
+            if not rows:
+                continue
+            gyro = np.vstack(rows)
+            finite = gyro[np.all(np.isfinite(gyro), axis=1)]
+            if not finite.shape[0]:
+                continue
+            if track.moves is None:
+                gyro_lsb = float(track.client.nominal_lsb()[1])
+                track.moves = MoveTracker(track.rate_hz, gyro_lsb)
+            track.moves.start(position, finite.mean(axis=0))
+
+    def learn_floor(self, position: PlannedPosition) -> None:
+        """Take the last checked pose into each node's floor slope and bias.
+
+        They predict the next positions (:class:`~canimucal.procedure.posecheck.FloorFit`).
+        """
+        for track in self._tracks:
+            if track.check_rows and track.accel_lsb is not None:
                 mean = np.nanmean(np.vstack(track.check_rows), axis=0)
-                f = measured_force(mean, track.accel_lsb, None)
-                track.offset_ms2 = f - predicted_force(position, STANDARD_GRAVITY)
+                track.floor.add(position, measured_force(mean, track.accel_lsb))
 
     def record_scheduled(
         self,
@@ -425,7 +475,12 @@ class Recorder:
         if block.n:
             if track.check_rate:
                 _check_rate(track, block)
-            track.write(block, *labeller(track, block))
+            labels, angles = labeller(track, block)
+            track.write(block, labels, angles)
+            if track.moves is not None:
+                track.moves.add(block.gyro, block.counter)
+            if labeller is _window:
+                track.window_gyro.append(np.asarray(block.gyro[labels >= 0], dtype=float))
 
 
 class ScheduleLabels:

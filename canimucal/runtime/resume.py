@@ -25,6 +25,7 @@ from canimucal.io.grouping import position_averages
 from canimucal.io.recording import Recording, parse_recording
 from canimucal.model.plan import KPrior
 from canimucal.model.positions import Plan, PositionAverage
+from canimucal.model.vocabulary.plans import builtin_names, builtin_plan
 from canimucal.procedure.config import ResumeState
 
 ANGLE_MATCH_DEG = 1e-3
@@ -93,6 +94,39 @@ def load_resume_state(
     if len(indices) >= len(plan.positions):
         raise InputError(f"cannot resume: every position of the plan is already in {out}")
     return ResumeState(averages, len(indices), files, priors, first_accel, first_gyro)
+
+
+def recorded_plan(out_dir: str | Path) -> Plan:
+    """Return the built-in plan the interrupted session's recording names in its header.
+
+    ``--resume`` without ``--plan``: the header's ``plan`` (docs/design.md §5). A custom plan
+    cannot be rebuilt from its recorded positions (the later ones are not there):
+    :class:`InputError` asks for the plan file.
+    """
+    out = Path(out_dir)
+    if not out.is_dir():
+        raise InputError(f"cannot resume: {out} is not a directory")
+    ids = _found_nodes(out)
+    path = recording_path(out, ids[0], len(ids) > 1)
+    source = partial_path(path) if os.path.lexists(partial_path(path)) else path
+    recording = parse_recording(read_bytes_nofollow(source), str(source))
+    name = recording.header.get("plan")
+    if not isinstance(name, str) or name not in builtin_names():
+        raise InputError(
+            f"cannot resume: {source} names no built-in plan ({name or 'none'}): give --plan "
+            "(the plan file of the interrupted session)"
+        )
+    return builtin_plan(name)
+
+
+def resumed_message(state: ResumeState) -> str:
+    """``resumed: positions 1–4 kept from FILE`` (one line; positions counted from 1)."""
+    files = ", ".join(str(p) for p in state.recordings.values()) or "the recording"
+    n = state.next_index
+    if n == 0:
+        return f"resumed: no position kept from {files} (starting at position 1)"
+    kept = "position 1" if n == 1 else f"positions 1–{n}"
+    return f"resumed: {kept} kept from {files}"
 
 
 def _found_nodes(out: Path) -> list[int]:

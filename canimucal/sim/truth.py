@@ -53,7 +53,8 @@ DEFAULT_HARDWARE_VERSION = "sim 1"
 DEFAULT_SOFTWARE_VERSION = "sim 1"
 _TOP_KEYS = tuple(
     "schema sample_rate_hz g latitude_deg height_m heading_deg serial tilt_model base_tilt_deg"
-    " accel gyro temperature faults nmt_start heartbeat_ms store_delay_s store_pdo_mode"
+    " floor_slope_deg accel gyro temperature faults nmt_start heartbeat_ms store_delay_s"
+    " store_pdo_mode"
     " storage_subs sync_pdos timer_skew_ppm calibration_store_sub documented_store_sub"
     " second_send_ms refuses_start"
     " device_name hardware_version software_version effects".split()
@@ -198,7 +199,11 @@ class Truth:
             log.info(
                 "truth: g = %.6f m/s² from latitude %.4f° and height %.1f m", g, lat_deg, height
             )
+        tilt_model = _tilt_model(d.get("tilt_model", "rigid"))
+        slope_key = "floor_slope_deg" if "floor_slope_deg" in d else "base_tilt_deg"
         tilt = read_object(d.get("base_tilt_deg", {}), "base_tilt_deg", ("alpha0", "beta0"))
+        if "floor_slope_deg" in d:
+            tilt = _floor_slope(d, tilt_model)
         faults = d.get("faults", {})
         if not isinstance(faults, Mapping) or not all(isinstance(k, str) for k in faults):
             fail("faults", "must be a JSON object")
@@ -209,9 +214,9 @@ class Truth:
             height_m=height,
             heading=float(np.deg2rad(read_number(d.get("heading_deg", 0.0), "heading_deg"))),
             serial=_serial(d.get("serial", 0)),
-            tilt_model=_tilt_model(d.get("tilt_model", "rigid")),
-            alpha0=float(np.deg2rad(_tilt_angle(tilt, "alpha0"))),
-            beta0=float(np.deg2rad(_tilt_angle(tilt, "beta0"))),
+            tilt_model=tilt_model,
+            alpha0=float(np.deg2rad(_tilt_angle(tilt, "alpha0", slope_key))),
+            beta0=float(np.deg2rad(_tilt_angle(tilt, "beta0", slope_key))),
             accel=AccelTruth.from_dict(d.get("accel", {})),
             gyro=GyroTruth.from_dict(d.get("gyro", {})),
             temperature=TemperatureProfile.from_dict(d.get("temperature", {})),
@@ -427,8 +432,24 @@ def _tilt_model(value: Any) -> TiltModel:
     fail("tilt_model", f"must be one of {', '.join(map(repr, _TILT_MODELS))}")
 
 
-def _tilt_angle(tilt: Mapping[str, Any], key: str) -> float:
-    path = f"base_tilt_deg.{key}"
+def _floor_slope(d: Mapping[str, Any], tilt_model: TiltModel) -> dict[str, Any]:
+    """``floor_slope_deg: [about z, about x]``: the floor's slope, fixed in the level frame.
+
+    The same rotation as the rigid ``base_tilt_deg`` (docs/design.md §2: applied to ``f_L``
+    before the pose), under the name a vehicle day uses; one of the two keys.
+    """
+    if "base_tilt_deg" in d:
+        fail("floor_slope_deg", "give floor_slope_deg or base_tilt_deg, not both")
+    if tilt_model != "rigid":
+        fail("floor_slope_deg", "a floor slope is a rigid tilt (tilt_model 'rigid')")
+    value = d["floor_slope_deg"]
+    if not isinstance(value, list) or len(value) != 2:
+        fail("floor_slope_deg", "must be [about z, about x] in degrees")
+    return {"alpha0": value[0], "beta0": value[1]}
+
+
+def _tilt_angle(tilt: Mapping[str, Any], key: str, where: str = "base_tilt_deg") -> float:
+    path = f"{where}.{key}"
     angle = read_number(tilt.get(key, 0.0), path)
     if abs(angle) >= 90.0:
         fail(path, "must be within (-90, 90) degrees")

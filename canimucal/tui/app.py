@@ -88,6 +88,7 @@ class CalibrationApp(App[int]):
             plan_name=self.plan_name,
             gyro=self.gyro,
             mount=self.source.mount,
+            acceptance=getattr(self.source, "acceptance", None),
             averaging=describe_rule(
                 policy if policy is not None else AveragingPolicy(), averaged_sensors(self.gyro)
             ),

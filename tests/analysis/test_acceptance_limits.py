@@ -53,7 +53,9 @@ def test_a_plan_table_overrides_the_top_level_limits_for_that_plan_only(tmp_path
         assert other.max_scale_sigma_ppm == default.max_scale_sigma_ppm
     assert config.limits("five").min_fit_p == 0.001
     assert limits_for(config, "vehicle") == vehicle and limits_for(vehicle, "five") == vehicle
-    assert limits_for(None, "vehicle") == default  # nothing given: the built-in limits
+    assert limits_for(None, "five") == default  # nothing given: the built-in limits
+    own = AcceptanceLimits(max_bias_sigma_mg=12.0, max_scale_sigma_ppm=10000.0)
+    assert limits_for(None, "vehicle") == own  # with the vehicle plan's own (design §3)
 
 
 def test_a_byte_order_mark_is_skipped(tmp_path: Path) -> None:
@@ -64,7 +66,7 @@ def test_a_byte_order_mark_is_skipped(tmp_path: Path) -> None:
 
 def test_no_file_is_the_built_in_limits(tmp_path: Path) -> None:
     config = read_acceptance_config(tmp_path / "absent.toml")
-    assert config == AcceptanceConfig() and config.limits("vehicle") == AcceptanceLimits()
+    assert config == AcceptanceConfig() and config.limits("five") == AcceptanceLimits()
 
 
 @pytest.mark.parametrize(

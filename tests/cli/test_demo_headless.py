@@ -196,3 +196,39 @@ def test_headless_demo_with_gyro_g_estimates_g_and_writes_it(
     read_back = [deviations[f"gyro.G[{i}][{j}]"] for i in range(3) for j in range(3)]
     assert max(abs(d.dev_sigma) for d in read_back) < 4.0
     assert read_recording(out / "recording.csv").header["gyro_g"] is True  # solve reuses it
+
+
+def test_vehicle_plan_on_a_sloped_floor_completes(
+    cli: Callable[[Sequence[str]], Any], tmp_path: Path
+) -> None:
+    """Issue 22: a floor tilted 1.5° about each axis refused position 3 on every attempt."""
+    truth = tmp_path / "truth.json"
+    truth.write_text(json.dumps({"floor_slope_deg": [1.5, 1.5]}))
+    out = tmp_path / "demo-out"
+    argv = ["demo", *FAST, "--plan", "vehicle", "--truth", truth, "--out", out]
+    result = cli([*argv, "--json", tmp_path / "cal.json"])
+    assert result.code == 0, result.err
+    assert "rejected" not in result.out
+    record = json.loads((tmp_path / "cal.json").read_text())
+    assert record["acceptance"]["passed"] is True  # the vehicle plan's own limits (§3)
+    tilt = record["base_tilt_deg"]
+    for i, key in enumerate(("alpha0", "beta0")):
+        assert abs(tilt[key] - 1.5) < 4 * tilt["sigma"][i]
+
+
+def test_a_cancelled_headless_demo_exits_130_and_writes_no_calibration(
+    cli: Callable[[Sequence[str]], Any], tmp_path: Path
+) -> None:
+    """A unit whose x axis is inverted is refused at the 45° pose until the operator gives up."""
+    truth = tmp_path / "truth.json"
+    k = (2048 / 9.80665) * np.diag([-1.0, 1.0, 1.0])
+    truth.write_text(json.dumps({"accel": {"K": k.tolist()}}))
+    out = tmp_path / "demo-out"
+    argv = ["demo", *FAST, "--plan", "two", "--truth", truth, "--out", out]
+    result = cli([*argv, "--json", tmp_path / "cal.json"])
+    assert result.code == 130
+    assert "procedure cancelled" in result.err and "no calibration written" in result.err
+    assert "check the sign and size of the tilt" in result.err
+    assert not (tmp_path / "cal.json").exists()
+    assert not (out / "calibration.json").exists()
+    assert (out / "recording.csv").is_file()  # what was recorded is kept

@@ -496,3 +496,57 @@ def test_record_prompted_refuses_a_pose_the_unit_is_not_at(tmp_path: Path) -> No
         x = np.nanmean(rec.accel[rows, 0]) * od.to_float32(9.80665 / 2048.0)
         expected = -9.80665 * np.sin(position.alpha) * np.cos(position.beta)
         assert abs(x - expected) < 0.5, (index, x, expected)
+
+
+def test_record_prompted_refuses_a_turn_the_gyro_did_not_see(tmp_path: Path) -> None:
+    """``record --plan vehicle``: a turn on the spot that was not made is refused (issue 22).
+
+    The accelerometer cannot see a turn about the vertical; the gyro's check the TUI runs
+    (:class:`~canimucal.procedure.movecheck.MoveTracker`) can. The operator first presses
+    Enter without turning the vehicle: refused, prompted again, then turned and recorded.
+    """
+    from dataclasses import replace
+
+    import can
+
+    from canimucal.device.client import ImuClient
+    from canimucal.io.recording_writer import RecordingWriter
+    from canimucal.model.vocabulary.plans import builtin_plan
+    from canimucal.runtime.recorder import Recorder
+    from canimucal.simnode.node import SimulatedImuNode
+
+    channel = f"canimucal-turn-{os.getpid()}"
+    node_bus, client_bus = (can.Bus(interface="virtual", channel=channel) for _ in range(2))
+    node = SimulatedImuNode(node_bus, 0x10, make_truth(), time_scale=10.0, seed=5).start()
+    vehicle = builtin_plan("vehicle")
+    plan = replace(vehicle, positions=vehicle.positions[:3]).with_total_seconds(3.0)
+    prompts: list[int] = []
+    refusals: list[tuple[int, str]] = []
+
+    def prompt(index: int, position: Any) -> None:
+        prompts.append(index)
+        if prompts.count(index) > 1 or index != 1:  # the 90° turn: made the second time
+            node.set_pose(position.alpha, position.beta, position.psi)
+
+    out = tmp_path / "turns.csv"
+    try:
+        with ImuClient(client_bus, 0x10) as client:
+            header = {"sample_rate_hz": 200.0, "device_serial": SERIAL}
+            with RecordingWriter.open(out, header) as writer:
+                recorder = Recorder([(client, writer, 200.0)])
+                recorder.start()
+                try:
+                    recorder.record_prompted(
+                        plan, prompt, settle_s=1.0, refused=lambda i, why: refusals.append((i, why))
+                    )
+                finally:
+                    recorder.stop()
+    finally:
+        node.stop()
+        node_bus.shutdown()
+        client_bus.shutdown()
+    assert prompts == [0, 1, 1, 2]
+    assert [i for i, _ in refusals] == [1]
+    assert "the turn was not made" in refusals[0][1] and "> 15°" in refusals[0][1]
+    rec = read_recording(out)
+    assert sorted(set(rec.position.tolist()) - {-1}) == [0, 1, 2]

@@ -292,3 +292,33 @@ def test_allan_text_and_json_agree_and_every_interval_holds_its_value(
             assert value == pytest.approx(entry["value"], rel=2e-3, abs=2e-3)
         assert numbers[9] == pytest.approx(block["best_averaging_s"][axis], rel=2e-3)
         assert block["best_averaging_s"][axis] == doc[sensor]["best_averaging_s_per_axis"][axis]
+
+
+def test_plan_shows_each_limit_beside_the_sigma_the_session_will_get(
+    cli: Cli, simulated: Callable[[str, str, float], Any], own_user_dirs: Any
+) -> None:
+    """Issue 22: the vehicle plan failed acceptance every time, learnt after the jacking.
+
+    The forecast is the σ ``solve`` then reports (same bound, same tolerance and noise): the
+    two plan's scale σ is far beyond 3000 ppm, which ``plan`` says before any position.
+    """
+    rec = simulated("two", "level", 30.0)
+    run = cli(["solve", rec.path, "--no-check", "--json", "-"])
+    assert run.code == 0, run.err
+    got = json.loads(run.out)["acceptance"]["values"]
+    forecast = {r["key"]: r for r in plan_json(cli, "--plan", "two")["acceptance"]}
+    for key in ("max_bias_sigma_mg", "max_scale_sigma_ppm"):
+        assert forecast[key]["predicted"] == pytest.approx(got[key], rel=0.05), key
+    assert forecast["max_scale_sigma_ppm"]["meets"] is False
+    assert forecast["max_bias_sigma_mg"]["meets"] is True
+    assert forecast["min_fit_p"]["predicted"] is None  # the data decide
+    # the vehicle plan's own limits state what it is for: it can meet them
+    text = cli(["plan", "--plan", "vehicle"]).out
+    assert "worst bias σ ≤ 12 mg: plan predicts 10.1 mg, can meet it" in text
+    assert "worst scale σ ≤ 10000 ppm: plan predicts 8132 ppm, can meet it" in text
+    assert "can meet the limits known before the data" in text
+    # the limits in force are the user's: a stricter department is told before position 1
+    own_user_dirs.write_acceptance("[plan.vehicle]\nmax_bias_sigma_mg = 5.0\n")
+    text = cli(["plan", "--plan", "vehicle"]).out
+    assert "worst bias σ ≤ 5 mg: plan predicts 10.1 mg, CANNOT meet it" in text
+    assert "this plan cannot meet max_bias_sigma_mg" in text

@@ -79,3 +79,29 @@ def test_the_mounting_line_is_empty_in_body_axes_and_says_bench() -> None:
         record, Identity(1, 2, 3, 7, "imu"), AcceptanceReport(()), LIMITS, []
     )
     assert "- Mounting: unit axes (bench)" in text
+
+
+def test_a_failed_acceptance_is_never_passed_beside_a_good_reread() -> None:
+    """Issue 22: the verification printed PASSED beside a failed acceptance."""
+    record = record_from_estimates(
+        ["accel.bias[0]", "accel.bias[1]", "accel.bias[2]"],
+        [1.0, 2.0, 3.0],
+        np.eye(3),
+        device=Device(serial=7, node_id=16),
+        plan="vehicle",
+    )
+    identity = Identity(1, 2, 3, 7, "imu")
+    reread = verification_of(_after(0.004 * G / 1000), True, LIMITS, G)  # within its limit
+    failed = AcceptanceReport((Check("worst bias σ", 8.2, 5.0, "mg", False, "max_bias_sigma_mg"),))
+    passed = AcceptanceReport((Check("worst bias σ", 1.2, 5.0, "mg", True, "max_bias_sigma_mg"),))
+    facts = SessionFacts(written=True, verification=reread)
+    for report, ok in ((failed, False), (passed, True)):
+        args = (record, identity, report, LIMITS, [])
+        markdown = certificate_markdown(*args, facts=facts)
+        page = certificate_html(*args, facts=facts)
+        line = next(x for x in markdown.splitlines() if x.startswith("- Verification:"))
+        assert ("PASSED" in line) is ok, line
+        assert "re-read after the write 0.004 mg (limit 5 mg)" in line  # what was verified
+        if not ok:
+            assert "acceptance FAILED" in line and "acceptance FAILED" in page
+            assert "PASSED:" not in page

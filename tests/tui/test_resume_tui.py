@@ -57,6 +57,9 @@ async def test_the_tui_demo_resumes_an_interrupted_session(
         await press(pilot, "enter")  # plan five -> position
         screen = app.screen
         assert isinstance(screen, PositionScreen)
+        resumed = f"resumed: positions 1–2 kept from {out / 'recording.csv'}"
+        notice = lambda: str(screen.notice.render()) if hasattr(screen, "notice") else ""  # noqa: E731
+        await until(pilot, lambda: resumed in notice(), "the resume notice")
         await measure_positions(pilot, screen, (2, 3, 4))  # 1 and 2 came from the recording
         await write_and_verify(pilot, screen)
     source.close()

@@ -313,3 +313,24 @@ async def test_a_failed_write_is_shown_in_a_modal(tmp_path: Path) -> None:
         await pilot.pause()
         assert isinstance(app.screen, ErrorModal)
         assert "Write failed" in screen_text(app)
+
+
+async def test_the_plan_screen_says_which_limits_a_plan_cannot_meet(tmp_path: Path) -> None:
+    """Issue 22: a plan whose σ is beyond a limit says so on the plan screen, before position 1.
+
+    The two plan's scale σ (with its 0.1° tolerances) is beyond 3000 ppm; the vehicle plan's
+    own limits (docs/design.md §3) are within its reach.
+    """
+    app = make_app(FakeSource(tmp_path), plan_name="vehicle", autoconnect=False)
+    async with app.run_test(size=(80, 60)) as pilot:
+        await app.push_screen(PlanScreen([node_status()], app.plans, plan_name=app.plan_name))
+        await pilot.pause()
+        text = screen_text(app)
+        assert "acceptance: this plan can meet the limits known before the data" in text
+        assert "worst bias σ ≤ 12 mg: plan predicts 10.1 mg, can meet it" in text
+        await pilot.press("2")
+        await pilot.pause()
+        text = screen_text(app)
+        assert "acceptance: this plan CANNOT meet max_scale_sigma_ppm" in text
+        assert "worst scale σ ≤ 3000 ppm: plan predicts 40056 ppm, CANNOT meet it" in text
+        assert "[plan.two]" in text  # shown as text, not taken for markup

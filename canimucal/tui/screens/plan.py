@@ -17,18 +17,20 @@ from textual.reactive import reactive
 from textual.screen import Screen
 from textual.widgets import DataTable, Footer, Static
 
+from canimucal.analysis.acceptance import AcceptanceConfig
 from canimucal.errors import InputError
 from canimucal.io.mounting import BODY, load_mounting
 from canimucal.model.mounting import DEFAULT_MOUNTING, MountingMap
 from canimucal.model.plan import BoundTable, cramer_rao
 from canimucal.model.positions import Plan
 from canimucal.model.vocabulary.plans import DEFAULT_PLAN, PLANS, worded_for_vehicle
+from canimucal.runtime.plan_forecast import forecast, forecast_lines
 from canimucal.runtime.wiring import spec_for_plan
 from canimucal.tui.messages import StartWanted
 from canimucal.tui.modals import MountModal
 from canimucal.tui.source import NodeStatus
 from canimucal.tui.text import bound_rows, findings_text
-from canimucal.tui.widgets import passive_table
+from canimucal.tui.widgets import PlainStatic, passive_table
 
 
 def bound_table(plan_name: str, plan: Plan, accel_lsb: float) -> BoundTable:
@@ -62,6 +64,7 @@ class PlanScreen(Screen[None]):
         plan_name: str = DEFAULT_PLAN,
         gyro: str = "mems",
         mount: MountingMap | str | None = None,
+        acceptance: AcceptanceConfig | None = None,
         averaging: str = "",
     ) -> None:
         super().__init__()
@@ -72,6 +75,8 @@ class PlanScreen(Screen[None]):
         for b in self.OTHER_BINDINGS:  # as App.bind does: this screen's own bindings map
             self._bindings.bind(b.key, b.action, b.description, show=b.show)
         self.averaging = averaging
+        self.acceptance = acceptance or AcceptanceConfig()
+        """The limits sessions are judged by (per plan): shown beside the plan's σ."""
         """The procedure's averaging rule in words (:func:`.describe_rule`): shown, not chosen."""
         self.statuses = statuses
         self.plans = dict(plans)
@@ -86,6 +91,7 @@ class PlanScreen(Screen[None]):
         with VerticalScroll(id="plan-body"):
             yield passive_table(id="bounds", zebra_stripes=True)
             yield Static("", id="findings")
+            yield PlainStatic("", id="forecast")  # "[plan.vehicle]" is text, not markup
         yield Footer()
 
     def on_mount(self) -> None:
@@ -93,6 +99,7 @@ class PlanScreen(Screen[None]):
         self.summary = self.query_one("#plan-summary", Static)
         self.table = self.query_one("#bounds", DataTable)
         self.findings = self.query_one("#findings", Static)
+        self.forecast = self.query_one("#forecast", PlainStatic)
         self.table.add_columns("parameter", "σ", "unit", "effect at 1 g (counts)")
         self.plan_name, self.gyro = self.first_choice
         self.show_plan()
@@ -119,6 +126,14 @@ class PlanScreen(Screen[None]):
         plan = self.plans[self.plan_name]
         lsb = self.statuses[0].accel_lsb if self.statuses else 9.80665 / 2048.0
         table = bound_table(self.plan_name, plan, lsb)
+        spec = replace(spec_for_plan(self.plan_name, "mems"), gyro="none")
+        rows = forecast(plan, self.acceptance.limits(self.plan_name), spec, accel_lsb=lsb)
+        cannot = [r.key for r in rows if r.meets is False]
+        verdict = (
+            f"acceptance: this plan CANNOT meet {', '.join(cannot)} (below the table)"
+            if cannot
+            else "acceptance: this plan can meet the limits known before the data"
+        )
         nodes = ", ".join(str(s.node_id) for s in self.statuses) or "—"
         grade = "MEMS (bias)" if self.gyro == "mems" else "navigation (bias + scale)"
         self.summary.update(
@@ -126,12 +141,14 @@ class PlanScreen(Screen[None]):
             f"{plan.total_seconds:g} s of averaging · gyro {grade} · nodes {nodes}\n"
             f"{self.instructions_line()}\n"
             + (f"averaging: {self.averaging}\n" if self.averaging else "")
+            + f"{verdict}\n"
             + "Cramér–Rao σ at K = I/LSB, 1 count/√Hz white noise, zero tilt:"
         )
         self.table.clear()
         for row in bound_rows(table):
             self.table.add_row(*row)
         self.findings.update(findings_text(table))
+        self.forecast.update("\n".join(forecast_lines(rows, self.plan_name)))
 
     @property
     def serial(self) -> int | None:

@@ -28,6 +28,7 @@ from canimucal.errors import CanimucalError
 from canimucal.flag_words import worded_for_flags
 from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase
+from canimucal.runtime.resume import resumed_message
 from canimucal.runtime.session import SessionCommand, WriteOptions
 from canimucal.tui.messages import EventsArrived, ProcedureEnded, ResultsReady
 from canimucal.tui.modals import ConfirmSkip, ErrorModal
@@ -154,9 +155,12 @@ class PositionScreen(Screen[None]):
         except CanimucalError as exc:
             self.post_message(EventsArrived([ev.ProcedureFailed(worded_for_flags(exc), exc.title)]))
             return
-        note = self.runner.session.procedure.config.mounting_note  # how the words are framed
-        if note:
-            self.app.call_from_thread(self.notice.update, note)
+        config = self.runner.session.procedure.config
+        notes = [config.mounting_note] if config.mounting_note else []  # how words are framed
+        if config.resume_from is not None:  # say it resumed, and from which file
+            notes.insert(0, markup_text(resumed_message(config.resume_from)))
+        if notes:
+            self.app.call_from_thread(self.notice.update, "\n".join(notes))
         self.runner.run(self._deliver)
 
     def _deliver(self, batch: list[ev.Event]) -> None:
