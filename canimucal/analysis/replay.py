@@ -15,7 +15,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from canimucal.analysis.base_fit import fit_known
 from canimucal.analysis.report import Analysis, extended_truth, observed_poses
@@ -111,6 +110,8 @@ def replay_ratios(rows: list[ReplayRow] | None) -> dict[str, Any] | None:
     mean = float(np.mean(ratios))
     half = float("nan")
     if n >= 2:
+        from scipy import stats  # lazy (issue 23)
+
         half = float(stats.t.ppf(0.975, n - 1) * np.std(ratios, ddof=1) * np.sqrt(1 + 1 / n))
     return {
         "rms_ratio": mean,

@@ -36,7 +36,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import optimize, stats
 
 Array = NDArray[np.float64]
 
@@ -53,7 +52,7 @@ MAX_TRIM_FRACTION = 0.5
 """No window loses more than this fraction of its length to the trim."""
 
 GRID_POINTS = 40
-_CHI2_95_1 = float(stats.chi2.ppf(0.95, 1))
+_CHI2_95_1 = 3.841458820694124  # χ²₁ 95 % point, scipy.stats.chi2.ppf(0.95, 1)
 
 
 @dataclass(frozen=True)
@@ -87,6 +86,8 @@ def fit_settling(
     windows: Sequence[tuple[Array, Array]], *, alpha: float = SETTLING_ALPHA
 ) -> Settling:
     """Fit eq. (1) to the windows ``(t_s (n,), x (n, 3))`` of one sensor (module doc)."""
+    from scipy import special  # lazy (issue 23)
+
     clean, used = [], []
     for i, (t, x) in enumerate(windows):
         keep = np.all(np.isfinite(x), axis=1)
@@ -112,7 +113,7 @@ def fit_settling(
     k = int(np.argmax(gains))
     tau, best = _refine(prepared, grid, k, float(gains[k]))
     ci = _interval(prepared, grid, gains, tau, best)
-    p = float(min(1.0, GRID_POINTS * stats.chi2.sf(best, df)))
+    p = float(min(1.0, GRID_POINTS * special.chdtrc(df, best)))
     found = p < alpha and ci[1] < grid[-1]
     amplitude = np.zeros((n, 3))
     amplitude[used] = _gain(prepared, tau)[1]
@@ -129,6 +130,8 @@ def _refine(
     prepared: Sequence[tuple[Array, Array, Array]], grid: Array, k: int, best: float
 ) -> tuple[float, float]:
     """Maximise Δχ²(τ) between the grid neighbours of its best grid point."""
+    from scipy import optimize  # lazy (issue 23)
+
     lo, hi = float(grid[max(k - 1, 0)]), float(grid[min(k + 1, grid.size - 1)])
     res = optimize.minimize_scalar(
         lambda t: -_gain(prepared, t)[0], bounds=(lo, hi), method="bounded",
@@ -147,6 +150,7 @@ def _interval(
     best: float,
 ) -> tuple[float, float]:
     """Profile 95 % interval of τ: where Δχ² stays within 3.84 of its maximum (grid-bounded)."""
+    from scipy import optimize  # lazy (issue 23)
 
     def f(t: float) -> float:
         return _gain(prepared, t)[0] - (best - _CHI2_95_1)

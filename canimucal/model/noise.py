@@ -27,8 +27,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import stats
-from scipy.optimize import nnls
 
 from canimucal.errors import ModelError
 
@@ -282,6 +280,8 @@ def fit_noise(allan: AllanResult, *, iterations: int = 3) -> NoiseTerms:
     low do not pull the fit down.
     """
     tau = allan.taus_s
+    from scipy.optimize import nnls  # lazy (issue 23)
+
     basis = np.column_stack((1.0 / tau, np.ones_like(tau), tau / 3.0))
     scale = np.sqrt(2.0 / allan.edf)
     n_axes = allan.adev.shape[1]
@@ -473,8 +473,10 @@ def noise_intervals(allan: AllanResult, terms: NoiseTerms) -> NoiseIntervals:
     edf = np.maximum(np.minimum(allan.edf, _rw_edf(m, n_phase)), 1.0)[:, None]
     avar = allan.avar
     tail = 0.025 / tau.size  # Bonferroni: the bounds take a min/max over the τ points
-    high = avar * edf / stats.chi2.ppf(tail, edf)
-    low = avar * edf / stats.chi2.isf(tail, edf)
+    from scipy.special import chdtri  # lazy (issue 23); chdtri(v, p): x with P(χ²_v > x) = p
+
+    high = avar * edf / chdtri(edf, 1.0 - tail)
+    low = avar * edf / chdtri(edf, tail)
     basis = np.column_stack((1.0 / tau, np.ones_like(tau), tau / 3.0))
     coef = np.vstack([terms.white_noise_density**2, terms.floor_adev**2, terms.random_walk**2])
     out = []
