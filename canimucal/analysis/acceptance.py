@@ -24,7 +24,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.stats import chi2 as chi2_distribution
 
 from canimucal.analysis.calibrate import SiteConditions, Solution
 from canimucal.errors import InputError
@@ -235,7 +234,9 @@ def check_acceptance(
     passed = rms <= limits.max_rms_ms2
     checks.append(Check("fit rms", rms, limits.max_rms_ms2, "m/s²", passed, "max_rms_ms2"))
     if dof > 0:
-        p = float(chi2_distribution.sf(chi2, dof))
+        from scipy.special import chdtrc  # lazy (issue 23): χ² tail without scipy.stats
+
+        p = float(chdtrc(dof, chi2))
         passed = p >= limits.min_fit_p
         name = "fit p-value" if passed else f"model does not fit: χ²/dof {chi2 / dof:.4g}, p"
         checks.append(Check(name, p, limits.min_fit_p, "", passed, "min_fit_p"))

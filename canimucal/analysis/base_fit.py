@@ -35,7 +35,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import linalg
 
 from canimucal.analysis.candidates import (
     Candidate,
@@ -209,6 +208,8 @@ def with_nuisance(
     col_w = _solve_lower(chol, columns)
     q = np.linalg.qr(jac_w)[0]
     off = col_w - q @ (q.T @ col_w)
+    from scipy import linalg  # lazy (issue 23)
+
     _, r, order = linalg.qr(off, mode="economic", pivoting=True)
     scale = max(float(np.max(np.linalg.norm(col_w, axis=0))), 1e-300)
     rank = int(np.sum(np.abs(np.diag(r)) > 1e-8 * scale))
@@ -237,7 +238,9 @@ def with_nuisance(
 
 
 def _solve_lower(chol: Array, b: Array) -> Array:
-    return np.asarray(linalg.solve_triangular(chol, b, lower=True), dtype=float)
+    from scipy.linalg import solve_triangular  # lazy (issue 23)
+
+    return np.asarray(solve_triangular(chol, b, lower=True), dtype=float)
 
 
 def _unit_angle_covariance(

@@ -13,7 +13,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.stats import chi2 as chi2_distribution
 
 from canimucal.errors import ModelError
 from canimucal.io.calibration import (
@@ -264,7 +263,9 @@ def _lack_of_fit_warning(result: JointResult) -> tuple[str, ...]:
     """Warn when the residuals exceed the predicted noise and angle errors (χ² test)."""
     if result.dof <= 0:
         return ()
-    p = float(chi2_distribution.sf(result.chi2, result.dof))
+    from scipy.special import chdtrc  # lazy: scipy.special loads with the fit, not at import
+
+    p = float(chdtrc(result.dof, result.chi2))
     if p >= LACK_OF_FIT_P:
         return ()
     return (

@@ -36,8 +36,6 @@ from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import optimize, stats
-from scipy.linalg import solve_triangular
 
 Array = NDArray[np.float64]
 
@@ -46,7 +44,7 @@ TAU_MAX_RAD = float(np.deg2rad(10.0))
 
 _DECADES = np.concatenate([[0.0], np.geomspace(1e-5, 1.0, 31)])
 """The search grid as fractions of ``τ_max`` (1e-4° to 10° for a pose scatter)."""
-_CHI2_95_1 = float(stats.chi2.ppf(0.95, 1))
+_CHI2_95_1 = 3.841458820694124  # χ²₁ 95 % point, scipy.stats.chi2.ppf(0.95, 1)
 _RANK_TOL = 1e-9
 
 
@@ -166,6 +164,8 @@ def _loglik(rot: _Rotated, tau: float) -> float:
 
 
 def _solve_lower(chol: Array, b: Array) -> Array:
+    from scipy.linalg import solve_triangular
+
     return np.asarray(solve_triangular(chol, b, lower=True), dtype=float)
 
 
@@ -181,6 +181,8 @@ def _maximise(rot: _Rotated, tau_max: float) -> tuple[float, float]:
     best_t, best_v = float(grid[k]), float(values[k])
     lo, hi = float(grid[max(k - 1, 0)]), float(grid[min(k + 1, grid.size - 1)])
     if hi > lo:
+        from scipy import optimize
+
         res = optimize.minimize_scalar(
             lambda t: -f(t), bounds=(lo, hi), method="bounded", options={"xatol": 1e-3 * hi}
         )
@@ -254,10 +256,12 @@ def scatter_f_test(
     m = d[:, None] * np.eye(d.size) - q_big @ (q_big.T * d[None, :])  # (I − H) D
     info = 0.5 * float(np.sum(m * m.T))
     nu = _combined_dof(2.0 * info / np.maximum(rates * rates, 1e-300))
+    from scipy import special
+
     if not np.isfinite(nu) or nu > 1e7:
-        p = float(stats.chi2.sf(numerator * q, q))
+        p = float(special.chdtrc(q, numerator * q))
     else:
-        p = float(stats.f.sf(numerator, q, max(nu, 1e-3)))
+        p = float(special.fdtrc(q, max(nu, 1e-3), numerator))
     return ScatterTest(numerator, q, float(nu), p, tau)
 
 
@@ -297,6 +301,8 @@ def estimate_scatter(model: ScatterModel, residual: Array, design: Array) -> Sca
     if model.fixed is not None:
         ll = _loglik(rot, model.fixed)
         return ScatterEstimate(model.fixed, (model.fixed, model.fixed), model.source, ll)
+    from scipy import optimize
+
     tau, best = _maximise(rot, model.tau_max)
     cut = best - 0.5 * _CHI2_95_1
 

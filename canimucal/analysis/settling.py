@@ -27,6 +27,12 @@ error ``σ √(2/(τ_u f_s))`` (``ũ·ũ ≈ τ f_s/2``), window p loses its fir
 ``τ_u · max(MIN_TRIM_TIME_CONSTANTS, ln(z_p / RESIDUAL_Z))`` seconds (at most half the
 window), so that what is left of the transient, even at ``τ = τ_u``, carries less than
 ``RESIDUAL_Z`` standard errors of evidence and moves neither the mean nor the drift test.
+
+The fit reads each position's opening window only: its first ``OPENING_S`` seconds (the whole
+window when shorter), so the τ grid's top is a third of the shortest *opening* window and the
+cost is bounded per position whatever the recording's length (issue 23). A transient slower
+than ``OPENING_S / 3`` is a trend there too, left to the drift test. Sessions of positions up
+to ``OPENING_S`` long are fitted exactly as before.
 """
 
 from __future__ import annotations
@@ -36,7 +42,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import optimize, stats
 
 Array = NDArray[np.float64]
 
@@ -53,7 +58,10 @@ MAX_TRIM_FRACTION = 0.5
 """No window loses more than this fraction of its length to the trim."""
 
 GRID_POINTS = 40
-_CHI2_95_1 = float(stats.chi2.ppf(0.95, 1))
+
+OPENING_S = 120.0
+"""Seconds from each position's first sample that the settling fit reads (module doc)."""
+_CHI2_95_1 = 3.841458820694124  # χ²₁ 95 % point, scipy.stats.chi2.ppf(0.95, 1)
 
 
 @dataclass(frozen=True)
@@ -87,8 +95,14 @@ def fit_settling(
     windows: Sequence[tuple[Array, Array]], *, alpha: float = SETTLING_ALPHA
 ) -> Settling:
     """Fit eq. (1) to the windows ``(t_s (n,), x (n, 3))`` of one sensor (module doc)."""
+    from scipy import special  # lazy (issue 23)
+
     clean, used = [], []
-    for i, (t, x) in enumerate(windows):
+    for i, (t_all, x_all) in enumerate(windows):
+        opening = (
+            int(np.searchsorted(t_all, t_all[0] + OPENING_S, side="right")) if t_all.size else 0
+        )
+        t, x = t_all[:opening], x_all[:opening]
         keep = np.all(np.isfinite(x), axis=1)
         if keep.sum() >= 10:
             clean.append((np.asarray(t[keep], float), np.asarray(x[keep], float)))
@@ -112,7 +126,7 @@ def fit_settling(
     k = int(np.argmax(gains))
     tau, best = _refine(prepared, grid, k, float(gains[k]))
     ci = _interval(prepared, grid, gains, tau, best)
-    p = float(min(1.0, GRID_POINTS * stats.chi2.sf(best, df)))
+    p = float(min(1.0, GRID_POINTS * special.chdtrc(df, best)))
     found = p < alpha and ci[1] < grid[-1]
     amplitude = np.zeros((n, 3))
     amplitude[used] = _gain(prepared, tau)[1]
@@ -129,6 +143,8 @@ def _refine(
     prepared: Sequence[tuple[Array, Array, Array]], grid: Array, k: int, best: float
 ) -> tuple[float, float]:
     """Maximise Δχ²(τ) between the grid neighbours of its best grid point."""
+    from scipy import optimize  # lazy (issue 23)
+
     lo, hi = float(grid[max(k - 1, 0)]), float(grid[min(k + 1, grid.size - 1)])
     res = optimize.minimize_scalar(
         lambda t: -_gain(prepared, t)[0], bounds=(lo, hi), method="bounded",
@@ -147,6 +163,7 @@ def _interval(
     best: float,
 ) -> tuple[float, float]:
     """Profile 95 % interval of τ: where Δχ² stays within 3.84 of its maximum (grid-bounded)."""
+    from scipy import optimize  # lazy (issue 23)
 
     def f(t: float) -> float:
         return _gain(prepared, t)[0] - (best - _CHI2_95_1)
@@ -169,10 +186,13 @@ def _gain(prepared: Sequence[tuple[Array, Array, Array]], tau: float) -> tuple[f
     total = 0.0
     amps = []
     for t, xc, sigma in prepared:
-        u = np.exp(-t / tau)
-        u -= u.mean()
-        uu = float(u @ u)
-        proj = u @ xc
+        # exp(−t/τ) is below 1e-304 past 700 τ: only the rows before count (t is sorted),
+        # and with x̃ centred, ũ·x̃ = u·x̃ and ũ·ũ = u·u − (Σu)²/n exactly
+        k = int(np.searchsorted(t, 700.0 * tau))
+        u = np.exp(-t[:k] / tau)
+        total_u = float(u.sum())
+        uu = float(u @ u) - total_u * total_u / t.size
+        proj = u @ xc[:k]
         total += float(np.sum(proj**2 / (uu * sigma**2)))
         amps.append(proj / uu)
     return total, np.array(amps)

@@ -7,6 +7,9 @@ labelled with its position, as the recorder labels a real session.
 
 from __future__ import annotations
 
+import dataclasses
+from typing import Any
+
 import numpy as np
 
 from canimucal.io.recording import Recording, recording_from_columns
@@ -27,13 +30,22 @@ def simulate_plan_recording(
     transient_s: float = 2.0,
     serial: int | None = None,
     angle_errors: bool = True,
+    sample_rate_hz: float | None = None,
 ) -> Recording:
     """Simulate ``plan`` (angles, seconds) on ``truth`` and return the labelled recording.
 
     With ``angle_errors`` the unit is really set to each pose plus an error drawn from the
     position's ``tolerance`` (an operator on a step ladder), while the recording is labelled
     with the nominal angles, as in the field.
+
+    ``sample_rate_hz`` simulates at another rate than the truth's (any positive rate, not
+    only the device's): the noise densities, walks and time constants are continuous-time,
+    so a position's mean has the same statistics from fewer samples (the replay's bound).
+    The rounding to counts is white at the truth's rate (step²/12 a sample): it is folded into
+    the white density there, and the slower samples are not rounded.
     """
+    if sample_rate_hz is not None:
+        truth = _at_rate(truth, float(sample_rate_hz))
     sim = ImuSimulator(truth, seed=seed)
     actual = set_by_operator(plan, np.random.default_rng(seed)) if angle_errors else plan
     first = actual.positions[0]
@@ -70,4 +82,21 @@ def simulate_plan_recording(
         beta_deg=angles[:, 1],
         psi_deg=angles[:, 2],
         temp_c=np.concatenate([b.temp_c for b in blocks]),
+    )
+
+
+def _at_rate(truth: Truth, rate_hz: float) -> Truth:
+    """``truth`` sampled at ``rate_hz``, its quantization noise kept as white density."""
+    fs = float(truth.sample_rate_hz)
+
+    def folded(sensor: Any, scale: Any) -> Any:
+        quantization_density = sensor.quantization / np.sqrt(12.0 * fs) / np.abs(np.diag(scale))
+        density = np.sqrt(np.asarray(sensor.noise_density) ** 2 + quantization_density**2)
+        return dataclasses.replace(sensor, noise_density=density, quantization=0.0)
+
+    return dataclasses.replace(
+        truth,
+        sample_rate_hz=rate_hz,
+        accel=folded(truth.accel, truth.accel.K),
+        gyro=folded(truth.gyro, truth.gyro.S),
     )

@@ -31,6 +31,23 @@ def position_labels(recording: Recording) -> list[int]:
     return [int(x) for x in labels.tolist()]
 
 
+def label_rows(position: NDArray[np.int64]) -> dict[int, NDArray[np.intp]]:
+    """Row indices of every label ``>= 0``, ascending labels, rows in file order.
+
+    One stable sort of the labelled rows (nearly sorted already: a session's labels come in
+    runs), then one split: never a scan of every row per position (issue 23).
+    """
+    labelled = np.flatnonzero(position >= 0)
+    order = labelled[np.argsort(position[labelled], kind="stable")]
+    sorted_labels = position[order]
+    starts = np.flatnonzero(np.diff(sorted_labels)) + 1
+    if order.size == 0:
+        return {}
+    firsts = [0, *starts.tolist()]
+    pieces = np.split(order, starts)
+    return {int(sorted_labels[i]): rows for i, rows in zip(firsts, pieces, strict=True)}
+
+
 def position_rows(recording: Recording) -> tuple[list[NDArray[np.intp]], bool]:
     """Row indices of each position and whether they come from labels.
 
@@ -38,9 +55,9 @@ def position_rows(recording: Recording) -> tuple[list[NDArray[np.intp]], bool]:
     static intervals :func:`~canimucal.model.static.detect_static_intervals` finds (quiet on
     the accelerometer, and on the gyro when the recording has gyro data).
     """
-    labels = position_labels(recording)
-    if labels:
-        return [np.flatnonzero(recording.position == k) for k in labels], True
+    by_label = label_rows(recording.position)
+    if by_label:
+        return list(by_label.values()), True
     if np.all(np.isfinite(recording.accel), axis=1).sum() < 3:
         raise InputError(f"{recording.source or 'recording'}: no accelerometer samples")
     gyro = recording.gyro if np.isfinite(recording.gyro).any() else None
@@ -77,19 +94,23 @@ def position_averages(
     """
     if not np.isfinite(tolerance_deg) or tolerance_deg < 0:
         raise InputError(f"tolerance_deg must be a finite number >= 0, got {tolerance_deg}")
-    labels = position_labels(recording)
-    if not labels:
+    by_label = label_rows(recording.position)
+    if not by_label:
         raise InputError(f"{recording.source or 'recording'}: no labelled position")
+    tolerance_rad = float(np.deg2rad(tolerance_deg))
     return [
-        _average_one(recording, label, float(np.deg2rad(tolerance_deg)), require_angles)
-        for label in labels
+        _average_one(recording, label, rows, tolerance_rad, require_angles)
+        for label, rows in by_label.items()
     ]
 
 
 def _average_one(
-    recording: Recording, label: int, tolerance_rad: float, require_angles: bool
+    recording: Recording,
+    label: int,
+    rows: NDArray[np.intp],
+    tolerance_rad: float,
+    require_angles: bool,
 ) -> PositionAverage:
-    rows = np.flatnonzero(recording.position == label)
     first = rows[0]
     angles_deg = [recording.alpha_deg[first], recording.beta_deg[first], recording.psi_deg[first]]
     if not np.all(np.isfinite(angles_deg)) and require_angles:

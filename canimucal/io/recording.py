@@ -5,8 +5,13 @@ column line ``t,counter,position,alpha_deg,beta_deg,psi_deg,ax,ay,az,gx,gy,gz,te
 one row per sample. Empty cells mean "unknown": ``counter``/angles/``temp_c`` read as NaN,
 ``position`` as -1, a lost PDO half as three NaN columns.
 
-Reading parses the numbers with numpy in one pass; when that fails, a slow line-by-line pass
-finds the first bad line so the error names file, line and problem. The streaming and
+Reading streams the file (issue 23): the header line by line, then the rows in blocks of
+about :data:`CHUNK_BYTES`, each parsed with numpy and checked (row checks, ``t`` and the
+angles of a position across blocks too) before its numbers go straight into typed columns
+(float64 ``t`` and samples, int ``position``); neither the whole text nor a whole ``(n, 13)``
+table ever exists. When a block fails to parse, a slow line-by-line pass over that block finds
+the first bad line, so the error names file, line and problem. A file with several problems
+reports the first block's first one. The streaming and
 whole-file writers live in :mod:`canimucal.io.recording_writer`.
 """
 
@@ -20,6 +25,7 @@ import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -160,19 +166,84 @@ def _recording_from_table(
     header: dict[str, HeaderValue], table: FloatArray, *, first_line: int, source: str
 ) -> Recording:
     check_table(table, first_line, source)
-    check_time_advances(table[:, 0], source)
+    columns = _Columns(table.shape[0])
+    columns.append(table)
+    return _recording_from_parts(header, columns, source)
+
+
+class _Columns:
+    """Typed columns filled block by block (capacity grows by half when a block overflows)."""
+
+    def __init__(self, capacity: int) -> None:
+        self.n = 0
+        self._t, self._counter = _empty(capacity), _empty(capacity)
+        self._angles, self._accel = _empty(capacity, 3), _empty(capacity, 3)
+        self._gyro, self._temp = _empty(capacity, 3), _empty(capacity)
+        self._position = np.empty(capacity, dtype=np.int64)
+
+    def append(self, table: FloatArray) -> None:
+        k = table.shape[0]
+        if self.n + k > self._t.shape[0]:
+            self._grow(max(self.n + k, int(self._t.shape[0] * 1.5) + 1024))
+        rows = slice(self.n, self.n + k)
+        self._t[rows] = table[:, 0]
+        self._counter[rows] = table[:, 1]
+        label = table[:, 2]
+        self._position[rows] = np.where(np.isnan(label), -1, label)
+        self._angles[rows] = table[:, 3:6]
+        self._accel[rows] = table[:, 6:9]
+        self._gyro[rows] = table[:, 9:12]
+        self._temp[rows] = table[:, 12]
+        self.n += k
+
+    def _grow(self, capacity: int) -> None:
+        for name in ("_t", "_counter", "_position", "_angles", "_accel", "_gyro", "_temp"):
+            old = getattr(self, name)
+            new = np.empty((capacity, *old.shape[1:]), dtype=old.dtype)
+            new[: self.n] = old[: self.n]
+            setattr(self, name, new)
+
+    def arrays(self) -> dict[str, NDArray[np.float64] | NDArray[np.int64]]:
+        """Return the filled rows, read-only (the angles as contiguous columns of their own)."""
+        n = self.n
+        out: dict[str, NDArray[np.float64] | NDArray[np.int64]] = {
+            "t": self._t[:n],
+            "counter": self._counter[:n],
+            "position": self._position[:n],
+            "alpha_deg": np.ascontiguousarray(self._angles[:n, 0]),
+            "beta_deg": np.ascontiguousarray(self._angles[:n, 1]),
+            "psi_deg": np.ascontiguousarray(self._angles[:n, 2]),
+            "accel": self._accel[:n],
+            "gyro": self._gyro[:n],
+            "temp_c": self._temp[:n],
+        }
+        self._angles = _empty(0, 3)
+        for arr in out.values():
+            arr.setflags(write=False)
+        return out
+
+
+def _empty(rows: int, width: int = 0) -> FloatArray:
+    return np.empty((rows, width) if width else rows, dtype=np.float64)
+
+
+def _recording_from_parts(
+    header: dict[str, HeaderValue], columns: _Columns, source: str
+) -> Recording:
+    """Finish a checked recording: whole-file checks, the rate, the repeats; build it."""
+    parts = columns.arrays()
+    t = parts["t"]
+    check_time_advances(t, source)  # type: ignore[arg-type]
     inferred = False
     if "sample_rate_hz" not in header:
-        header["sample_rate_hz"] = _infer_rate(table[:, 0], source)
+        header["sample_rate_hz"] = _infer_rate(t, source)  # type: ignore[arg-type]
         inferred = True
         logger.info("%s: sample_rate_hz inferred from t: %g", source, header["sample_rate_hz"])
-    position = np.where(np.isnan(table[:, 2]), -1, table[:, 2]).astype(np.int64)
-    arrays = [np.ascontiguousarray(table[:, i]) for i in (0, 1, 3, 4, 5, 12)]
-    accel, gyro = np.ascontiguousarray(table[:, 6:9]), np.ascontiguousarray(table[:, 9:12])
-    for arr in (*arrays, accel, gyro, position):
-        arr.setflags(write=False)
-    t, counter, alpha, beta, psi, temp = arrays
-    dup_counters, dup_rows = count_duplicates(table)
+    dup_counters, dup_rows = count_duplicates_columns(
+        t,  # type: ignore[arg-type]
+        parts["counter"],  # type: ignore[arg-type]
+        [parts[k] for k in COLUMN_KEYS[2:]],
+    )
     if dup_counters or dup_rows:
         logger.warning(
             "%s: %d rows repeat an earlier row's counter, %d rows are exact copies of an "
@@ -183,20 +254,17 @@ def _recording_from_table(
         )
     return Recording(
         header,
-        t,
-        counter,
-        position,
-        alpha,
-        beta,
-        psi,
-        accel,
-        gyro,
-        temp,
-        inferred,
-        source,
+        **parts,  # type: ignore[arg-type]
+        sample_rate_inferred=inferred,
+        source=source,
         duplicate_counters=dup_counters,
         duplicate_rows=dup_rows,
     )
+
+
+COLUMN_KEYS: tuple[str, ...] = ("t", "counter", "position", "alpha_deg", "beta_deg", "psi_deg")
+COLUMN_KEYS += ("accel", "gyro", "temp_c")
+"""The :class:`Recording` fields of the file's columns, in file order."""
 
 
 REPEAT_WINDOW_ROWS = 32_768
@@ -207,7 +275,17 @@ start restarts its counter and its first rows are counted too (a warning only)."
 
 
 def count_duplicates(table: FloatArray) -> tuple[int, int]:
+    """:func:`count_duplicates_columns` of an ``(n, 13)`` table."""
+    return count_duplicates_columns(table[:, 0], table[:, 1], [table[:, 2:]])
+
+
+def count_duplicates_columns(
+    t: FloatArray, counter: FloatArray, others: list[NDArray[np.float64] | NDArray[np.int64]]
+) -> tuple[int, int]:
     """Count rows repeating an earlier row's counter, and rows equal to that earlier row.
+
+    ``others`` are the columns compared besides the counter (every one but ``t``), arrays of
+    ``n`` rows (1-D or 2-D); compared on the rows concerned only, no full-table temporary.
 
     A row counts when its counter equals that of one of the :data:`REPEAT_WINDOW_ROWS` rows
     before it, adjacent or not; it is also a copy when every column but ``t`` (the file's
@@ -216,21 +294,36 @@ def count_duplicates(table: FloatArray) -> tuple[int, int]:
     compared with the row before only, in every column. Vectorised (a stable sort by
     counter), so ten million rows cost seconds.
     """
-    n = table.shape[0]
+    n = counter.shape[0]
     if n < 2:
         return 0, 0
-    counter = table[:, 1]
     finite = np.flatnonzero(np.isfinite(counter))
     order = finite[np.argsort(counter[finite], kind="stable")]  # same counters: by row
     later, earlier = order[1:], order[:-1]
     same = (counter[later] == counter[earlier]) & (later - earlier <= REPEAT_WINDOW_ROWS)
     later, earlier = later[same], earlier[same]
-    a, b = table[later, 1:], table[earlier, 1:]
-    copies = int(np.count_nonzero(np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1)))
+    copies = int(np.count_nonzero(_rows_equal(others, later, earlier)))
     empty = np.flatnonzero(~np.isfinite(counter[1:])) + 1  # no counter: the row before only
-    a, b = table[empty], table[empty - 1]
-    copies += int(np.count_nonzero(np.all((a == b) | (np.isnan(a) & np.isnan(b)), axis=1)))
+    same_counter = np.isnan(counter[empty]) & np.isnan(counter[empty - 1])
+    same_t = t[empty] == t[empty - 1]
+    copies += int(np.count_nonzero(_rows_equal(others, empty, empty - 1) & same_counter & same_t))
     return int(later.size), copies
+
+
+def _rows_equal(
+    columns: list[NDArray[np.float64] | NDArray[np.int64]],
+    a_rows: NDArray[np.intp],
+    b_rows: NDArray[np.intp],
+) -> NDArray[np.bool_]:
+    """Whether rows ``a_rows`` equal rows ``b_rows`` in every column (empty equals empty)."""
+    equal = np.ones(a_rows.size, dtype=bool)
+    if a_rows.size == 0:
+        return equal
+    for column in columns:
+        a, b = column[a_rows], column[b_rows]
+        same = (a == b) | (np.isnan(a) & np.isnan(b)) if a.dtype.kind == "f" else a == b
+        equal &= same.reshape(a_rows.size, -1).all(axis=1)
+    return equal
 
 
 def check_time_advances(t: FloatArray, source: str) -> None:
@@ -272,8 +365,14 @@ def _infer_rate(t: FloatArray, source: str) -> float:
 
 
 MEMORY_PER_FILE_BYTE = 14
-"""Peak memory of reading a recording per byte of file (12.7 measured for a 40 MB,
-1,000,000-row file: the text, numpy's parse and the table)."""
+"""Peak memory of reading a file whole, per byte of file (12.7 measured for a 40 MB,
+1,000,000-row recording before issue 23: the text, numpy's parse and the table); the
+importers still read whole files."""
+
+STREAMED_MEMORY_PER_FILE_BYTE = 5
+"""Peak memory of :func:`read_recording_csv` per byte of file: the typed columns (104 bytes a
+row, about 2 per byte of a 56-byte row, up to 4 for the shortest rows) and the repeats check's
+indices; the text is read in blocks of :data:`CHUNK_BYTES`."""
 
 
 def available_memory_bytes() -> int | None:
@@ -329,16 +428,17 @@ def read_recording_csv(path: str | os.PathLike[str]) -> Recording:
     (:func:`require_memory`); a MemoryError while parsing gives the same message.
     """
     source = str(path)
+    size = 0
     try:
-        require_memory(source, Path(path).stat().st_size)
-        raw = Path(path).read_bytes()
+        size = Path(path).stat().st_size
+        require_memory(source, size, STREAMED_MEMORY_PER_FILE_BYTE)
+        with open(path, "rb") as handle:
+            return _read_stream(handle, source, size)
     except OSError as exc:
         raise InputError(f"cannot read {source}: {exc.strerror or exc}") from exc
-    try:
-        return parse_recording(raw, source)
     except MemoryError:
         raise InputError(
-            f"{source}: not enough memory to read {len(raw) / 1e6:.0f} MB; split the file "
+            f"{source}: not enough memory to read {size / 1e6:.0f} MB; split the file "
             "or record shorter stretches"
         ) from None
 
@@ -348,12 +448,81 @@ def parse_recording(raw: bytes, source: str) -> Recording:
 
     A UTF-8 byte-order mark (written by some spreadsheet programs) is skipped.
     """
-    raw = raw.removeprefix(b"\xef\xbb\xbf")
-    if b"\r" in raw:
-        raw = raw.replace(b"\r\n", b"\n")
-    header, data_start, first_line = _read_head(raw, source)
-    table = parse_rows(raw[data_start:], first_line, source)
-    return _recording_from_table(header, table, first_line=first_line, source=source)
+    return _read_stream(io.BytesIO(raw), source, len(raw))
+
+
+CHUNK_BYTES = 4 * 2**20
+"""Bytes of rows parsed at a time (a block ends at the last complete line in it)."""
+
+MAX_HEAD_LINE_BYTES = 2**16
+"""The longest header or column line looked at (a longer one is wrong anyway)."""
+
+
+def _read_stream(handle: BinaryIO, source: str, size: int) -> Recording:
+    """Read a recording from a binary stream of ``size`` bytes (module doc)."""
+    head = bytearray()
+    while True:
+        line = handle.readline(MAX_HEAD_LINE_BYTES)
+        if not head:
+            line = line.removeprefix(b"\xef\xbb\xbf")
+        head += line
+        if not line.startswith(b"#") or not line.endswith(b"\n"):
+            break
+    raw_head = bytes(head).replace(b"\r\n", b"\n")
+    header, _, line_no = _read_head(raw_head, source)
+    columns: _Columns | None = None
+    carry = b""
+    last_t = -math.inf
+    angles: dict[int, tuple[float, ...]] = {}
+    ahead = handle.read(CHUNK_BYTES)
+    while True:
+        block, ahead = ahead, handle.read(CHUNK_BYTES) if ahead else b""
+        final = not ahead
+        data = carry + block
+        if not final:
+            cut = data.rfind(b"\n") + 1
+            data, carry = data[:cut], data[cut:]
+            if not data:
+                continue
+        if b"\r" in data:
+            data = data.replace(b"\r\n", b"\n")
+        if not final and (data.startswith(b"\n") or data.endswith(b"\n\n")):
+            raise _diagnose(data[:-1], line_no, source, "empty line")  # more rows follow
+        table = parse_rows(data, line_no, source)
+        check_table(table, line_no, source)
+        if table.shape[0]:
+            if table[0, 0] < last_t:
+                raise located_error(source or "recording", line_no, "t goes backwards")
+            _check_angles_across_blocks(table, angles, line_no, source)
+            last_t = float(table[-1, 0])
+        if columns is None:
+            rows_per_byte = table.shape[0] / max(len(data), 1)
+            columns = _Columns(int(size * rows_per_byte * 1.02) + table.shape[0] + 16)
+        columns.append(table)
+        line_no += data.count(b"\n")
+        if final:
+            break
+    assert columns is not None
+    return _recording_from_parts(header, columns, source)
+
+
+def _check_angles_across_blocks(
+    table: FloatArray, seen: dict[int, tuple[float, ...]], first_line: int, source: str
+) -> None:
+    """Refuse a position whose angles differ from an earlier block's; remember new ones."""
+    changed = [
+        label
+        for label, value in angles_by_position(table).items()
+        if seen.setdefault(label, value) != value
+    ]
+    if changed:
+        rows = [int(np.argmax(table[:, 2] == label)) for label in changed]
+        k = int(np.argmin(rows))
+        raise located_error(
+            source or "recording",
+            first_line + rows[k],
+            f"angles change within position {changed[k]:g}",
+        )
 
 
 def _read_head(raw: bytes, source: str) -> tuple[dict[str, HeaderValue], int, int]:

@@ -20,11 +20,10 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.linalg import qr
-from scipy.optimize import OptimizeResult, least_squares
 
 from canimucal.errors import ModelError
 from canimucal.model.frames import body_vectors
@@ -40,6 +39,9 @@ from canimucal.model.layout import (
 from canimucal.model.plan import NOT_IDENTIFIABLE_RATIO, Separability, analyse_information
 from canimucal.model.positions import PositionAverage
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, AccelParams, GyroParams
+
+if TYPE_CHECKING:
+    from scipy.optimize import OptimizeResult
 
 log = logging.getLogger(__name__)
 
@@ -337,6 +339,8 @@ def _free_mask(layout: ParameterLayout, check: Separability, allow: bool) -> NDA
             + f" for this model ({check.findings[0].message})"
         )
     null_vectors = check.eigenvectors[:, check.eigenvalue_ratios < NOT_IDENTIFIABLE_RATIO]
+    from scipy.linalg import qr
+
     _q, _r, pivots = qr(null_vectors.T, pivoting=True)
     free[pivots[: null_vectors.shape[1]]] = False
     log.warning(
@@ -391,6 +395,8 @@ class _Problem:
 
 
 def _least_squares(problem: _Problem) -> OptimizeResult:
+    from scipy.optimize import least_squares  # lazy: imported on the first fit (issue 23)
+
     return least_squares(
         problem.residuals,
         problem.start,

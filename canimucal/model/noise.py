@@ -27,8 +27,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import stats
-from scipy.optimize import linprog, nnls
 
 from canimucal.errors import ModelError
 
@@ -282,6 +280,8 @@ def fit_noise(allan: AllanResult, *, iterations: int = 3) -> NoiseTerms:
     low do not pull the fit down.
     """
     tau = allan.taus_s
+    from scipy.optimize import nnls  # lazy (issue 23)
+
     basis = np.column_stack((1.0 / tau, np.ones_like(tau), tau / 3.0))
     scale = np.sqrt(2.0 / allan.edf)
     n_axes = allan.adev.shape[1]
@@ -479,8 +479,10 @@ def noise_intervals(allan: AllanResult, terms: NoiseTerms) -> NoiseIntervals:
     edf = np.maximum(np.minimum(allan.edf, _rw_edf(m, n_phase)), 1.0)[:, None]
     avar = allan.avar
     tail = 0.025 / tau.size  # Bonferroni: the bounds hold at every τ point at once
-    high = avar * edf / stats.chi2.ppf(tail, edf)
-    low = avar * edf / stats.chi2.isf(tail, edf)
+    from scipy.special import chdtri  # lazy (issue 23); chdtri(v, p): x with P(χ²_v > x) = p
+
+    high = avar * edf / chdtri(edf, 1.0 - tail)
+    low = avar * edf / chdtri(edf, tail)
     basis = np.column_stack((1.0 / tau, np.ones_like(tau), tau / 3.0))
     coef = np.vstack([terms.white_noise_density**2, terms.floor_adev**2, terms.random_walk**2])
     n_axes = avar.shape[1]
@@ -523,6 +525,8 @@ def _coefficient_range(basis: Array, low: Array, high: Array, k: int) -> tuple[f
     a = basis * caps / high[:, None]
     a_ub = np.vstack([a, -a])
     b_ub = np.concatenate([np.ones_like(high), -low / high])
+    from scipy.optimize import linprog  # lazy (issue 23)
+
     out = []
     for sign in (1.0, -1.0):
         cost = np.zeros(basis.shape[1])

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import NDArray
 
 from canimucal.errors import ModelError
@@ -130,6 +129,8 @@ def canonical_basis(basis: Array) -> Array:
     m = basis.shape[1]
     if m < 2:
         return basis
+    import scipy.linalg  # lazy (issue 23)
+
     _, r, perm = scipy.linalg.qr(basis.T, pivoting=True)
     echelon = np.linalg.solve(r[:, :m], r)
     out = np.zeros_like(basis.T)

@@ -32,7 +32,6 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import least_squares
 
 from canimucal.errors import ModelError
 from canimucal.model.positions import PositionAverage
@@ -122,6 +121,8 @@ def fit_scalar(
 
     def jac(theta: Array) -> Array:
         return sqrt_w[:, None] * _jacobian(theta, u, model)
+
+    from scipy.optimize import least_squares  # lazy (issue 23)
 
     sol = least_squares(fun, theta0, jac=jac, x_scale="jac", method="lm")
     bias, m = _unpack(sol.x, model)

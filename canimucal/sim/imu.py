@@ -27,7 +27,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import lfilter
 
 from canimucal.errors import InputError
 from canimucal.model.frames import earth_rate_level, position_dcm, specific_force_level
@@ -277,6 +276,8 @@ class ImuSimulator:
                 m = phi * m + sigma * z[k, 6:]  # first-order Gauss–Markov
                 markov[k] = m
         else:
+            from scipy.signal import lfilter  # lazy (issue 23)
+
             for j in active:  # m[k] = φ m[k-1] + σ_e e[k] (first-order Gauss–Markov)
                 zi = [phi[j] * self._markov[j]]
                 markov[:, j] = lfilter([sigma[j]], [1.0, -phi[j]], z[:, 6 + j], zi=zi)[0]

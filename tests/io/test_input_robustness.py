@@ -131,12 +131,13 @@ def test_a_file_too_large_for_the_memory_left_is_refused_before_reading(
 ) -> None:
     path = _still(tmp_path / "big.csv", lambda n: np.zeros((n, 3)), 1.0)
     size = path.stat().st_size
-    monkeypatch.setattr(recording_module, "available_memory_bytes", lambda: size * 10)
+    per_byte = recording_module.STREAMED_MEMORY_PER_FILE_BYTE
+    monkeypatch.setattr(recording_module, "available_memory_bytes", lambda: size * (per_byte - 1))
 
     def never(*args: object) -> None:
         raise AssertionError("the file was parsed")
 
-    monkeypatch.setattr(recording_module, "parse_recording", never)
+    monkeypatch.setattr(recording_module, "parse_rows", never)
     with pytest.raises(InputError, match=r"big.csv: not enough memory to read 0 MB \(needs"):
         read_recording_csv(path)
     assert main(["analyze", str(path)]) == 2

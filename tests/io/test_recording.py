@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import canimucal.io.recording as recording_module
 from canimucal.errors import InputError
 from canimucal.io.recording import (
     COLUMN_LINE,
@@ -205,6 +206,46 @@ def test_malformed_recording_is_a_located_input_error(
     assert words in message
     if line is not None:
         assert f":{line}: " in message
+
+
+@pytest.mark.parametrize("chunk", [64, 97, 1000])
+def test_reading_in_small_blocks_gives_the_same_recording(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, chunk: int
+) -> None:
+    """Blocks cut rows anywhere (64 bytes: a block often holds no complete row)."""
+    rec = _random_recording(np.random.default_rng(23), 400)
+    path = write_recording(tmp_path / "r.csv", rec, overwrite=False)
+    crlf = _write(tmp_path, path.read_text().replace("\n", "\r\n"), "crlf.csv")
+    whole = read_recording_csv(path)
+    monkeypatch.setattr(recording_module, "CHUNK_BYTES", chunk)
+    _same(read_recording_csv(path), whole)
+    _same(read_recording_csv(crlf), whole)
+    assert read_recording_csv(path).duplicate_rows == whole.duplicate_rows
+
+
+BLOCKED = [
+    # (id, row index, new row, words): each error lies in a later block than the rows it
+    # contradicts, so the checks across blocks are what finds it
+    ("backwards", 5, ROWS[5].replace("0.025000", "0.001000"), "t goes backwards"),
+    ("angles move", 5, ROWS[5].replace("22.5,2.5", "22.5,2.6"), "angles change within position 1"),
+    ("text cell", 5, ROWS[5].replace(",-781,", ",x,"), "non-numeric cell"),
+    ("short row", 4, ROWS[4][:-5], "13 cells"),
+    ("empty line", 4, "", "empty line"),
+]
+
+
+@pytest.mark.parametrize(
+    ("index", "row", "words"), [b[1:] for b in BLOCKED], ids=[b[0] for b in BLOCKED]
+)
+def test_errors_in_later_blocks_keep_their_line_numbers(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, index: int, row: str, words: str
+) -> None:
+    monkeypatch.setattr(recording_module, "CHUNK_BYTES", 60)  # about one row a block
+    path = _write(tmp_path, _replace_row(index, row))
+    with pytest.raises(InputError) as info:
+        read_recording_csv(path)
+    assert str(info.value).startswith(f"{path}:{FIRST_ROW_LINE + index}: ")
+    assert words in str(info.value)
 
 
 def test_missing_file_is_an_input_error(tmp_path: Path) -> None:
