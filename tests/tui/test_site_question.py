@@ -32,6 +32,11 @@ SEED = 20261129
 pytestmark = pytest.mark.asyncio
 
 
+def asked(screen: object) -> bool:
+    """The site question is shown, its fields composed."""
+    return isinstance(screen, SiteModal) and bool(screen.query("#site-g"))
+
+
 async def test_the_tui_asks_the_site_and_operator_before_the_first_position(
     tmp_path: Path,
 ) -> None:
@@ -48,7 +53,7 @@ async def test_the_tui_asks_the_site_and_operator_before_the_first_position(
         await press(pilot, "enter")  # connection -> plan
         await until(pilot, lambda: isinstance(app.screen, PlanScreen), "the plan")
         await press(pilot, "enter")  # plan two -> the question, not the position
-        await until(pilot, lambda: isinstance(app.screen, SiteModal), "the site question")
+        await until(pilot, lambda: asked(app.screen), "the site question")
         question = app.screen
         assert isinstance(question, SiteModal)
         offered = question.values()  # the last answer, offered
@@ -95,7 +100,7 @@ async def test_escape_goes_back_to_the_plan_and_flags_skip_the_question(tmp_path
         await press(pilot, "enter")
         await until(pilot, lambda: isinstance(app.screen, PlanScreen), "the plan")
         await press(pilot, "enter")
-        await until(pilot, lambda: isinstance(app.screen, SiteModal), "the site question")
+        await until(pilot, lambda: asked(app.screen), "the site question")
         assert set(app.screen.values().values()) == {""}  # type: ignore[attr-defined]
         await press(pilot, "escape")
         await until(pilot, lambda: isinstance(app.screen, PlanScreen), "back on the plan")
