@@ -9,7 +9,8 @@ app pushes the next screen, so no screen imports another. Errors are shown in
 
 Exits (docs/design.md §7): ``q`` quits at once when no session is in progress (exit 0); during a
 session it first asks, saying what is kept, and a confirmed quit is an interrupted session
-(exit 130). Ctrl+C is the interrupt: it quits at once with exit 130. Either way the I/O
+(exit 130). Ctrl+C is the interrupt: it quits at once with exit 130, except in a resumed
+session, where it asks as ``q`` does (a second Ctrl+C quits at once). Either way the I/O
 loop is stopped, the recording so far is kept, and the bus is released.
 """
 
@@ -166,8 +167,15 @@ class CalibrationApp(App[int]):
 
         self.push_screen(ConfirmQuit(position.what_quitting_keeps()), answered)
 
-    def action_interrupt(self) -> None:
-        """Ctrl+C: quit at once, as an interrupted session does (exit 130)."""
+    async def action_interrupt(self) -> None:
+        """Ctrl+C: quit at once (exit 130); a resumed session first asks, as ``q`` does.
+
+        A second Ctrl+C while the question is shown quits at once: Ctrl+C always gets out.
+        """
+        position = self.session_in_progress
+        if position is not None and position.resumed and not isinstance(self.screen, ConfirmQuit):
+            await self.action_quit()
+            return
         self.exit(EXIT_INTERRUPTED, return_code=EXIT_INTERRUPTED)
 
     def stop_session(self) -> None:
