@@ -224,7 +224,7 @@ class SiteModal(ModalScreen[LastSite | None]):
             "height": last.height_m,
             "g": last.g,
         }[key]
-        return "" if value is None else value if isinstance(value, str) else f"{value:g}"
+        return "" if value is None else value if isinstance(value, str) else f"{value:.10g}"
 
     def compose(self) -> ComposeResult:
         """Question, one field per value (last used offered) and the reason it is refused."""

@@ -22,11 +22,13 @@ from canimucal.analysis.calibrate import SiteConditions
 from canimucal.device.answerers import refuse_second_answerer
 from canimucal.device.busload import BusLoad
 from canimucal.device.client import CalibrationReadout, Identity, ImuClient
+from canimucal.errors import CanimucalError
 from canimucal.io.site_memory import LastSite, read_last_site, save_last_site
 from canimucal.model.gravity import normal_gravity
 from canimucal.model.mounting import MountingMap
 from canimucal.model.positions import Plan
 from canimucal.procedure.averaging import AveragingPolicy
+from canimucal.runtime.resume import recorded_site
 from canimucal.runtime.session import Session
 from canimucal.runtime.wiring import (
     FIND_NODE_TIMEOUT_S,
@@ -201,9 +203,25 @@ class DeviceSource:
         )
 
     def last_site(self) -> LastSite:
-        """Return the answer to offer: the last one saved, the flags' operator on top."""
+        """Return the answer to offer: the last one saved, the flags' operator on top.
+
+        A resumed session offers the site its recording's header holds (it goes on where it
+        started), an unreadable recording being the session's own error later.
+        """
         last = read_last_site(self.last_site_file)
-        return replace(last, operator=self.operator or last.operator)
+        last = replace(last, operator=self.operator or last.operator)
+        if self.resume:
+            try:
+                site = recorded_site(self.out_dir)
+            except CanimucalError:
+                return last
+            last = replace(
+                last,
+                latitude_deg=site.get("latitude_deg"),
+                height_m=site.get("height_m"),
+                g=site.get("g"),
+            )
+        return last
 
     def take_site(self, answer: LastSite) -> None:
         """Use the site question's answer for the session and keep it for the next one."""

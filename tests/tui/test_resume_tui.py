@@ -15,13 +15,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from canimucal.io.site_memory import LastSite, save_last_site
 from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.runtime.readback_check import readback_deviations
-from canimucal.runtime.resume import load_resume_state
+from canimucal.runtime.resume import load_resume_state, recorded_site
 from canimucal.signals import EXIT_INTERRUPTED
 from canimucal.sim.truth import Truth
 from canimucal.tui.app import make_app
-from canimucal.tui.modals import ConfirmQuit
+from canimucal.tui.modals import ConfirmQuit, SiteModal
 from canimucal.tui.screens.position import PositionScreen
 from canimucal.tui.source import demo_source
 from tests.support.interrupt import assert_kept, run_interrupted
@@ -72,7 +73,7 @@ async def test_the_tui_demo_resumes_an_interrupted_session(
     assert abs(worst.dev_sigma) < 4.0, worst
 
 
-async def test_ctrl_c_on_a_resumed_session_asks_as_q_does(
+async def test_ctrl_c_on_a_resumed_session_asks_as_q_does_and_its_site_is_offered(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     truth = Truth.random(np.random.default_rng(SEED), cross_axis_max=0.0)
@@ -85,12 +86,27 @@ async def test_ctrl_c_on_a_resumed_session_asks_as_q_does(
     )
     source = demo_source([truth], out, time_scale=30.0, seed=SEED + 1, seconds=2.0)
     source.warmup, source.resume = False, True
+    memory = tmp_path / "last-site.json"  # another site last time: the recording's is offered
+    save_last_site(memory, LastSite("Ann Tester", "Bay 3", 10.0, 0.0, 9.78))
+    source.ask_site, source.last_site_file = True, memory
+    header = recorded_site(out)
     app = make_app(source, plan_name="two")
     async with app.run_test(size=(80, 24)) as pilot:
         await until(pilot, lambda: app.screen.check_action("next", ()) is True, "the node")
         await press(pilot, "enter")  # connection -> plan
         await pilot.pause()
-        await press(pilot, "enter")  # plan two -> position 2 of the resumed session
+        await press(pilot, "enter")  # plan two -> the site question
+        await until(pilot, lambda: isinstance(app.screen, SiteModal), "the site question")
+        await pilot.pause()
+        question = app.screen
+        assert isinstance(question, SiteModal)
+        offered = question.values()
+        assert offered["operator"] == "Ann Tester"
+        assert float(offered["g"]) == pytest.approx(header["g"], rel=1e-9)
+        assert float(offered["latitude"]) == pytest.approx(header["latitude_deg"], rel=1e-9)
+        await press(pilot, "enter")  # -> position 2 of the resumed session
+        await until(pilot, lambda: isinstance(app.screen, PositionScreen), "the position")
+        assert source.site is not None and source.site.g == pytest.approx(header["g"], rel=1e-9)
         screen = app.screen
         assert isinstance(screen, PositionScreen)
         await until(pilot, lambda: screen.resumed and screen.in_progress, "the resumed session")
