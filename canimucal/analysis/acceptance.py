@@ -144,7 +144,8 @@ class Check:
     def line(self) -> str:
         """``name: value unit (limit …) ok/FAILED``."""
         verdict = "ok" if self.passed else "FAILED"
-        return f"{self.name}: {self.value:.4g} {self.unit} (limit {self.limit:g}) {verdict}"
+        limit = f"{self.limit:g} {self.unit}".rstrip()  # the limit in the value's unit too
+        return f"{self.name}: {self.value:.4g} {self.unit} (limit {limit}) {verdict}"
 
 
 @dataclass(frozen=True)

@@ -3,14 +3,15 @@
 The bus flags are those of every device command (:mod:`canimucal.cli.bus_options`);
 ``--sim`` attaches the built-in simulated IMU (confirming a pose then moves it). The site
 (``--g`` or ``--latitude-deg``/``--height-m`` for normal gravity, ``--heading-deg``) goes
-into the records; files go to ``--out``. Textual is imported only when the TUI runs.
+into the records; without ``--site``, ``--latitude-deg`` and ``--g`` the TUI asks operator
+and site before the first position, offering the last answer (g is never assumed); files go
+to ``--out``. Textual is imported only when the TUI runs.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
-import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -23,8 +24,8 @@ from canimucal.io.plans import resolve_plan
 from canimucal.model.gravity import normal_gravity
 from canimucal.model.mounting import MountingMap
 from canimucal.model.positions import Plan
-from canimucal.model.sensor import STANDARD_GRAVITY
 from canimucal.model.vocabulary.plans import CUSTOM, DEFAULT_PLAN, builtin_names, plan_help
+from canimucal.user_dirs import state_dir
 
 if TYPE_CHECKING:
     from canimucal.tui.source import DeviceSource
@@ -94,17 +95,26 @@ def add_subparser(subparsers: Any) -> None:
     p.set_defaults(run=run)
 
 
+def asks_site(args: argparse.Namespace) -> bool:
+    """Return whether the TUI asks operator and site first (no flag gave the site)."""
+    return args.g is None and args.latitude_deg is None and args.site is None
+
+
 def _site(args: argparse.Namespace) -> Any:
     from canimucal.analysis.calibrate import SiteConditions
 
+    if asks_site(args):
+        return None  # the TUI asks (g is never assumed)
     latitude = None if args.latitude_deg is None else float(np.deg2rad(args.latitude_deg))
     if args.g is not None:
         g = float(args.g)
     elif latitude is not None:
         g = normal_gravity(latitude, args.height_m)
-    else:
-        g = STANDARD_GRAVITY
-        print(f"warning: no --g or --latitude-deg: using g = {g} m/s²", file=sys.stderr)
+    else:  # --site without --g or --latitude-deg: the named site's g is not known
+        raise InputError(
+            f"--site {args.site!r} needs --g or --latitude-deg (g is never assumed); "
+            "without the three flags the TUI asks"
+        )
     if args.gyro == "nav" and latitude is None:
         raise InputError("--gyro nav needs --latitude-deg (the Earth rate depends on it)")
     return SiteConditions(
@@ -131,6 +141,7 @@ def plan_choice(name_or_path: str) -> tuple[Plan, str]:
 def device_source(args: argparse.Namespace) -> DeviceSource:
     """Return the TUI's source of nodes and sessions the flags describe (nothing opened yet)."""
     from canimucal.cli.user_config import user_acceptance
+    from canimucal.io.site_memory import LAST_SITE_FILE
     from canimucal.tui.source import DeviceSource
 
     if args.seconds is not None and not args.seconds > 0:
@@ -160,6 +171,9 @@ def device_source(args: argparse.Namespace) -> DeviceSource:
         prior_k_sigma=args.prior_k_sigma,
         gyro_g=bool(args.gyro_g),
         acceptance=user_acceptance(),
+        ask_site=asks_site(args),
+        last_site_file=state_dir() / LAST_SITE_FILE,
+        heading=float(np.deg2rad(args.heading_deg)),
     )
 
 

@@ -19,7 +19,7 @@ from canimucal.device.client import Identity
 from canimucal.io.calibration import Calibration, Verification, calibration_to_dict
 from canimucal.model.mounting import MountingMap
 from canimucal.model.vocabulary.plans import PLANS
-from canimucal.model.vocabulary.units import QUANTITIES
+from canimucal.model.vocabulary.units import QUANTITIES, Scales, operator_value, with_unit
 from canimucal.procedure.events import LevelChecked
 from canimucal.untrusted import markdown_text
 
@@ -30,7 +30,8 @@ K1_STATEMENT = (
 UNITS = (
     "Units: "
     + "; ".join(f"{q.family} in {q.unit_words}" for q in QUANTITIES.values())
-    + "; |f| − g in m/s²."
+    + "; |f| − g in m/s². Beside them, in the operator's units: a scale factor's diagonal "
+    "in ppm from nominal."
 )
 
 
@@ -47,6 +48,9 @@ class SessionFacts:
     mounting: str = ""
     """How the unit sat in the vehicle (``x=forward,y=down,z=left``, where it came from); ""
     when the instructions were worded in the unit's own axes."""
+    scales: Scales | None = None
+    """The node's nominal LSBs and g: the values in the operator's units (mg, ppm, °, °/s)
+    beside the device's (None: the device's only)."""
 
 
 def mounting_text(mounting: MountingMap | None, note: str = "") -> str:
@@ -99,71 +103,106 @@ def _verification_text(v: Verification | None, acceptance_passed: bool) -> str:
     return f"PASSED: {what}"
 
 
-def _fmt(value: Any, sigma: Any) -> str:
+NOT_ESTIMATED = "nominal (not estimated)"
+
+
+def _cells(family: str, value: Any, sigma: Any, scales: Scales | None, diagonal: bool) -> str:
+    """``12.3 ± 0.1 counts | 6.01 ± 0.05 mg``: the file's unit and the operator's."""
     if value is None:
-        return "nominal (not estimated)"
-    if sigma is None:
-        return f"{value:.6g}"
-    return f"{value:.6g} ± {sigma:.2g}"
+        return f"{NOT_ESTIMATED} | —"
+    quantity = QUANTITIES[family]
+    device = with_unit(value, sigma, quantity.shown_unit)
+    if scales is None:
+        return f"{device} | —"
+    per_file = quantity.file_per_unit  # the file holds the base tilt in degrees
+    shown = operator_value(family, value / per_file, scales, diagonal=diagonal)
+    shown_sigma = None if sigma is None else abs(operator_value(family, sigma / per_file, scales))
+    return f"{device} | {with_unit(shown, shown_sigma, quantity.operator_unit, digits=4)}"
 
 
-def _vector_rows(name: str, values: Any, sigmas: Any) -> list[str]:
+def _vector_rows(family: str, values: Any, sigmas: Any, scales: Scales | None) -> list[str]:
     if values is None:
         return []
     sig = sigmas or [None] * len(values)
     pairs = zip(values, sig, strict=False)
-    return [f"| {name}[{i}] | {_fmt(v, s)} |" for i, (v, s) in enumerate(pairs)]
+    return [
+        f"| {family}[{i}] | {_cells(family, v, s, scales, False)} |"
+        for i, (v, s) in enumerate(pairs)
+    ]
 
 
-def _matrix_rows(name: str, values: Any, sigmas: Any) -> list[str]:
+def _matrix_rows(family: str, values: Any, sigmas: Any, scales: Scales | None) -> list[str]:
     if values is None:
         return []
     rows = []
     for i, row in enumerate(values):
         sig_row = sigmas[i] if sigmas else [None] * 3
         pairs = zip(row, sig_row, strict=False)
-        rows += [f"| {name}[{i}][{j}] | {_fmt(v, s)} |" for j, (v, s) in enumerate(pairs)]
+        rows += [
+            f"| {family}[{i}][{j}] | {_cells(family, v, s, scales, i == j)} |"
+            for j, (v, s) in enumerate(pairs)
+        ]
     return rows
 
 
-def _label(family: str) -> str:
-    """``accel.K (counts per m/s²)``: a parameter family with its unit."""
-    return f"{family} ({QUANTITIES[family].unit_words})"
-
-
-def _values_table(d: dict[str, Any]) -> list[str]:
+def _values_table(d: dict[str, Any], scales: Scales | None) -> list[str]:
     accel, gyro = d["accel"], d.get("gyro") or {}
-    lines = ["| parameter | value ± σ |", "|---|---|"]
-    lines += _vector_rows(_label("accel.bias"), accel.get("bias"), accel.get("bias_sigma"))
-    lines += _matrix_rows(_label("accel.K"), accel.get("K"), accel.get("K_sigma"))
-    lines += _vector_rows(_label("gyro.bias"), gyro.get("bias"), gyro.get("bias_sigma"))
-    lines += _matrix_rows(_label("gyro.S"), gyro.get("S"), gyro.get("S_sigma"))
-    lines += _matrix_rows(_label("gyro.G"), gyro.get("G"), gyro.get("G_sigma"))
+    lines = [
+        "| parameter | value ± σ (device) | value ± σ (operator's units) |",
+        "|---|---|---|",
+    ]
+    lines += _vector_rows("accel.bias", accel.get("bias"), accel.get("bias_sigma"), scales)
+    lines += _matrix_rows("accel.K", accel.get("K"), accel.get("K_sigma"), scales)
+    lines += _vector_rows("gyro.bias", gyro.get("bias"), gyro.get("bias_sigma"), scales)
+    lines += _matrix_rows("gyro.S", gyro.get("S"), gyro.get("S_sigma"), scales)
+    lines += _matrix_rows("gyro.G", gyro.get("G"), gyro.get("G_sigma"), scales)
     tilt = d.get("base_tilt_deg")
     if tilt:
         sig = tilt.get("sigma") or [None, None]
-        unit = QUANTITIES["base_tilt"].shown_unit
-        lines.append(f"| base tilt alpha0 ({unit}) | {_fmt(tilt.get('alpha0'), sig[0])} |")
-        lines.append(f"| base tilt beta0 ({unit}) | {_fmt(tilt.get('beta0'), sig[1])} |")
+        for k, key in enumerate(("alpha0", "beta0")):
+            cells = _cells("base_tilt", tilt.get(key), sig[k], scales, False)
+            lines.append(f"| base tilt {key} | {cells} |")
     return lines
+
+
+def _or_not_given(value: Any, unit: str) -> str:
+    """``48.1°``, ``12.5 °C``, or ``not given``: never ``None°``."""
+    return "not given" if value is None else f"{value:g}{unit}"
+
+
+def _fit_text(fit: dict[str, Any]) -> str:
+    """``rms 0.0012 m/s², dof 30``, or ``not given`` for a record without a fit."""
+    if fit.get("rms") is None:
+        return "not given"
+    return f"rms {fit['rms']:.3g} m/s², dof {fit.get('dof')}"
+
+
+def _conditions(cond: dict[str, Any]) -> str:
+    return (
+        f"g = {_or_not_given(cond.get('g'), ' m/s²')}, "
+        f"latitude {_or_not_given(cond.get('latitude_deg'), '°')}, "
+        f"height {_or_not_given(cond.get('height_m'), ' m')}, "
+        f"heading {_or_not_given(cond.get('heading_deg'), '°')}, "
+        f"temperature {_or_not_given(cond.get('temp_c'), ' °C')}"
+    )
 
 
 def _level_lines(checks: Sequence[LevelChecked]) -> list[str]:
     if not checks:
         return ["No level position was measured."]
     lines = [
-        "| stage | parameters | abs(f) − g (m/s²) | tilt alpha, beta (deg) |",
+        "| stage | parameters | abs(f) − g | tilt alpha, beta |",
         "|---|---|---|---|",
     ]
     for c in sorted(checks, key=lambda c: c.stage != "before"):
         stage = "before write (session data)" if c.stage == "before" else "after write (re-read)"
         lines.append(
-            f"| {stage} | nominal | {c.norm_error_nominal_ms2:+.4f} | "
-            f"{c.tilt_nominal_deg[0]:+.3f}, {c.tilt_nominal_deg[1]:+.3f} |"
+            f"| {stage} | nominal | {c.norm_error_nominal_ms2:+.4f} m/s² | "
+            f"{c.tilt_nominal_deg[0]:+.3f}°, {c.tilt_nominal_deg[1]:+.3f}° |"
         )
         lines.append(
-            f"| {stage} | calibrated | {c.norm_error_calibrated_ms2:+.4f} | "
-            f"{c.tilt_calibrated_deg[0]:+.3f}, {c.tilt_calibrated_deg[1]:+.3f} |"
+            f"| {stage} | calibrated | {c.norm_error_calibrated_ms2:+.4f} m/s² | "
+            f"{c.tilt_calibrated_deg[0]:+.3f}°, {c.tilt_calibrated_deg[1]:+.3f}° |"
         )
     return lines
 
@@ -197,7 +236,7 @@ def certificate_markdown(
         K1_STATEMENT,
         UNITS,
         "",
-        *_values_table(d),
+        *_values_table(d, facts.scales),
         "",
         f"## Acceptance limits: {verdict}",
         "",
@@ -246,9 +285,8 @@ def _head(d: dict[str, Any], identity: Identity, facts: SessionFacts) -> list[st
         f"software {markdown_text(identity.software_version) or '—'}",
         f"- Plan: {_plan_text(d, markdown_text)}, {len(d.get('positions') or [])} positions",
         f"- Mounting: {markdown_text(facts.mounting) if facts.mounting else 'unit axes (bench)'}",
-        f"- Conditions: g = {cond.get('g')} m/s², latitude {cond.get('latitude_deg')}°, "
-        f"heading {cond.get('heading_deg')}°, temperature {cond.get('temp_c')} °C",
-        f"- Fit: rms {fit.get('rms', float('nan')):.3g} m/s², dof {fit.get('dof')}",
+        f"- Conditions: {_conditions(cond)}",
+        f"- Fit: {_fit_text(fit)}",
     ]
 
 
@@ -296,12 +334,8 @@ def certificate_html(
         ("Site", e(facts.site) if facts.site else "not given"),
         ("Plan", f"{_plan_text(d, e)}, {len(d.get('positions') or [])} positions"),
         ("Mounting", e(facts.mounting) if facts.mounting else "unit axes (bench)"),
-        (
-            "Conditions",
-            f"g = {cond.get('g')} m/s², latitude {cond.get('latitude_deg')}°, "
-            f"temperature {cond.get('temp_c')} °C",
-        ),
-        ("Fit", f"rms {fit.get('rms', float('nan')):.3g} m/s², dof {fit.get('dof')}"),
+        ("Conditions", e(_conditions(cond))),
+        ("Fit", e(_fit_text(fit))),
     ]
     verdict_rows = [
         ("Acceptance", _mark(verdict, acceptance.passed)),
@@ -317,7 +351,7 @@ def certificate_html(
     ]
     checks = "".join(f"<li>{e(c.line())}</li>" for c in acceptance.checks)
     level = _html_table(_level_lines(level_checks))
-    values = _html_table(_values_table(d))
+    values = _html_table(_values_table(d, facts.scales))
     warning_items = "".join(f"<li>{e(w)}</li>" for w in warnings) or "<li>none</li>"
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8">

@@ -15,6 +15,7 @@ import os
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -103,20 +104,35 @@ def recorded_plan(out_dir: str | Path) -> Plan:
     cannot be rebuilt from its recorded positions (the later ones are not there):
     :class:`InputError` asks for the plan file.
     """
-    out = Path(out_dir)
-    if not out.is_dir():
-        raise InputError(f"cannot resume: {out} is not a directory")
-    ids = _found_nodes(out)
-    path = recording_path(out, ids[0], len(ids) > 1)
-    source = partial_path(path) if os.path.lexists(partial_path(path)) else path
-    recording = parse_recording(read_bytes_nofollow(source), str(source))
-    name = recording.header.get("plan")
+    header, source = _recorded_header(out_dir)
+    name = header.get("plan")
     if not isinstance(name, str) or name not in builtin_names():
         raise InputError(
             f"cannot resume: {source} names no built-in plan ({name or 'none'}): give --plan "
             "(the plan file of the interrupted session)"
         )
     return builtin_plan(name)
+
+
+def _recorded_header(out_dir: str | Path) -> tuple[dict[str, Any], Path]:
+    """Return the header of the interrupted session's (first node's) recording and its path."""
+    out = Path(out_dir)
+    if not out.is_dir():
+        raise InputError(f"cannot resume: {out} is not a directory")
+    ids = _found_nodes(out)
+    path = recording_path(out, ids[0], len(ids) > 1)
+    source = partial_path(path) if os.path.lexists(partial_path(path)) else path
+    return dict(parse_recording(read_bytes_nofollow(source), str(source)).header), source
+
+
+def recorded_site(out_dir: str | Path) -> dict[str, float]:
+    """Return the site the interrupted session recorded: ``g``, ``latitude_deg``, ``height_m``.
+
+    What its header holds of them (a resumed session goes on at the site it started at).
+    """
+    header, _ = _recorded_header(out_dir)
+    keys = ("g", "latitude_deg", "height_m")
+    return {k: float(v) for k in keys if isinstance(v := header.get(k), int | float)}
 
 
 def resumed_message(state: ResumeState) -> str:

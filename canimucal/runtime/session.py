@@ -54,6 +54,7 @@ from canimucal.io.recording import matrix_header
 from canimucal.io.recording_writer import RecordingWriter
 from canimucal.model.plan import KPrior
 from canimucal.model.positions import Plan, Pose
+from canimucal.model.vocabulary.units import Scales
 from canimucal.procedure import events as ev
 from canimucal.procedure.config import ProcedureConfig
 from canimucal.procedure.machine import Phase, Procedure
@@ -393,6 +394,7 @@ class Session:
     def facts(self, node_id: int) -> SessionFacts:
         """Operator, site, written or not, verification, warm-up and the mounting map."""
         proc = self.procedure
+        site = proc.config.site
         result = proc.write_results.get(node_id)
         written = result is not None and result.ok
         after = proc.level_checks.get((node_id, "after"))
@@ -409,6 +411,7 @@ class Session:
             verification=verification_of(after, written, proc.config.limits, proc.config.site.g),
             warmup=warmup,
             mounting=mounting_text(proc.config.mounting, proc.config.mounting_note),
+            scales=Scales(site.accel_lsb, site.gyro_lsb, site.g),
         )
 
     def _write_certificates(self, node_id: int) -> None:

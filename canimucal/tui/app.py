@@ -1,6 +1,7 @@
 """The Textual app and its factory :func:`make_app` (the entry point and the tests use it).
 
-The app owns the screen flow: connection → plan → position (the procedure, with its I/O
+The app owns the screen flow: connection → plan → (the site question, when no flag gave the
+site) → position (the procedure, with its I/O
 worker) → results → write confirmation (modal) → position (verification at level) →
 verification. A screen that is done posts a message (:mod:`canimucal.tui.messages`) and the
 app pushes the next screen, so no screen imports another. Errors are shown in
@@ -8,7 +9,8 @@ app pushes the next screen, so no screen imports another. Errors are shown in
 
 Exits (docs/design.md §7): ``q`` quits at once when no session is in progress (exit 0); during a
 session it first asks, saying what is kept, and a confirmed quit is an interrupted session
-(exit 130). Ctrl+C is the interrupt: it quits at once with exit 130. Either way the I/O
+(exit 130). Ctrl+C is the interrupt: it quits at once with exit 130, except in a resumed
+session, where it asks as ``q`` does (a second Ctrl+C quits at once). Either way the I/O
 loop is stopped, the recording so far is kept, and the bus is released.
 """
 
@@ -21,20 +23,21 @@ from pathlib import Path
 from textual.app import App
 from textual.binding import Binding
 
+from canimucal.io.site_memory import LastSite
 from canimucal.model.positions import Plan
 from canimucal.model.vocabulary.plans import CUSTOM, DEFAULT_PLAN, builtin_names, builtin_plan
 from canimucal.procedure.averaging import AveragingPolicy, averaged_sensors, describe_rule
 from canimucal.procedure.machine import Phase
 from canimucal.signals import EXIT_INTERRUPTED
 from canimucal.tui.messages import PlanWanted, ProcedureEnded, ResultsReady, StartWanted
-from canimucal.tui.modals import ConfirmQuit
+from canimucal.tui.modals import ConfirmQuit, SiteModal
 from canimucal.tui.runner import SessionRunner
 from canimucal.tui.screens.connection import ConnectionScreen
 from canimucal.tui.screens.plan import PlanScreen
 from canimucal.tui.screens.position import PositionScreen
 from canimucal.tui.screens.results import ResultsScreen
 from canimucal.tui.screens.verification import VerificationScreen
-from canimucal.tui.source import SessionSource
+from canimucal.tui.source import DeviceSource, SessionSource
 
 logger = logging.getLogger(__name__)
 
@@ -96,6 +99,23 @@ class CalibrationApp(App[int]):
         self.push_screen(plan_screen)
 
     def on_start_wanted(self, message: StartWanted) -> None:
+        """Ask the site first when no flag gave it, then open the session of the plan."""
+        source = self.source
+        if not getattr(source, "ask_site", False) or not isinstance(source, DeviceSource):
+            self.start(message)
+            return
+        if isinstance(self.screen, SiteModal):
+            return
+
+        def answered(answer: LastSite | None) -> None:
+            if answer is not None:  # escape: back on the plan screen
+                source.take_site(answer)
+                self.start(message)
+
+        needs_latitude = message.gyro == "nav"
+        self.push_screen(SiteModal(source.last_site(), needs_latitude=needs_latitude), answered)
+
+    def start(self, message: StartWanted) -> None:
         """Open the session of the chosen plan on the position screen's worker."""
         self.plan_name, self.gyro = message.plan_name, message.gyro
         if message.mount_chosen:  # chosen on the plan screen: saved for the unit
@@ -147,8 +167,15 @@ class CalibrationApp(App[int]):
 
         self.push_screen(ConfirmQuit(position.what_quitting_keeps()), answered)
 
-    def action_interrupt(self) -> None:
-        """Ctrl+C: quit at once, as an interrupted session does (exit 130)."""
+    async def action_interrupt(self) -> None:
+        """Ctrl+C: quit at once (exit 130); a resumed session first asks, as ``q`` does.
+
+        A second Ctrl+C while the question is shown quits at once: Ctrl+C always gets out.
+        """
+        position = self.session_in_progress
+        if position is not None and position.resumed and not isinstance(self.screen, ConfirmQuit):
+            await self.action_quit()
+            return
         self.exit(EXIT_INTERRUPTED, return_code=EXIT_INTERRUPTED)
 
     def stop_session(self) -> None:

@@ -1,4 +1,4 @@
-"""Modal screens: the yes/no confirmations (write, quit, skip), the error modal and the mount."""
+"""Modal screens: yes/no confirmations, the error modal, the mount and the site question."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from textual.widgets import Button, Input, Static
 
 from canimucal.errors import InputError
 from canimucal.io.mounting import BODY
+from canimucal.io.site_memory import LastSite
 from canimucal.model.mounting import MountingMap
 from canimucal.tui.widgets import PlainStatic
 
@@ -149,4 +150,107 @@ class MountModal(ModalScreen[MountingMap | str | None]):
 
     def action_cancel(self) -> None:
         """Keep the map as it was."""
+        self.dismiss(None)
+
+
+G_RANGE_MS2 = (9.7, 9.9)
+"""The local gravity the site question takes (anywhere people calibrate on Earth)."""
+
+
+def site_answer(values: dict[str, str], *, needs_latitude: bool) -> LastSite:
+    """Return the site question's answer from its fields, or InputError saying what is wrong.
+
+    ``values``: operator, site, latitude (°), height (m, empty: 0), g (m/s², empty: normal
+    gravity at latitude and height). The operator and latitude or g are needed; the
+    navigation gyro needs the latitude (the Earth rate depends on it).
+    """
+
+    def number(key: str, what: str) -> float | None:
+        text = values.get(key, "").strip()
+        if not text:
+            return None
+        try:
+            value = float(text)
+        except ValueError:
+            raise InputError(f"{what} must be a number, got {text!r}") from None
+        if value != value or value in (float("inf"), float("-inf")):
+            raise InputError(f"{what} must be a finite number, got {text!r}")
+        return value
+
+    operator = values.get("operator", "").strip()
+    latitude = number("latitude", "latitude")
+    height = number("height", "height")
+    g = number("g", "g")
+    if not operator:
+        raise InputError("the operator's name is needed (it goes on the certificate)")
+    if latitude is not None and not -90.0 <= latitude <= 90.0:
+        raise InputError(f"latitude must be within [-90, 90] °, got {latitude:g}")
+    if g is not None and not G_RANGE_MS2[0] <= g <= G_RANGE_MS2[1]:
+        raise InputError(f"g must be within [{G_RANGE_MS2[0]}, {G_RANGE_MS2[1]}] m/s², got {g:g}")
+    if latitude is None and g is None:
+        raise InputError("give the latitude (and height), or the local g")
+    if needs_latitude and latitude is None:
+        raise InputError("the navigation gyro needs the latitude (the Earth rate depends on it)")
+    return LastSite(operator, values.get("site", "").strip(), latitude, height, g)
+
+
+class SiteModal(ModalScreen[LastSite | None]):
+    """Ask who calibrates where, before the first position; None (escape): back to the plan.
+
+    Operator, site, latitude and height, or g, each offered as last used. g is never
+    assumed: without latitude or g the answer is refused, with the reason.
+    """
+
+    BINDINGS = [Binding("escape", "cancel", "Back")]
+    FIELDS = (
+        ("operator", "operator"),
+        ("site", "site name"),
+        ("latitude", "latitude, ° (north +)"),
+        ("height", "height, m (empty: 0)"),
+        ("g", "g, m/s² (empty: latitude)"),
+    )
+
+    def __init__(self, last: LastSite, *, needs_latitude: bool = False) -> None:
+        super().__init__()
+        self.last = last
+        self.needs_latitude = needs_latitude
+
+    def _offered(self, key: str) -> str:
+        last = self.last
+        value = {
+            "operator": last.operator,
+            "site": last.site_name,
+            "latitude": last.latitude_deg,
+            "height": last.height_m,
+            "g": last.g,
+        }[key]
+        return "" if value is None else value if isinstance(value, str) else f"{value:.10g}"
+
+    def compose(self) -> ComposeResult:
+        """Question, one field per value (last used offered) and the reason it is refused."""
+        with Vertical(id="dialog", classes="site"):
+            yield Static("Who calibrates, and where?", classes="dialog-title")
+            yield PlainStatic(
+                "Latitude and height, or g, set the gravity the fit uses. Enter to start, "
+                "escape to go back."
+            )
+            for key, label in self.FIELDS:
+                with Horizontal(classes="site-row"):
+                    yield PlainStatic(label, classes="site-label")
+                    yield Input(self._offered(key), id=f"site-{key}")
+            yield PlainStatic("", id="site-error")
+
+    def values(self) -> dict[str, str]:
+        """Return the fields as entered."""
+        return {key: self.query_one(f"#site-{key}", Input).value for key, _ in self.FIELDS}
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        """Use the answer, or say why it cannot be used."""
+        try:
+            self.dismiss(site_answer(self.values(), needs_latitude=self.needs_latitude))
+        except InputError as exc:
+            self.query_one("#site-error", PlainStatic).update(str(exc))
+
+    def action_cancel(self) -> None:
+        """Back to the plan screen."""
         self.dismiss(None)

@@ -11,18 +11,24 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Protocol
+
+import numpy as np
 
 from canimucal.analysis.acceptance import AcceptanceConfig
 from canimucal.analysis.calibrate import SiteConditions
 from canimucal.device.answerers import refuse_second_answerer
 from canimucal.device.busload import BusLoad
 from canimucal.device.client import CalibrationReadout, Identity, ImuClient
+from canimucal.errors import CanimucalError
+from canimucal.io.site_memory import LastSite, read_last_site, save_last_site
+from canimucal.model.gravity import normal_gravity
 from canimucal.model.mounting import MountingMap
 from canimucal.model.positions import Plan
 from canimucal.procedure.averaging import AveragingPolicy
+from canimucal.runtime.resume import recorded_site
 from canimucal.runtime.session import Session
 from canimucal.runtime.wiring import (
     FIND_NODE_TIMEOUT_S,
@@ -137,6 +143,13 @@ class DeviceSource:
     acceptance: AcceptanceConfig = field(default_factory=AcceptanceConfig)
     """The acceptance limits sessions are judged against, per plan (the shell reads the
     user's ``acceptance.toml`` into it; empty: the built-in limits)."""
+    ask_site: bool = False
+    """Ask the operator and the site (latitude and height, or g) before the first position:
+    no ``--site``, ``--latitude-deg`` or ``--g`` was given, and g is never assumed."""
+    last_site_file: Path | None = None
+    """Where the last answer is kept and offered from (the user's state directory)."""
+    heading: float = 0.0
+    """Azimuth of body z (radians) of a site the question gives."""
     devices: Devices | None = field(default=None, init=False)
     statuses: dict[int, NodeStatus] = field(default_factory=dict, init=False)
 
@@ -188,6 +201,41 @@ class DeviceSource:
             prior_k_sigma=self.prior_k_sigma,
             limits=self.acceptance.limits(plan_name),
         )
+
+    def last_site(self) -> LastSite:
+        """Return the answer to offer: the last one saved, the flags' operator on top.
+
+        A resumed session offers the site its recording's header holds (it goes on where it
+        started), an unreadable recording being the session's own error later.
+        """
+        last = read_last_site(self.last_site_file)
+        last = replace(last, operator=self.operator or last.operator)
+        if self.resume:
+            try:
+                site = recorded_site(self.out_dir)
+            except CanimucalError:
+                return last
+            last = replace(
+                last,
+                latitude_deg=site.get("latitude_deg"),
+                height_m=site.get("height_m"),
+                g=site.get("g"),
+            )
+        return last
+
+    def take_site(self, answer: LastSite) -> None:
+        """Use the site question's answer for the session and keep it for the next one."""
+        latitude = None if answer.latitude_deg is None else float(np.deg2rad(answer.latitude_deg))
+        height = 0.0 if answer.height_m is None else answer.height_m
+        if answer.g is not None:
+            g = answer.g
+        else:
+            assert latitude is not None  # site_answer needs latitude or g
+            g = normal_gravity(latitude, height)
+        self.site = SiteConditions(g=g, latitude=latitude, heading=self.heading, height_m=height)
+        self.operator, self.site_name = answer.operator, answer.site_name or None
+        self.ask_site = False
+        save_last_site(self.last_site_file, answer)
 
     def close(self) -> None:
         """Release the devices (idempotent)."""

@@ -96,3 +96,12 @@ def test_the_users_acceptance_limits_go_to_the_source(own_user_dirs: UserDirs) -
     own_user_dirs.write_acceptance("max_rms = 1\n")
     with pytest.raises(InputError, match="unknown key 'max_rms'"):
         device_source(parse("--sim", "--g", "9.81"))  # before the TUI starts: exit 2
+
+
+def test_without_site_flags_the_tui_asks_and_site_alone_is_refused() -> None:
+    asked = device_source(parse("--sim"))
+    assert asked.ask_site and asked.site is None and asked.last_site_file is not None
+    told = device_source(parse("--sim", "--latitude-deg", "52"))
+    assert not told.ask_site and told.site is not None and told.site.latitude is not None
+    with pytest.raises(InputError, match="g is never assumed"):
+        device_source(parse("--sim", "--site", "Bay 3"))

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from canimucal.analysis.acceptance import AcceptanceLimits, AcceptanceReport, Check
 from canimucal.device.client import Identity
-from canimucal.io.calibration import Device, record_from_estimates
+from canimucal.io.calibration import Conditions, Device, record_from_estimates
 from canimucal.model.mounting import MountingMap
+from canimucal.model.vocabulary.units import QUANTITIES, Scales
 from canimucal.procedure.events import LevelChecked
 from canimucal.runtime.certificate import (
     SessionFacts,
@@ -105,3 +108,55 @@ def test_a_failed_acceptance_is_never_passed_beside_a_good_reread() -> None:
         if not ok:
             assert "acceptance FAILED" in line and "acceptance FAILED" in page
             assert "PASSED:" not in page
+
+
+UNIT_AFTER_NUMBER = re.compile(r"[-+]?\d[\d.]*(?:e[-+]?\d+)?(?: ± [\d.]+(?:e[-+]?\d+)?)? ?(\S+)")
+
+
+def _bare_numbers(cell: str, units: set[str]) -> list[str]:
+    """The numbers in ``cell`` not followed by one of ``units`` (a cell's unit check)."""
+    return [m.group(0) for m in UNIT_AFTER_NUMBER.finditer(cell) if m.group(1) not in units]
+
+
+def test_every_value_of_the_certificate_carries_its_unit() -> None:
+    """Issue 22 item 6: values in the device's and the operator's units, never bare."""
+    lsb, gyro_lsb = G / 2048.0, float(np.deg2rad(1.0 / 16.4))
+    names = ["accel.bias[0]", "accel.bias[1]", "accel.bias[2]"]
+    names += [f"accel.K[{i}][{i}]" for i in range(3)]
+    names += ["gyro.bias[0]", "gyro.bias[1]", "gyro.bias[2]", "base_tilt.alpha0"]
+    k = (1.0 + 120e-6) / lsb  # 120 ppm above nominal
+    values = [2.0, -1.0, 0.5, k, k, k, 3.0, 0.0, -3.0, np.deg2rad(0.5)]
+    sigmas = np.array([0.1] * 3 + [0.02] * 3 + [0.2] * 3 + [np.deg2rad(0.01)])
+    record = record_from_estimates(
+        names,
+        values,
+        np.diag(sigmas**2),
+        device=Device(serial=7, node_id=16),
+        plan="vehicle",
+        conditions=Conditions(g=G, latitude_deg=None, temp_c=None),
+    )
+    report = AcceptanceReport((Check("worst bias σ", 0.1, 5.0, "mg", True, "max_bias_sigma_mg"),))
+    level = LevelChecked(16, "before", 0.02, (0.1, -0.2), 0.001, (0.0, 0.01))
+    facts = SessionFacts(scales=Scales(lsb, gyro_lsb, G))
+    text = certificate_markdown(
+        record, Identity(1, 2, 3, 7, "imu"), report, LIMITS, [level], facts=facts
+    )
+    units = {q.shown_unit for q in QUANTITIES.values()} | {
+        q.operator_unit for q in QUANTITIES.values()
+    }
+    units |= {"m/s²", "°", "°,"}
+    rows = [line for line in text.splitlines() if line.startswith("| ") and "---" not in line]
+    values_rows = [r for r in rows if r.split("|")[1].strip().startswith(("accel", "gyro", "base"))]
+    assert len(values_rows) == 3 + 9 + 3 + 9 + 9 + 2  # biases, K, S, G (held), tilt
+    for row in rows[1:]:
+        for cell in row.strip("|").split("|")[1:]:
+            assert not _bare_numbers(cell.strip(), units), (row, cell)
+    by_name = {r.split("|")[1].strip(): r.split("|")[2:4] for r in values_rows}
+    device, operator = by_name["accel.bias[0]"]
+    assert device.strip() == "2 ± 0.1 counts"
+    assert operator.strip() == f"{2.0 * lsb / G * 1e3:.4g} ± {0.1 * lsb / G * 1e3:.2g} mg"
+    assert by_name["accel.K[1][1]"][1].strip().startswith("120 ± ")  # ppm from nominal
+    assert by_name["accel.K[1][1]"][1].strip().endswith(" ppm")
+    assert by_name["base tilt alpha0"][0].strip() == "0.5 ± 0.01 deg"
+    assert by_name["gyro.bias[2]"][1].strip().endswith(" °/s")
+    assert "None" not in text and "latitude not given" in text

@@ -225,7 +225,7 @@ async def test_results_screen_shows_values_sigmas_residuals_and_asks_before_writ
         assert params.row_count == 11  # 3 bias + 3 K + 2 tilt + 3 gyro bias
         assert residuals.row_count == 5
         row = params.get_row_at(3)  # accel.K[0][0] against the device's 1/LSB
-        assert row[0] == "accel.K[0][0]" and " ± " in row[1] and row[3] == "208.838"
+        assert row[0] == "accel.K[0][0]" and " ± " in row[1] and row[3] == "208.838 counts/(m/s²)"
         text = screen_text(app)
         assert "worst bias σ" in text and "fit rms" in text
         key = "w" if solved.acceptable else "o"

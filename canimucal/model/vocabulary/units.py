@@ -141,3 +141,26 @@ QUANTITIES.register(
         "(°/s)/g", lambda s: abs(s.gyro_lsb) * _DEG * s.g, effect_counts=lambda g, k: g,
     )
 )  # fmt: skip
+
+
+SCALE_FAMILIES = ("accel.K", "gyro.S")
+"""The families whose diagonal is a scale factor: shown to an operator as ppm from nominal."""
+
+
+def operator_value(family: str, value: float, scales: Scales, *, diagonal: bool = False) -> float:
+    """``value`` (in the family's ``unit``) in the operator's unit.
+
+    A scale factor's diagonal entry is shown as its deviation from the nominal scale (ppm from
+    nominal: 0 at nominal), its off-diagonal entries and every other family as converted.
+    """
+    quantity = QUANTITIES[family]
+    shown = quantity.operator(value, scales)
+    if diagonal and family in SCALE_FAMILIES:
+        shown -= 1e6  # K·|LSB| = 1 at nominal
+    return shown
+
+
+def with_unit(value: float, sigma: float | None, unit: str, digits: int = 6) -> str:
+    """``1.25 ± 0.03 mg``: a value (± σ) and its unit, never a bare number."""
+    text = f"{value:.{digits}g}" if sigma is None else f"{value:.{digits}g} ± {sigma:.2g}"
+    return f"{text} {unit}"

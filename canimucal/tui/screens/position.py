@@ -100,6 +100,8 @@ class PositionScreen(Screen[None]):
         super().__init__()
         self.statuses = statuses
         self.out_dir = out_dir
+        self.resumed = False
+        """The session goes on from an interrupted one (Ctrl+C then asks as ``q`` does)."""
         self.open_runner = open_runner
         self.runner: SessionRunner | None = None
         self.live: dict[int, ev.SamplesReceived] = {}
@@ -158,6 +160,7 @@ class PositionScreen(Screen[None]):
         config = self.runner.session.procedure.config
         notes = [config.mounting_note] if config.mounting_note else []  # how words are framed
         if config.resume_from is not None:  # say it resumed, and from which file
+            self.resumed = True
             notes.insert(0, markup_text(resumed_message(config.resume_from)))
         if notes:
             self.app.call_from_thread(self.notice.update, "\n".join(notes))

@@ -1,7 +1,8 @@
 """The results screen: each parameter ± σ beside the device's current value.
 
-Also the residual per position and the acceptance checks; w writes (after the confirmation
-modal), f finishes.
+Every value carries its unit (the units registry's): the file's, the operator's (mg, ppm,
+°, °/s) and the device's; the residual per position in mg and °/s. Also the acceptance
+checks; w writes (after the confirmation modal), f finishes.
 """
 
 from __future__ import annotations
@@ -13,8 +14,9 @@ from textual.containers import VerticalScroll
 from textual.screen import Screen
 from textual.widgets import DataTable, Footer, Static
 
-from canimucal.analysis.calibrate import Solution
-from canimucal.model.vocabulary.units import quantity_of
+from canimucal.analysis.calibrate import SiteConditions, Solution
+from canimucal.model.sensor import STANDARD_GRAVITY
+from canimucal.model.vocabulary.units import Scales, operator_value, quantity_of, with_unit
 from canimucal.procedure import events as ev
 from canimucal.runtime.session import SessionCommand, WriteOptions
 from canimucal.tui.modals import ConfirmWrite
@@ -26,8 +28,29 @@ from canimucal.tui.widgets import passive_table
 RESIDUAL_AXES = ("ax", "ay", "az", "gx", "gy", "gz")
 
 
-def parameter_rows(solution: Solution, device: dict[str, float]) -> list[tuple[str, str, str, str]]:
-    """Rows: parameter, value ± σ, unit, the device's current value (the file's units)."""
+def scales_of(solution: Solution, status: NodeStatus | None) -> Scales:
+    """Return the node's nominal LSBs (its own, else the defaults) and the record's g."""
+    site = SiteConditions(g=STANDARD_GRAVITY)
+    conditions = solution.record.conditions
+    g = conditions.g if conditions is not None and conditions.g is not None else site.g
+    if status is None:
+        return Scales(site.accel_lsb, site.gyro_lsb, g)
+    return Scales(status.accel_lsb, status.gyro_lsb, g)
+
+
+def _is_diagonal(name: str) -> bool:
+    indices = name.partition("[")[2].replace("]", "").split("[")
+    return len(indices) == 2 and indices[0] == indices[1]
+
+
+def parameter_rows(
+    solution: Solution, device: dict[str, float], scales: Scales
+) -> list[tuple[str, str, str, str]]:
+    """Return rows: parameter, value ± σ (file's unit), in the operator's, device now.
+
+    The operator's units are mg, ppm, °, °/s (a scale factor's diagonal as ppm from
+    nominal); each cell carries its unit from the units registry (docs/design.md §2).
+    """
     joint = solution.joint
     if joint is None:
         return []
@@ -37,29 +60,45 @@ def parameter_rows(solution: Solution, device: dict[str, float]) -> list[tuple[s
         now = device.get(name)
         quantity = quantity_of(name)  # the units registry's, not guessed from the name
         unit, scale = quantity.shown_unit, quantity.file_per_unit
-        now_text = "—" if now is None else f"{now * scale:.6g}"
+        now_text = "—" if now is None else with_unit(now * scale, None, unit)
         if name in joint.undetermined:
-            rows.append((name, "held nominal (undetermined)", unit, now_text))
+            rows.append((name, "held nominal (undetermined)", "—", now_text))
             continue
-        value = f"{joint.values[k] * scale:.6g} ± {sigma[k] * scale:.2g}"
-        rows.append((name, value, unit, now_text))
+        value = with_unit(joint.values[k] * scale, sigma[k] * scale, unit)
+        shown = operator_value(
+            quantity.family, joint.values[k], scales, diagonal=_is_diagonal(name)
+        )
+        shown_sigma = abs(operator_value(quantity.family, sigma[k], scales))
+        operator = with_unit(shown, shown_sigma, quantity.operator_unit, digits=4)
+        rows.append((name, value, operator, now_text))
     return rows
 
 
-def residual_rows(solution: Solution) -> list[tuple[str, ...]]:
-    """Rows: position, its angles (deg), the residual of each channel (counts)."""
+RESIDUAL_UNITS = {"a": "mg", "g": "°/s"}
+"""The residual table's units: the accelerometer's in mg, the gyro's in °/s."""
+
+
+def residual_rows(solution: Solution, scales: Scales) -> list[tuple[str, ...]]:
+    """Rows: position, its angles (°), the residual of each channel (mg, °/s)."""
     joint = solution.joint
     if joint is None:
         return []
+    factors = [operator_value("accel.bias", 1.0, scales)] * 3 + [
+        operator_value("gyro.bias", 1.0, scales)
+    ] * 3
     rows = []
     for i, (summary, res) in enumerate(
         zip(solution.record.positions or (), joint.residuals, strict=False)
     ):
         angles = "/".join(
-            "—" if a is None else f"{a:g}"
+            "—" if a is None else f"{a:g}°"
             for a in (summary.alpha_deg, summary.beta_deg, summary.psi_deg)
         )
-        rows.append((str(i + 1), angles, *(f"{r:+.2f}" for r in res)))
+        cells = (
+            f"{r * f:+.3g} {RESIDUAL_UNITS[a[0]]}"
+            for r, f, a in zip(res, factors, RESIDUAL_AXES, strict=False)
+        )
+        rows.append((str(i + 1), angles, *cells))
     return rows
 
 
@@ -106,13 +145,14 @@ class ResultsScreen(Screen[Command]):
         for node_id, solution in self.solved.solutions.items():
             status = self.statuses.get(node_id)
             device = device_values(None if status is None else status.calibration)
+            scales = scales_of(solution, status)
             params = self.query_one(f"#params-{node_id}", DataTable)
-            params.add_columns("parameter", "value ± σ", "unit", "device now")
-            params.add_rows(parameter_rows(solution, device))
+            params.add_columns("parameter", "value ± σ", "operator's units", "device now")
+            params.add_rows(parameter_rows(solution, device, scales))
             residuals = self.query_one(f"#residuals-{node_id}", DataTable)
-            rows = residual_rows(solution)
+            rows = residual_rows(solution, scales)
             width = len(rows[0]) - 2 if rows else 3
-            residuals.add_columns("pos", "α/β/ψ deg", *(f"res {a}" for a in RESIDUAL_AXES[:width]))
+            residuals.add_columns("pos", "α/β/ψ", *(f"res {a}" for a in RESIDUAL_AXES[:width]))
             residuals.add_rows(rows)
 
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
