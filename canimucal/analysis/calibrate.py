@@ -50,7 +50,11 @@ class FitQuality:
     @property
     def p_value(self) -> float:
         """χ² tail probability (NaN without residual dof)."""
-        return float(chi2_distribution.sf(self.chi2, self.dof)) if self.dof > 0 else float("nan")
+        if self.dof <= 0:
+            return float("nan")
+        from scipy.special import chdtrc  # lazy (issue 23): χ² tail without scipy.stats
+
+        return float(chdtrc(self.dof, self.chi2))
 
     @property
     def rejected(self) -> bool:
