@@ -16,7 +16,8 @@ Bar-Shalom et al., *Estimation with Applications to Tracking*, 2001, §3.4).
 
 Without a latitude the gyro's Earth-rate term is not known, yet it is there in every static
 gyro mean (up to 7.3e-5 rad/s, a few hundredths of a count at 120 s averages: many σ). Left
-out, it fails the fit's χ² on a clean unit whose poses turn (docs/design.md §3). It enters
+out, it fails the fit's χ² on a clean unit whose poses turn (docs/design.md §3). With
+``unknown_earth_rate`` (what :func:`~canimucal.analysis.calibrate.solve_positions` asks) it enters
 as a nuisance: the Earth rate in the level frame, three parameters ``w_L`` with the prior
 ``N(0, Ω²/3·I)`` (the second moment of a rate of magnitude Ω in an unknown direction), fitted
 with the rest and then marginalised (the Schur complement of the information); χ² counts
@@ -179,6 +180,7 @@ def solve_joint(
     allow_undetermined: bool = False,
     passes: int = 3,
     prior: Mapping[str, tuple[float, float]] | None = None,
+    unknown_earth_rate: bool = False,
 ) -> JointResult:
     """Fit ``spec`` to the position averages by whitened nonlinear least squares.
 
@@ -188,9 +190,14 @@ def solve_joint(
     their starting values and reports them in ``JointResult.undetermined`` (values NaN).
     ``prior`` maps parameter names to ``(mean, σ)``: each is a pseudo-observation (module
     docstring), its residual counted in χ² and dof; the prior mean is also the start.
+    ``unknown_earth_rate`` with a gyro model and no ``latitude``: the Earth rate is a fitted
+    and marginalised nuisance (module docstring; what a calibration does); without it the
+    gyro model has no Earth-rate term (the discrepancy analysis tests that term itself).
     """
     layout = ParameterLayout.of(spec)
     data = _validate(averages, spec, g, latitude, allow_undetermined, _prior(layout, prior))
+    if not unknown_earth_rate:
+        data = replace(data, earth_sigma=0.0)
     ctx = ModelContext.build(g, latitude, heading, gyro_lsb)
     theta = _initial_guess(layout, data, ctx, accel_lsb, gyro_lsb)
     theta[data.prior.index] = data.prior.mean
