@@ -339,7 +339,9 @@ def read_pdo_document(path: str | os.PathLike[str]) -> dict[tuple[int, int], int
         raise InputError(f"{path}: not a read-params JSON document (schema {READ_PARAMS_SCHEMA})")
     block = doc.get("pdo")
     if not isinstance(block, dict):
-        raise InputError(f"{path}: no 'pdo' block (a read-params JSON document of this version has one)")
+        raise InputError(
+            f"{path}: no 'pdo' block (a read-params JSON document of this version has one)"
+        )
     objects: dict[tuple[int, int], int] = {}
     for key, value in block.items():
         index, sub = parse_key(str(key))
