@@ -157,6 +157,7 @@ def solve_positions(
         gyro_lsb=site.gyro_lsb,
         allow_undetermined=True,
         prior=prior,
+        unknown_earth_rate=True,
     )
     quality = birge(result.chi2, result.dof)
     if quality.inflation > 1.0:

@@ -13,20 +13,30 @@ as one pseudo-observation per parameter, ``(θ_j − μ_j)/σ_j`` appended to th
 residuals: the maximum a posteriori estimate under a Gaussian prior, whose information
 ``diag(1/σ²)`` adds to the data's (Tarantola, *Inverse Problem Theory*, 2005, eq. 3.37;
 Bar-Shalom et al., *Estimation with Applications to Tracking*, 2001, §3.4).
+
+Without a latitude the gyro's Earth-rate term is not known, yet it is there in every static
+gyro mean (up to 7.3e-5 rad/s, a few hundredths of a count at 120 s averages: many σ). Left
+out, it fails the fit's χ² on a clean unit whose poses turn (docs/design.md §3). With
+``unknown_earth_rate`` (what :func:`~canimucal.analysis.calibrate.solve_positions` asks) it enters
+as a nuisance: the Earth rate in the level frame, three parameters ``w_L`` with the prior
+``N(0, Ω²/3·I)`` (the second moment of a rate of magnitude Ω in an unknown direction), fitted
+with the rest and then marginalised (the Schur complement of the information); χ² counts
+their prior rows and the dof does not change (three rows, three parameters). The gyro biases
+then carry the part of the Earth rate the poses cannot tell from them.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.errors import ModelError
-from canimucal.model.frames import body_vectors
+from canimucal.model.frames import EARTH_RATE_RAD_S, body_vectors
 from canimucal.model.layout import (
     JointSpec,
     ModelContext,
@@ -122,6 +132,13 @@ class _Data:
     base_cov: Array
     tolerances: Array
     prior: _Prior
+    earth_sigma: float = 0.0
+    """Prior σ (rad/s, each level axis) of the unknown Earth rate; 0: known or not seen."""
+
+    @property
+    def nuisance(self) -> int:
+        """How many nuisance parameters (the unknown Earth rate) ride along with theta."""
+        return 3 if self.earth_sigma > 0 else 0
 
 
 @dataclass(frozen=True)
@@ -165,6 +182,7 @@ def solve_joint(
     allow_undetermined: bool = False,
     passes: int = 3,
     prior: Mapping[str, tuple[float, float]] | None = None,
+    unknown_earth_rate: bool = False,
 ) -> JointResult:
     """Fit ``spec`` to the position averages by whitened nonlinear least squares.
 
@@ -174,24 +192,38 @@ def solve_joint(
     their starting values and reports them in ``JointResult.undetermined`` (values NaN).
     ``prior`` maps parameter names to ``(mean, σ)``: each is a pseudo-observation (module
     docstring), its residual counted in χ² and dof; the prior mean is also the start.
+    ``unknown_earth_rate`` with a gyro model and no ``latitude``: the Earth rate is a fitted
+    and marginalised nuisance (module docstring; what a calibration does); without it the
+    gyro model has no Earth-rate term (the discrepancy analysis tests that term itself).
     """
     layout = ParameterLayout.of(spec)
     data = _validate(averages, spec, g, latitude, allow_undetermined, _prior(layout, prior))
+    if not unknown_earth_rate:
+        data = replace(data, earth_sigma=0.0)
     ctx = ModelContext.build(g, latitude, heading, gyro_lsb)
     theta = _initial_guess(layout, data, ctx, accel_lsb, gyro_lsb)
     theta[data.prior.index] = data.prior.mean
     for name, value in (initial or {}).items():
         theta[layout.index(name)] = float(value)
+    omega = np.zeros(data.nuisance)
     scales = layout.effect_scales(g, 1.0 / accel_lsb)
-    check = analyse_information(*_whitened_information(layout, theta, data, ctx), scales)
+    check = analyse_information(*_whitened_information(layout, theta, omega, data, ctx), scales)
     free = _free_mask(layout, check, allow_undetermined)
     message, converged = "", True
     for _ in range(max(1, passes)):
-        weights = _weights(layout, theta, data, ctx)
-        fit = _least_squares(_Problem(layout, theta, free, weights, data, ctx))
-        theta[free] = fit.x
+        weights = _weights(layout, theta, data, _with_rate(ctx, omega))
+        fit = _least_squares(_Problem(layout, theta, omega, free, weights, data, ctx))
+        theta[free], omega = fit.x[: int(np.sum(free))], fit.x[int(np.sum(free)) :]
         message, converged = str(fit.message), bool(fit.status > 0)
-    return _result(layout, theta, free, data, ctx, (converged, message), (accel_lsb, gyro_lsb))
+    return _result(
+        layout,
+        theta,
+        free,
+        data,
+        _with_rate(ctx, omega),
+        (converged, message),
+        (accel_lsb, gyro_lsb),
+    )
 
 
 def _prior(layout: ParameterLayout, prior: Mapping[str, tuple[float, float]] | None) -> _Prior:
@@ -240,7 +272,9 @@ def _validate(
     tol = np.array([a.pose.tolerances for a in averages], dtype=float)
     if not (np.all(np.isfinite(angles)) and np.all(np.isfinite(tol)) and np.all(tol >= 0)):
         raise ModelError("position angles and tolerances must be finite (tolerance >= 0)")
-    return _Data(angles, obs, cov, tol, prior)
+    unknown_rate = m == 6 and latitude is None  # the module docstring: a nuisance
+    earth_sigma = EARTH_RATE_RAD_S / np.sqrt(3.0) if unknown_rate else 0.0
+    return _Data(angles, obs, cov, tol, prior, float(earth_sigma))
 
 
 def _checked(k: int, what: str, mean: object, cov: object) -> tuple[Array, Array]:
@@ -318,13 +352,41 @@ def _weights(layout: ParameterLayout, theta: Array, data: _Data, ctx: ModelConte
     return _Weights(np.linalg.inv(chol), moments.shift)
 
 
+def _with_rate(ctx: ModelContext, omega: Array) -> ModelContext:
+    """``ctx`` with the nuisance Earth rate ``omega`` (rad/s in L) when one is fitted."""
+    return ctx if omega.size == 0 else replace(ctx, w_level=np.asarray(omega, dtype=float))
+
+
+def _rate_columns(layout: ParameterLayout, theta: Array, data: _Data, ctx: ModelContext) -> Array:
+    """d(predicted means)/d(Earth rate in L), ``(n, m, 3)``: the model is linear in it."""
+    zero = predict(layout, theta, data.angles, _with_rate(ctx, np.zeros(3))).mean
+    columns = [
+        predict(layout, theta, data.angles, _with_rate(ctx, e)).mean - zero for e in np.eye(3)
+    ]
+    return np.stack(columns, axis=2)
+
+
+def _marginal(info: Array, p: int, data: _Data) -> Array:
+    """Return the information of theta with the nuisance parameters (the last) marginalised."""
+    if data.nuisance == 0:
+        return info
+    own, cross = info[:p, :p], info[:p, p:]
+    nuisance = info[p:, p:] + np.eye(data.nuisance) / data.earth_sigma**2
+    return own - cross @ np.linalg.solve(nuisance, cross.T)
+
+
 def _whitened_information(
-    layout: ParameterLayout, theta: Array, data: _Data, ctx: ModelContext
+    layout: ParameterLayout, theta: Array, omega: Array, data: _Data, ctx: ModelContext
 ) -> tuple[Array, tuple[str, ...]]:
+    ctx = _with_rate(ctx, omega)
     pred = predict(layout, theta, data.angles, ctx)
-    jw = np.einsum("nij,njp->nip", _weights(layout, theta, data, ctx).whitener, pred.d_theta)
-    jw = jw.reshape(-1, layout.size)
-    return jw.T @ jw + data.prior.information(layout.size), layout.names
+    d_theta = pred.d_theta
+    if data.nuisance:
+        d_theta = np.concatenate([d_theta, _rate_columns(layout, theta, data, ctx)], axis=2)
+    jw = np.einsum("nij,njp->nip", _weights(layout, theta, data, ctx).whitener, d_theta)
+    jw = jw.reshape(-1, d_theta.shape[2])
+    info = _marginal(jw.T @ jw, layout.size, data)
+    return info + data.prior.information(layout.size), layout.names
 
 
 def _free_mask(layout: ParameterLayout, check: Separability, allow: bool) -> NDArray[np.bool_]:
@@ -356,42 +418,59 @@ class _Problem:
         self,
         layout: ParameterLayout,
         theta: Array,
+        omega: Array,
         free: NDArray[np.bool_],
         weights: _Weights,
         data: _Data,
         ctx: ModelContext,
     ) -> None:
         self.layout, self.theta, self.free = layout, theta.copy(), free
+        self.omega = omega.copy()
         self.whitener, self.data, self.ctx = weights.whitener, data, ctx
         self.target = data.observed - weights.shift
         self._key: bytes | None = None
-        self._pred = predict(layout, theta, data.angles, ctx)
+        self._pred = predict(layout, theta, data.angles, _with_rate(ctx, omega))
+        self._rate = _rate_columns(layout, theta, data, ctx) if data.nuisance else None
 
     def _update(self, x: Array) -> None:
         key = x.tobytes()
         if key != self._key:
-            self.theta[self.free] = x
-            self._pred = predict(self.layout, self.theta, self.data.angles, self.ctx)
+            n_free = int(np.sum(self.free))
+            self.theta[self.free], self.omega = x[:n_free], x[n_free:]
+            ctx = _with_rate(self.ctx, self.omega)
+            self._pred = predict(self.layout, self.theta, self.data.angles, ctx)
+            if self._rate is not None:
+                self._rate = _rate_columns(self.layout, self.theta, self.data, self.ctx)
             self._key = key
 
     def residuals(self, x: Array) -> Array:
-        """Whitened predicted − observed, flattened by position then channel."""
+        """Whitened predicted − observed, flattened by position then channel; prior rows."""
         self._update(x)
         r = self._pred.mean - self.target
         rows = np.einsum("nij,nj->ni", self.whitener, r).ravel()
-        return np.concatenate([rows, self.data.prior.rows(self.theta, self.free)])
+        nuisance = self.omega / self.data.earth_sigma if self.data.nuisance else self.omega
+        return np.concatenate([rows, self.data.prior.rows(self.theta, self.free), nuisance])
 
     def jacobian(self, x: Array) -> Array:
-        """d(whitened residuals)/d(free parameters)."""
+        """d(whitened residuals)/d(free parameters, then the nuisance ones)."""
         self._update(x)
-        jw = np.einsum("nij,njp->nip", self.whitener, self._pred.d_theta[:, :, self.free])
-        rows = jw.reshape(-1, int(np.sum(self.free)))
-        return np.vstack([rows, self.data.prior.jacobian(self.free)])
+        d_theta = self._pred.d_theta[:, :, self.free]
+        if self._rate is not None:
+            d_theta = np.concatenate([d_theta, self._rate], axis=2)
+        jw = np.einsum("nij,njp->nip", self.whitener, d_theta)
+        rows = jw.reshape(-1, d_theta.shape[2])
+        prior = self.data.prior.jacobian(self.free)
+        k = self.data.nuisance
+        prior = np.hstack([prior, np.zeros((prior.shape[0], k))])
+        nuisance = np.hstack([np.zeros((k, int(np.sum(self.free)))), np.eye(k)])
+        if k:
+            nuisance[:, -k:] /= self.data.earth_sigma
+        return np.vstack([rows, prior, nuisance])
 
     @property
     def start(self) -> Array:
-        """The free parameters' starting values."""
-        return self.theta[self.free].copy()
+        """The free parameters' starting values, then the nuisance ones."""
+        return np.concatenate([self.theta[self.free], self.omega])
 
 
 def _least_squares(problem: _Problem) -> OptimizeResult:
@@ -409,6 +488,11 @@ def _least_squares(problem: _Problem) -> OptimizeResult:
     )
 
 
+def _rate_of(ctx: ModelContext, data: _Data) -> Array:
+    """Return the fitted nuisance Earth rate (empty when none is fitted)."""
+    return np.asarray(ctx.w_level, dtype=float) if data.nuisance else np.zeros(0)
+
+
 def _result(
     layout: ParameterLayout,
     theta: Array,
@@ -423,7 +507,7 @@ def _result(
     residuals = data.observed - weights.shift - pred.mean
     whitened = np.einsum("nij,nj->ni", weights.whitener, residuals)
     jac = np.einsum("nij,njp->nip", weights.whitener, pred.d_theta).reshape(-1, layout.size)
-    info = jac.T @ jac + data.prior.information(layout.size)
+    info, _names = _whitened_information(layout, theta, _rate_of(ctx, data), data, ctx)
     sep = analyse_information(info, layout.names, layout.effect_scales(ctx.g, 1 / lsbs[0]))
     values = theta.copy()
     undetermined = dict(sep.undetermined)
@@ -442,7 +526,11 @@ def _result(
         whitened_residuals=whitened,
         jacobian=jac,
         dof=int(residuals.size + np.sum(free[data.prior.index]) - rank),
-        chi2=float(np.sum(whitened**2) + np.sum(data.prior.rows(theta, free) ** 2)),
+        chi2=float(
+            np.sum(whitened**2)
+            + np.sum(data.prior.rows(theta, free) ** 2)
+            + np.sum((_rate_of(ctx, data) / max(data.earth_sigma, 1e-300)) ** 2)
+        ),
         converged=status[0],
         message=status[1],
         rms_accel_ms2=rms,
