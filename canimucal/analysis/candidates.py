@@ -79,6 +79,15 @@ def candidates_at_angles(
         angles, g=g, k_matrix=k_matrix, s_matrix=s_matrix, w_level=w_level,
         channels=channels, temperatures=dt,
     )  # fmt: skip
+    return candidates_at_inputs(inputs)
+
+
+def candidates_at_inputs(inputs: PoseInputs) -> list[Candidate]:
+    """Candidates of the joint fit linearised at ``inputs`` (any specific force and K).
+
+    :func:`candidates_at_angles` linearises at a tilt-free base; the exact fits of
+    :mod:`.exact_fit` at the extended model's own tilt and K.
+    """
     out = []
     for effect in column_effects():
         for sensor in effect.sensors if effect.known is not None else ():
