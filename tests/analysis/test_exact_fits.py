@@ -5,7 +5,8 @@ A real base tilt of 1–3° (about alpha0, beta0 or both) was named beside phant
 the candidates were tested on columns linearised at the tilt-free base fit (on seeds 0–19:
 base_tilt alone on 11); with the chosen model fitted to convergence and every candidate
 tested on its tangent, base_tilt alone is named. A cross-axis entry of 1–2 % of scale is
-named alone. The fast tests take 10 seeds; the slow ones 40, as the issue asks (≥ 95 %).
+named alone. The tests take 10 seeds; ``benchmarks/exact_fits.py`` runs 40 of each (the
+issue's ≥ 95 %), outside `make test`'s time budget.
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ from tests.support.plans import twelve
 from tests.support.sessions import simulate_session
 
 FAST_SEEDS = tuple(range(10))
-SLOW_SEEDS = tuple(range(40))
 MIN_SHARE = 0.95
 
 
@@ -88,15 +88,3 @@ def test_the_exact_fit_recovers_the_tilt_within_its_sigma(seed: int) -> None:
     assert np.all(np.abs(got - truth) < 3.0 * sigma), (got, truth, sigma)
     k_true = np.diag(np.array(doc["accel"]["K"]))
     assert np.allclose(np.diag(result.params.K), k_true, rtol=2e-4)
-
-
-@pytest.mark.slow
-def test_forty_seeds_of_base_tilt_name_it_alone() -> None:
-    share, misses = _share(tilted, "base_tilt", SLOW_SEEDS)
-    assert share >= MIN_SHARE, f"not base_tilt alone on seeds {misses}"
-
-
-@pytest.mark.slow
-def test_forty_seeds_of_cross_axis_name_it_alone() -> None:
-    share, misses = _share(crossed, "cross_axis", SLOW_SEEDS)
-    assert share >= MIN_SHARE, f"not cross_axis alone on seeds {misses}"
