@@ -19,6 +19,7 @@ FLAGS: dict[str, str] = {
     "store_sub=3": "--store-sub 3",
     "store_sub": "--store-sub",
     "format=": "--format",
+    "give plan": "give --plan",
     "sample_rate_hz": "--sample-rate-hz",
     "tolerance_deg": "--tolerance-deg",
     "latitude_deg": "--latitude-deg",

@@ -108,8 +108,9 @@ def recorded_plan(out_dir: str | Path) -> Plan:
     name = header.get("plan")
     if not isinstance(name, str) or name not in builtin_names():
         raise InputError(
-            f"cannot resume: {source} names no built-in plan ({name or 'none'}): give --plan "
-            "(the plan file of the interrupted session)"
+            f"cannot resume: {source} names no built-in plan ({name or 'none'}): give plan "
+            "(the plan file of the interrupted session)",
+            options=("give plan",),
         )
     return builtin_plan(name)
 
