@@ -447,29 +447,29 @@ def test_write_params_refuses_a_failed_calibration_unless_no_check(
     assert read_params(cli, flags, tmp_path / "r.json")["readback"]["valid"] == 1
 
 
-def test_record_prompted_refuses_a_pose_the_unit_is_not_at(tmp_path: Path) -> None:
-    """The operator first leaves the unit level at the 45° pose: refused, prompted again."""
+def _record_prompted(
+    plan: Any, out: Path, seed: int, sets_pose: Callable[[int, int], bool]
+) -> tuple[list[int], list[tuple[int, str]]]:
+    """Record ``plan`` prompted from a simulated node; the operator sets the pose only when
+    ``sets_pose(index, times_prompted)``. Returns the prompts and the refusals."""
     import can
 
     from canimucal.device.client import ImuClient
     from canimucal.io.recording_writer import RecordingWriter
-    from canimucal.model.vocabulary.plans import builtin_plan
     from canimucal.runtime.recorder import Recorder
     from canimucal.simnode.node import SimulatedImuNode
 
-    channel = f"canimucal-refuse-{os.getpid()}"
+    channel = f"canimucal-prompted-{os.getpid()}-{seed}"
     node_bus, client_bus = (can.Bus(interface="virtual", channel=channel) for _ in range(2))
-    node = SimulatedImuNode(node_bus, 0x10, make_truth(), time_scale=10.0, seed=4).start()
-    plan = builtin_plan("two").with_total_seconds(2.0)
+    node = SimulatedImuNode(node_bus, 0x10, make_truth(), time_scale=10.0, seed=seed).start()
     prompts: list[int] = []
     refusals: list[tuple[int, str]] = []
 
     def prompt(index: int, position: Any) -> None:
         prompts.append(index)
-        if prompts.count(index) > 1 or index == 0:  # the second time, the pose is set
+        if sets_pose(index, prompts.count(index)):
             node.set_pose(position.alpha, position.beta, position.psi)
 
-    out = tmp_path / "refused.csv"
     try:
         with ImuClient(client_bus, 0x10) as client:
             header = {"sample_rate_hz": 200.0, "device_serial": SERIAL}
@@ -486,6 +486,17 @@ def test_record_prompted_refuses_a_pose_the_unit_is_not_at(tmp_path: Path) -> No
         node.stop()
         node_bus.shutdown()
         client_bus.shutdown()
+    return prompts, refusals
+
+
+def test_record_prompted_refuses_a_pose_the_unit_is_not_at(tmp_path: Path) -> None:
+    """The operator first leaves the unit level at the 45° pose: refused, prompted again."""
+    from canimucal.model.vocabulary.plans import builtin_plan
+
+    plan = builtin_plan("two").with_total_seconds(2.0)
+    out = tmp_path / "refused.csv"
+    # the second time, the pose is set
+    prompts, refusals = _record_prompted(plan, out, 4, lambda i, times: times > 1 or i == 0)
     assert prompts == [0, 1, 1]
     assert [i for i, _ in refusals] == [1]
     assert "against target +45.0°, +5.0°" in refusals[0][1] and "> 3°" in refusals[0][1]
@@ -507,44 +518,13 @@ def test_record_prompted_refuses_a_turn_the_gyro_did_not_see(tmp_path: Path) -> 
     """
     from dataclasses import replace
 
-    import can
-
-    from canimucal.device.client import ImuClient
-    from canimucal.io.recording_writer import RecordingWriter
     from canimucal.model.vocabulary.plans import builtin_plan
-    from canimucal.runtime.recorder import Recorder
-    from canimucal.simnode.node import SimulatedImuNode
 
-    channel = f"canimucal-turn-{os.getpid()}"
-    node_bus, client_bus = (can.Bus(interface="virtual", channel=channel) for _ in range(2))
-    node = SimulatedImuNode(node_bus, 0x10, make_truth(), time_scale=10.0, seed=5).start()
     vehicle = builtin_plan("vehicle")
     plan = replace(vehicle, positions=vehicle.positions[:3]).with_total_seconds(3.0)
-    prompts: list[int] = []
-    refusals: list[tuple[int, str]] = []
-
-    def prompt(index: int, position: Any) -> None:
-        prompts.append(index)
-        if prompts.count(index) > 1 or index != 1:  # the 90° turn: made the second time
-            node.set_pose(position.alpha, position.beta, position.psi)
-
     out = tmp_path / "turns.csv"
-    try:
-        with ImuClient(client_bus, 0x10) as client:
-            header = {"sample_rate_hz": 200.0, "device_serial": SERIAL}
-            with RecordingWriter.open(out, header) as writer:
-                recorder = Recorder([(client, writer, 200.0)])
-                recorder.start()
-                try:
-                    recorder.record_prompted(
-                        plan, prompt, settle_s=1.0, refused=lambda i, why: refusals.append((i, why))
-                    )
-                finally:
-                    recorder.stop()
-    finally:
-        node.stop()
-        node_bus.shutdown()
-        client_bus.shutdown()
+    # the 90° turn: made the second time
+    prompts, refusals = _record_prompted(plan, out, 5, lambda i, times: times > 1 or i != 1)
     assert prompts == [0, 1, 1, 2]
     assert [i for i, _ in refusals] == [1]
     assert "the turn was not made" in refusals[0][1] and "> 15°" in refusals[0][1]
