@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, replace
-from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -26,7 +25,6 @@ from canimucal.io.recording import Recording
 
 log = logging.getLogger(__name__)
 
-A = TypeVar("A", bound=NDArray[Any])
 
 MIN_REPEAT_FRACTION = 0.1
 """Rows repeating the previous one in every channel must be at least this fraction."""
@@ -98,34 +96,7 @@ def unique_samples(rec: Recording) -> tuple[Recording, HeldSamples | None]:
         return rec, None
     log.info("%s: %s", rec.source or "recording", held.line())
     keep = np.flatnonzero(~same)
-
-    def take(values: A) -> A:
-        out: A = np.ascontiguousarray(values[keep])  # type: ignore[assignment]
-        out.setflags(write=False)
-        return out
-
-    turns = tuple(
-        replace(
-            turn,
-            start=int(np.searchsorted(keep, turn.start)),
-            stop=int(np.searchsorted(keep, turn.stop)),
-        )
-        for turn in rec.turns
-    )
     header = dict(rec.header)
     header["sample_rate_hz"] = held.effective_hz
-    reduced = replace(
-        rec,
-        header=header,
-        t=take(rec.t),
-        counter=take(rec.counter),
-        position=take(rec.position),
-        alpha_deg=take(rec.alpha_deg),
-        beta_deg=take(rec.beta_deg),
-        psi_deg=take(rec.psi_deg),
-        accel=take(rec.accel),
-        gyro=take(rec.gyro),
-        temp_c=take(rec.temp_c),
-        turns=turns,
-    )
+    reduced = replace(rec.take_rows(keep), header=header)
     return reduced, held

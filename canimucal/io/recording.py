@@ -23,9 +23,9 @@ import math
 import os
 import re
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -37,6 +37,7 @@ __all__ = [
     "COLUMNS",
     "COLUMN_LINE",
     "SCHEMA",
+    "TRIAL_COLUMN_LINE",
     "HeaderValue",
     "KnownTurn",
     "Recording",
@@ -96,11 +97,38 @@ class Recording:
     """Rows equal in every column but ``t`` to an earlier row with the same counter within
     :data:`REPEAT_WINDOW_ROWS` rows (the same sample written again: a copy-paste, a doubled
     log), adjacent or not; without a counter, rows equal to the row before in every column."""
+    trial: NDArray[np.int64] | None = field(default=None, compare=False)
+    """The optional ``trial`` column (docs/design.md §5): which mounting of the unit each row
+    belongs to, -1 where empty; ``None`` when the file has no such column."""
 
     @property
     def n_rows(self) -> int:
         """Number of sample rows."""
         return int(self.t.shape[0])
+
+    def take_rows(self, keep: NDArray[np.intp]) -> Recording:
+        """Return the rows ``keep`` (increasing indices) of every per-row column, read-only.
+
+        Known turns are re-indexed to the rows kept; the header and the counts of repeated
+        rows are those of the whole recording.
+        """
+
+        def take(values: NDArray[Any]) -> NDArray[Any]:
+            out = np.ascontiguousarray(values[keep])
+            out.setflags(write=False)
+            return out
+
+        turns = tuple(
+            replace(
+                turn,
+                start=int(np.searchsorted(keep, turn.start)),
+                stop=int(np.searchsorted(keep, turn.stop)),
+            )
+            for turn in self.turns
+        )
+        rows: dict[str, Any] = {name: take(getattr(self, name)) for name in COLUMN_KEYS}
+        trial = None if self.trial is None else take(self.trial)
+        return replace(self, **rows, trial=trial, turns=turns)
 
     @property
     def sample_rate_hz(self) -> float:
@@ -123,10 +151,32 @@ def recording_from_columns(
     beta_deg: ArrayLike | None = None,
     psi_deg: ArrayLike | None = None,
     temp_c: ArrayLike | None = None,
+    trial: ArrayLike | None = None,
 ) -> Recording:
-    """Build a :class:`Recording` from column arrays; ``None`` means an empty column."""
+    """Build a :class:`Recording` from column arrays; ``None`` means an empty column.
+
+    ``trial`` (one integer per row, < 0 for empty) gives the recording a ``trial`` column;
+    ``None`` leaves it without one.
+    """
     table = block_table(t, accel, gyro, counter, position, alpha_deg, beta_deg, psi_deg, temp_c)
-    return _recording_from_table(normalise_header(header), table, first_line=1, source="")
+    trials = None
+    if trial is not None:
+        trials = trial_column(np.asarray(trial, dtype=float), table.shape[0], "trial")
+    return _recording_from_table(
+        normalise_header(header), table, first_line=1, source="", trial=trials
+    )
+
+
+def trial_column(values: NDArray[np.float64], n: int, source: str) -> NDArray[np.int64]:
+    """Check ``trial`` values (non-negative integers, NaN or < 0 empty) and type them."""
+    values = values.reshape(-1)
+    if values.shape != (n,):
+        raise InputError(f"column trial has shape {values.shape}, expected ({n},)")
+    empty = np.isnan(values) | (values < 0)
+    bad = ~empty & ((values != np.floor(values)) | ~np.isfinite(values))
+    if bad.any():
+        raise InputError(f"{source}: trial {values[np.argmax(bad)]!r} is not an integer")
+    return np.where(empty, -1, np.nan_to_num(values)).astype(np.int64)
 
 
 def block_table(
@@ -163,29 +213,39 @@ def block_table(
 
 
 def _recording_from_table(
-    header: dict[str, HeaderValue], table: FloatArray, *, first_line: int, source: str
+    header: dict[str, HeaderValue],
+    table: FloatArray,
+    *,
+    first_line: int,
+    source: str,
+    trial: NDArray[np.int64] | None = None,
 ) -> Recording:
     check_table(table, first_line, source)
-    columns = _Columns(table.shape[0])
-    columns.append(table)
+    columns = _Columns(table.shape[0], with_trial=trial is not None)
+    columns.append(table, trial)
     return _recording_from_parts(header, columns, source)
 
 
 class _Columns:
     """Typed columns filled block by block (capacity grows by half when a block overflows)."""
 
-    def __init__(self, capacity: int) -> None:
+    def __init__(self, capacity: int, *, with_trial: bool = False) -> None:
         self.n = 0
+        self._trial = np.empty(capacity if with_trial else 0, dtype=np.int64)
+        self.with_trial = with_trial
         self._t, self._counter = _empty(capacity), _empty(capacity)
         self._angles, self._accel = _empty(capacity, 3), _empty(capacity, 3)
         self._gyro, self._temp = _empty(capacity, 3), _empty(capacity)
         self._position = np.empty(capacity, dtype=np.int64)
 
-    def append(self, table: FloatArray) -> None:
+    def append(self, table: FloatArray, trial: NDArray[np.int64] | None = None) -> None:
         k = table.shape[0]
         if self.n + k > self._t.shape[0]:
             self._grow(max(self.n + k, int(self._t.shape[0] * 1.5) + 1024))
         rows = slice(self.n, self.n + k)
+        if self.with_trial:
+            assert trial is not None and trial.shape == (k,)
+            self._trial[rows] = trial
         self._t[rows] = table[:, 0]
         self._counter[rows] = table[:, 1]
         label = table[:, 2]
@@ -197,7 +257,8 @@ class _Columns:
         self.n += k
 
     def _grow(self, capacity: int) -> None:
-        for name in ("_t", "_counter", "_position", "_angles", "_accel", "_gyro", "_temp"):
+        names = ["_t", "_counter", "_position", "_angles", "_accel", "_gyro", "_temp"]
+        for name in names + (["_trial"] if self.with_trial else []):
             old = getattr(self, name)
             new = np.empty((capacity, *old.shape[1:]), dtype=old.dtype)
             new[: self.n] = old[: self.n]
@@ -218,6 +279,8 @@ class _Columns:
             "temp_c": self._temp[:n],
         }
         self._angles = _empty(0, 3)
+        if self.with_trial:
+            out["trial"] = self._trial[:n]
         for arr in out.values():
             arr.setflags(write=False)
         return out
@@ -242,7 +305,7 @@ def _recording_from_parts(
     dup_counters, dup_rows = count_duplicates_columns(
         t,  # type: ignore[arg-type]
         parts["counter"],  # type: ignore[arg-type]
-        [parts[k] for k in COLUMN_KEYS[2:]],
+        [parts[k] for k in (*COLUMN_KEYS[2:], *(["trial"] if "trial" in parts else []))],
     )
     if dup_counters or dup_rows:
         logger.warning(
@@ -469,7 +532,8 @@ def _read_stream(handle: BinaryIO, source: str, size: int) -> Recording:
         if not line.startswith(b"#") or not line.endswith(b"\n"):
             break
     raw_head = bytes(head).replace(b"\r\n", b"\n")
-    header, _, line_no = _read_head(raw_head, source)
+    header, with_trial, line_no = _read_head(raw_head, source)
+    width = len(COLUMNS) + with_trial
     columns: _Columns | None = None
     carry = b""
     last_t = -math.inf
@@ -487,8 +551,11 @@ def _read_stream(handle: BinaryIO, source: str, size: int) -> Recording:
         if b"\r" in data:
             data = data.replace(b"\r\n", b"\n")
         if not final and (data.startswith(b"\n") or data.endswith(b"\n\n")):
-            raise _diagnose(data[:-1], line_no, source, "empty line")  # more rows follow
-        table = parse_rows(data, line_no, source)
+            raise _diagnose(data[:-1], line_no, source, "empty line", width)  # rows follow
+        table = parse_rows(data, line_no, source, width)
+        trial = None
+        if with_trial:
+            table, trial = table[:, : len(COLUMNS)], _checked_trials(table[:, -1], line_no, source)
         check_table(table, line_no, source)
         if table.shape[0]:
             if table[0, 0] < last_t:
@@ -497,8 +564,9 @@ def _read_stream(handle: BinaryIO, source: str, size: int) -> Recording:
             last_t = float(table[-1, 0])
         if columns is None:
             rows_per_byte = table.shape[0] / max(len(data), 1)
-            columns = _Columns(int(size * rows_per_byte * 1.02) + table.shape[0] + 16)
-        columns.append(table)
+            capacity = int(size * rows_per_byte * 1.02) + table.shape[0] + 16
+            columns = _Columns(capacity, with_trial=with_trial)
+        columns.append(table, trial)
         line_no += data.count(b"\n")
         if final:
             break
@@ -525,8 +593,24 @@ def _check_angles_across_blocks(
         )
 
 
-def _read_head(raw: bytes, source: str) -> tuple[dict[str, HeaderValue], int, int]:
-    """Parse header and column line; return header, offset of the data and its line number."""
+def _checked_trials(values: FloatArray, first_line: int, source: str) -> NDArray[np.int64]:
+    """Type a block's ``trial`` cells: empty (-1) or a non-negative integer, else an error."""
+    bad = ~np.isnan(values) & ((values < 0) | (values != np.floor(values)))
+    if bad.any():
+        raise located_error(
+            source or "recording",
+            first_line + int(np.argmax(bad)),
+            "trial is not a non-negative integer",
+        )
+    return np.where(np.isnan(values), -1, values).astype(np.int64)
+
+
+def _read_head(raw: bytes, source: str) -> tuple[dict[str, HeaderValue], bool, int]:
+    """Parse header and column line.
+
+    Returns the header, whether the column line ends in the optional ``trial`` column, and
+    the line number of the first row.
+    """
     header: dict[str, HeaderValue] = {}
     pos, number = 0, 1
     while True:
@@ -547,9 +631,9 @@ def _read_head(raw: bytes, source: str) -> tuple[dict[str, HeaderValue], int, in
         raise located_error(source, number, f"missing header line '# schema: {SCHEMA}'")
     if pos >= len(raw):
         raise located_error(source, number, "missing column line")
-    if line != COLUMN_LINE:
+    if line not in (COLUMN_LINE, TRIAL_COLUMN_LINE):
         raise located_error(source, number, _column_problem(line))
-    return header, end + 1, number + 1
+    return header, line == TRIAL_COLUMN_LINE, number + 1
 
 
 def _column_problem(line: str) -> str:
@@ -557,7 +641,7 @@ def _column_problem(line: str) -> str:
     missing = [c for c in COLUMNS if c not in names]
     if missing:
         return f"missing columns {', '.join(missing)} (column line must be '{COLUMN_LINE}')"
-    return f"column line must be exactly '{COLUMN_LINE}'"
+    return f"column line must be exactly '{COLUMN_LINE}' (optionally followed by ',trial')"
 
 
 SCHEMA = "canimucal.recording/1"
@@ -567,6 +651,10 @@ COLUMNS: tuple[str, ...] = ("t", "counter", "position", "alpha_deg", "beta_deg",
 COLUMNS += ("ax", "ay", "az", "gx", "gy", "gz", "temp_c")
 COLUMN_LINE = ",".join(COLUMNS)
 """The exact column line of a recording."""
+
+TRIAL_COLUMN_LINE = COLUMN_LINE + ",trial"
+"""The column line of a recording with the optional ``trial`` column (docs/design.md §5):
+several mountings of one unit in one file, each row naming its trial (empty: unknown)."""
 
 HeaderValue = str | float | bool
 """A typed header value (``node_id`` and ``device_serial`` are ints)."""
@@ -821,31 +909,37 @@ def _check_angles_constant(table: FloatArray, first_line: int, where: str) -> No
 # -------------------------------------------------------------------------------- parsing
 
 
-def parse_rows(data: bytes, first_line: int, source: str) -> FloatArray:
-    """Parse the data rows into an ``(n, 13)`` float table, NaN for empty cells."""
+def parse_rows(data: bytes, first_line: int, source: str, width: int = len(COLUMNS)) -> FloatArray:
+    """Parse the data rows into an ``(n, width)`` float table, NaN for empty cells.
+
+    ``width`` is 13, or 14 with the ``trial`` column.
+    """
     if data.endswith(b"\n"):
         data = data[:-1]
     if not data:
-        return np.empty((0, len(COLUMNS)))
+        return np.empty((0, width))
     if data.translate(None, _NUMERIC_BYTES) or data.startswith(b"\n") or b"\n\n" in data:
-        raise _diagnose(data, first_line, source, "unexpected characters")
+        raise _diagnose(data, first_line, source, "unexpected characters", width)
     # Empty cells become "nan" (letters were refused above, so NaN only comes from here).
     filled = data.replace(b",,", b",nan,").replace(b",,", b",nan,").replace(b",\n", b",nan\n")
     text = filled.decode("ascii") + ("nan" if filled.endswith(b",") else "")
     try:
         table = np.loadtxt(io.StringIO(text), delimiter=",", comments=None, ndmin=2)
     except ValueError as exc:
-        raise _diagnose(data, first_line, source, str(exc).splitlines()[0]) from None
-    if table.shape[1] != len(COLUMNS):
-        raise _diagnose(data, first_line, source, "wrong number of columns")
+        raise _diagnose(data, first_line, source, str(exc).splitlines()[0], width) from None
+    if table.shape[1] != width:
+        raise _diagnose(data, first_line, source, "wrong number of columns", width)
     return table
 
 
-def _diagnose(data: bytes, first_line: int, source: str, fallback: str) -> InputError:
+def _diagnose(
+    data: bytes, first_line: int, source: str, fallback: str, width: int = len(COLUMNS)
+) -> InputError:
     """Slow pass over the rows: raise an :class:`InputError` for the first bad line.
 
     Returns an error carrying ``fallback`` if no line is found bad (not expected).
     """
+    names = COLUMNS + (("trial",) if width > len(COLUMNS) else ())
     for offset, line_bytes in enumerate(data.split(b"\n")):
         line_no = first_line + offset
         try:
@@ -855,9 +949,9 @@ def _diagnose(data: bytes, first_line: int, source: str, fallback: str) -> Input
         if not line:
             raise located_error(source, line_no, "empty line")
         cells = line.split(",")
-        if len(cells) != len(COLUMNS):
-            raise located_error(source, line_no, f"expected {len(COLUMNS)} cells, got {len(cells)}")
-        for name, cell in zip(COLUMNS, cells, strict=True):
+        if len(cells) != len(names):
+            raise located_error(source, line_no, f"expected {len(names)} cells, got {len(cells)}")
+        for name, cell in zip(names, cells, strict=True):
             if cell and not NUMBER.fullmatch(cell):
                 lowered = cell.strip().lower().lstrip("+-")
                 if lowered in ("nan", "inf", "infinity"):
@@ -874,11 +968,14 @@ def _diagnose(data: bytes, first_line: int, source: str, fallback: str) -> Input
 
 
 def format_table(table: FloatArray) -> str:
-    """CSV rows for an ``(n, 13)`` table (NaN → empty cell), ``t`` with ≥ 6 decimals."""
+    """CSV rows for an ``(n, 13)`` table, or 14 with ``trial`` (NaN → empty cell).
+
+    ``t`` is written with at least 6 decimals.
+    """
     if table.shape[0] == 0:
         return ""
     columns = [_format_time(table[:, 0])]
-    for col in range(1, len(COLUMNS)):
+    for col in range(1, table.shape[1]):
         columns.append(_format_numbers(table[:, col]))
     return "\n".join(map(",".join, zip(*columns, strict=True))) + "\n"
 

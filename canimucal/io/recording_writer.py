@@ -37,6 +37,7 @@ from canimucal.io.atomic import (
 )
 from canimucal.io.recording import (
     COLUMN_LINE,
+    TRIAL_COLUMN_LINE,
     FloatArray,
     HeaderValue,
     Recording,
@@ -57,7 +58,12 @@ def write_recording(path: str | os.PathLike[str], recording: Recording, *, overw
     """Write a whole :class:`Recording` atomically (header, column line, rows)."""
     table = _recording_table(recording)
     check_table(table, 1, str(path))  # a Recording built by hand gets the reader's checks
-    text = format_header(recording.header) + COLUMN_LINE + "\n" + format_table(table)
+    column_line, rows = COLUMN_LINE, format_table(table)
+    if recording.trial is not None:  # the optional trial column (docs/design.md §5)
+        column_line = TRIAL_COLUMN_LINE
+        trial = np.where(recording.trial < 0, np.nan, recording.trial.astype(float))
+        rows = format_table(np.column_stack([table, trial]))
+    text = format_header(recording.header) + column_line + "\n" + rows
     return write_text_atomic(path, text, overwrite=overwrite)
 
 

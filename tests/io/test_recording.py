@@ -471,3 +471,71 @@ def test_reading_one_hour_at_200_hz(tmp_path: Path) -> None:
     assert back.n_rows == 720_000
     assert np.isnan(back.temp_c).all() and back.position[-1] == 59
     np.testing.assert_array_equal(back.counter[:3], [0, 1, 2])
+
+
+# ------------------------------------------------------------------- the optional trial column
+
+TRIAL_COLUMN_LINE = COLUMN_LINE + ",trial"
+
+
+def test_a_trial_column_is_read_and_written_back(tmp_path: Path) -> None:
+    trials = ["0", "0", "", "1", "1", "1"]
+    rows = [f"{row},{trial}" for row, trial in zip(ROWS, trials, strict=True)]
+    path = _write(tmp_path, HEADER + TRIAL_COLUMN_LINE + "\n" + "\n".join(rows) + "\n")
+    rec = read_recording_csv(path)
+    assert rec.trial is not None
+    np.testing.assert_array_equal(rec.trial, [0, 0, -1, 1, 1, 1])
+    plain = read_recording_csv(_write(tmp_path, SAMPLE, "plain.csv"))
+    assert plain.trial is None
+    _same(rec, plain)  # the other columns read as without the trial column
+    again = read_recording_csv(write_recording(tmp_path / "again.csv", rec, overwrite=False))
+    assert again.trial is not None
+    np.testing.assert_array_equal(again.trial, rec.trial)
+    assert (tmp_path / "again.csv").read_text().splitlines()[6] == TRIAL_COLUMN_LINE
+    _same(again, rec)
+    assert (
+        write_recording(tmp_path / "p.csv", plain, overwrite=False)
+        .read_text()
+        .count(TRIAL_COLUMN_LINE)
+        == 0
+    )
+
+
+@pytest.mark.parametrize(
+    ("cell", "problem"),
+    [("-1", "trial is not a non-negative integer"), ("1.5", "trial is not a non-negative integer")],
+)
+def test_a_bad_trial_cell_is_refused_with_its_line(tmp_path: Path, cell: str, problem: str) -> None:
+    rows = [f"{row},0" for row in ROWS]
+    rows[3] = f"{ROWS[3]},{cell}"
+    path = _write(tmp_path, HEADER + TRIAL_COLUMN_LINE + "\n" + "\n".join(rows) + "\n")
+    with pytest.raises(InputError, match=f"rec.csv:{FIRST_ROW_LINE + 3}: {problem}"):
+        read_recording_csv(path)
+
+
+def test_a_row_without_its_trial_cell_is_refused_with_its_line(tmp_path: Path) -> None:
+    rows = [f"{row},0" for row in ROWS]
+    rows[2] = ROWS[2]
+    path = _write(tmp_path, HEADER + TRIAL_COLUMN_LINE + "\n" + "\n".join(rows) + "\n")
+    with pytest.raises(
+        InputError, match=f"rec.csv:{FIRST_ROW_LINE + 2}: expected 14 cells, got 13"
+    ):
+        read_recording_csv(path)
+
+
+def test_trials_from_columns_and_row_subsets_keep_them() -> None:
+    t = 1.7e9 + np.arange(6) * 0.005
+    rec = recording_from_columns(
+        {"sample_rate_hz": 200},
+        t=t,
+        accel=np.ones((6, 3)),
+        trial=[0, 0, 1, 1, -1, 2],
+    )
+    assert rec.trial is not None
+    np.testing.assert_array_equal(rec.trial, [0, 0, 1, 1, -1, 2])
+    part = rec.take_rows(np.array([1, 2, 5]))
+    assert part.trial is not None
+    np.testing.assert_array_equal(part.trial, [0, 1, 2])
+    np.testing.assert_array_equal(part.t, t[[1, 2, 5]])
+    with pytest.raises(InputError, match="not an integer"):
+        recording_from_columns({"sample_rate_hz": 200}, t=t, accel=np.ones((6, 3)), trial=[0.5] * 6)
