@@ -82,6 +82,9 @@ class _Pending:
     t_accel: float = float("nan")
     t_gyro: float = float("nan")
     arrival: float = 0.0
+    lost_before: int = 0
+    """Counters skipped just before this one (lost samples), counted when it is emitted, so
+    a block's counts cover exactly its own rows' span."""
 
 
 @dataclass
@@ -194,9 +197,9 @@ class SamplePairer:
             if seq <= self._newest:
                 self._old_half(seq, is_accel, xyz)
                 return
-            self._advance(seq)
+            lost = self._advance(seq)
             arrival = t if self.clock is None else self.clock()
-            entry = self._pending[seq] = _Pending(seq, arrival=arrival)
+            entry = self._pending[seq] = _Pending(seq, arrival=arrival, lost_before=lost)
         first = entry.accel if is_accel else entry.gyro
         if first is not None:
             self._duplicate(is_accel, first == xyz)
@@ -283,14 +286,15 @@ class SamplePairer:
             self._accel_resends > SECOND_TRIGGER_SHARE * seen
         )
 
-    def _advance(self, seq: int) -> None:
-        """Start a new counter: the ones skipped are lost samples (both halves)."""
+    def _advance(self, seq: int) -> int:
+        """Start a new counter; return how many were skipped (lost samples, both halves)."""
         assert self._newest is not None
         for missing in range(self._newest + 1, seq):
-            self._tally.lost_samples += 1
             self._remember(missing, None, None)
+        lost = max(0, seq - self._newest - 1)
         self._samples_seen += seq - self._newest
         self._newest = seq
+        return lost
 
     def _remember(self, seq: int, accel: Xyz | None, gyro: Xyz | None) -> None:
         self._recent[seq] = (accel, gyro)
@@ -313,6 +317,7 @@ class SamplePairer:
 
     def _emit(self, entry: _Pending) -> None:
         nan3 = (np.nan, np.nan, np.nan)
+        self._tally.lost_samples += entry.lost_before
         if entry.accel is None:
             self._tally.lost_accel += 1
         if entry.gyro is None:

@@ -115,6 +115,23 @@ def test_counter_gap_counts_lost_samples() -> None:
     assert list(block.counter) == [0, 1, 2, 6, 7]
 
 
+def test_a_block_counts_only_the_losses_inside_its_own_span() -> None:
+    """A gap is counted with the row after it, in the block that holds that row.
+
+    Under heavy loss the row after a gap can still be waiting for its partner when a block
+    is taken; its gap then belongs to the next block (rows + lost = the block's span).
+    """
+    pairer = make_pairer()
+    feed_pairs(pairer, range(5))
+    pairer.feed(T1, accel_frame(9), 1000.0 + 9 * PERIOD_S)  # 5..8 lost; 9 waits for TPDO2
+    first = pairer.take()
+    assert list(first.counter) == list(range(5))
+    assert first.n + first.lost_samples == 5
+    pairer.feed(T2, gyro_frame(9), 1000.0 + 9 * PERIOD_S + 1e-4)
+    second = pairer.take()
+    assert list(second.counter) == [9] and second.lost_samples == 4
+
+
 def test_counter_wraps_at_65536() -> None:
     pairer = make_pairer()
     feed_pairs(pairer, list(range(65530, 65536)) + list(range(0, 6)))
