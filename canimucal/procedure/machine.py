@@ -25,7 +25,7 @@ from canimucal.model.plan import KPrior
 from canimucal.model.positions import PlannedPosition, Pose, PositionAverage, average_position
 from canimucal.model.samples import SampleBlock
 from canimucal.procedure import events as ev
-from canimucal.procedure.averaging import averaged_sensors, choose_time
+from canimucal.procedure.averaging import averaged_sensors, choose_time, later_budget_s
 from canimucal.procedure.config import LEVEL, ProcedureConfig, ResumeState
 from canimucal.procedure.events import Phase
 from canimucal.procedure.gyro_fit import ConfirmedMove, fit_confirmed_moves
@@ -97,12 +97,10 @@ class Procedure:
 
     def seconds_for(self, index: int) -> float:
         """Averaging time of position ``index``."""
-        policy = self.config.averaging
         if self.verifying:
             return self.config.verify_seconds
-        if index == 0:
-            return policy.first_seconds()
-        return policy.later_seconds(self.seconds_later)[0]
+        planned = self.config.plan.positions[index].seconds
+        return self.config.averaging.seconds_for(index, planned, self.seconds_later)
 
     def averages(self, node_id: int) -> list[PositionAverage]:
         """Return the accepted averages of one node, in plan order."""
@@ -461,6 +459,7 @@ class Procedure:
             samples,
             self.config.sample_rate_hz,
             averaged_sensors(self.config.spec.gyro),
+            later_budget_s(self.config.plan),
         )
         if event.source == "noise":
             self.seconds_later = event.seconds
@@ -475,6 +474,7 @@ class Procedure:
             samples,
             self.config.sample_rate_hz,
             averaged_sensors(self.config.spec.gyro),
+            later_budget_s(self.config.plan),
         )
         if event.source == "noise":
             self.seconds_later = event.seconds

@@ -21,6 +21,7 @@ from canimucal.model.mounting import MountingMap
 from canimucal.model.vocabulary.plans import PLANS
 from canimucal.model.vocabulary.units import QUANTITIES, Scales, operator_value, with_unit
 from canimucal.procedure.events import LevelChecked
+from canimucal.runtime.plan_forecast import LimitForecast
 from canimucal.untrusted import markdown_text
 
 K1_STATEMENT = (
@@ -51,6 +52,12 @@ class SessionFacts:
     scales: Scales | None = None
     """The node's nominal LSBs and g: the values in the operator's units (mg, ppm, °, °/s)
     beside the device's (None: the device's only)."""
+    plan_times: str = ""
+    """The plan's times as the plan screen showed them before the first position
+    (:meth:`~canimucal.procedure.averaging.PlanSchedule.words`; "" unknown)."""
+    forecast: tuple[LimitForecast, ...] = ()
+    """Each acceptance limit beside the σ the plan predicted before the first position
+    (:func:`~canimucal.runtime.plan_forecast.forecast`; empty: not known)."""
 
 
 def mounting_text(mounting: MountingMap | None, note: str = "") -> str:
@@ -247,6 +254,7 @@ def certificate_markdown(
     ]
     if acceptance.held_nominal:
         lines.append(f"- held at nominal: {', '.join(acceptance.held_nominal)}")
+    lines += [f"- {line}" for line in _predicted_lines(facts)]
     lines += ["", "## Level check", "", *_level_lines(level_checks)]
     if record.verification is not None and not record.verification.done:
         lines += [
@@ -260,6 +268,21 @@ def certificate_markdown(
         lines += ["", "## Warnings", "", *[f"- {w}" for w in warnings]]
     lines += ["", "## Sign-off", "", "Operator: ______________________  Date: ____________"]
     return "\n".join(lines) + "\n"
+
+
+def _predicted_lines(facts: SessionFacts) -> list[str]:
+    """``predicted before position 1: worst bias σ ≤ 12 mg: plan predicts 10.1 mg, …``."""
+    return [f"predicted before position 1: {r.line()}" for r in facts.forecast if r.predicted]
+
+
+def _times_text(d: dict[str, Any], facts: SessionFacts) -> str:
+    """``planned: position 1 120 s, then …; averaged 120, 60, … s`` (the record's seconds)."""
+    seconds = [p.get("seconds") for p in d.get("positions") or []]
+    averaged = ", ".join(f"{s:.3g}" for s in seconds if isinstance(s, int | float))
+    parts = [f"planned {facts.plan_times}"] if facts.plan_times else []
+    if averaged:
+        parts.append(f"averaged {averaged} s")
+    return "; ".join(parts) or "not given"
 
 
 def _plan_text(d: dict[str, Any], escape: Callable[[str], str]) -> str:
@@ -284,6 +307,7 @@ def _head(d: dict[str, Any], identity: Identity, facts: SessionFacts) -> list[st
         f"hardware {markdown_text(identity.hardware_version) or '—'}, "
         f"software {markdown_text(identity.software_version) or '—'}",
         f"- Plan: {_plan_text(d, markdown_text)}, {len(d.get('positions') or [])} positions",
+        f"- Times: {_times_text(d, facts)}",
         f"- Mounting: {markdown_text(facts.mounting) if facts.mounting else 'unit axes (bench)'}",
         f"- Conditions: {_conditions(cond)}",
         f"- Fit: {_fit_text(fit)}",
@@ -333,6 +357,7 @@ def certificate_html(
         ("Operator", e(facts.operator) if facts.operator else "not given"),
         ("Site", e(facts.site) if facts.site else "not given"),
         ("Plan", f"{_plan_text(d, e)}, {len(d.get('positions') or [])} positions"),
+        ("Times", e(_times_text(d, facts))),
         ("Mounting", e(facts.mounting) if facts.mounting else "unit axes (bench)"),
         ("Conditions", e(_conditions(cond))),
         ("Fit", e(_fit_text(fit))),
@@ -350,6 +375,7 @@ def certificate_html(
         ("Warm-up", e(facts.warmup)),
     ]
     checks = "".join(f"<li>{e(c.line())}</li>" for c in acceptance.checks)
+    checks += "".join(f"<li>{e(line)}</li>" for line in _predicted_lines(facts))
     level = _html_table(_level_lines(level_checks))
     values = _html_table(_values_table(d, facts.scales))
     warning_items = "".join(f"<li>{e(w)}</li>" for w in warnings) or "<li>none</li>"

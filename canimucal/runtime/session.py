@@ -66,6 +66,7 @@ from canimucal.runtime.certificate import (
     mounting_text,
     verification_of,
 )
+from canimucal.runtime.plan_forecast import schedule, session_forecast
 from canimucal.runtime.resume import partial_path
 from canimucal.sim.schedule import operator_angles
 from canimucal.simnode.node import SimulatedImuNode
@@ -412,6 +413,8 @@ class Session:
             warmup=warmup,
             mounting=mounting_text(proc.config.mounting, proc.config.mounting_note),
             scales=Scales(site.accel_lsb, site.gyro_lsb, site.g),
+            plan_times=schedule(proc.config.plan, proc.config.averaging).words(),
+            forecast=tuple(session_forecast(proc.config, node_id)),
         )
 
     def _write_certificates(self, node_id: int) -> None:

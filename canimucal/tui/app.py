@@ -26,7 +26,6 @@ from textual.binding import Binding
 from canimucal.io.site_memory import LastSite
 from canimucal.model.positions import Plan
 from canimucal.model.vocabulary.plans import CUSTOM, DEFAULT_PLAN, builtin_names, builtin_plan
-from canimucal.procedure.averaging import AveragingPolicy, averaged_sensors, describe_rule
 from canimucal.procedure.machine import Phase
 from canimucal.signals import EXIT_INTERRUPTED
 from canimucal.tui.messages import PlanWanted, ProcedureEnded, ResultsReady, StartWanted
@@ -84,7 +83,6 @@ class CalibrationApp(App[int]):
 
     def on_plan_wanted(self, message: PlanWanted) -> None:
         """Show the plan screen once the connection screen is done."""
-        policy = getattr(self.source, "averaging", None)
         plan_screen = PlanScreen(
             message.statuses,
             self.plans,
@@ -92,9 +90,8 @@ class CalibrationApp(App[int]):
             gyro=self.gyro,
             mount=self.source.mount,
             acceptance=getattr(self.source, "acceptance", None),
-            averaging=describe_rule(
-                policy if policy is not None else AveragingPolicy(), averaged_sensors(self.gyro)
-            ),
+            averaging=getattr(self.source, "averaging", None),
+            prior_k_sigma=getattr(self.source, "prior_k_sigma", None),
         )
         self.push_screen(plan_screen)
 

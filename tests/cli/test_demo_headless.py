@@ -19,7 +19,11 @@ from typing import Any
 import numpy as np
 import pytest
 
+from canimucal.analysis.acceptance import AcceptanceConfig
+from canimucal.model.vocabulary.plans import builtin_plan
+from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.runtime.inputs import read_recording
+from canimucal.runtime.plan_forecast import forecast, schedule, session_spec
 from canimucal.runtime.readback_check import readback_deviations
 from canimucal.sim.truth import Truth
 from tests.support.user_dirs import UserDirs
@@ -69,6 +73,28 @@ def _check_node(out: Path, record: dict[str, Any], suffix: str, plan: str) -> No
         assert "Units: accel.bias in counts; accel.K in counts per m/s²" in text
     assert "Written to the device: yes" in certificate
     assert page.startswith("<!DOCTYPE html>") and "<script" not in page
+    _certificate_states_the_plans_figures(certificate, record, truth, plan)
+
+
+def _certificate_states_the_plans_figures(
+    certificate: str, record: dict[str, Any], truth: Truth, name: str
+) -> None:
+    """The certificate's times and predicted σ are the plan screen's (plan_forecast's)."""
+    plan, policy = builtin_plan(name), AveragingPolicy(fixed_s=4.0)  # FAST's --seconds 4
+    times = schedule(plan, policy)
+    averaged = ", ".join(f"{p['seconds']:.3g}" for p in record["positions"])
+    assert f"- Times: planned {times.words()}; averaged {averaged} s" in certificate
+    limits = AcceptanceConfig().limits(name)
+    rows = forecast(
+        plan,
+        limits,
+        session_spec(name),
+        policy=policy,
+        accel_lsb=truth.accel.nominal_lsb,
+        g=truth.g,
+    )
+    predicted = [f"- predicted before position 1: {r.line()}" for r in rows if r.predicted]
+    assert predicted and all(line in certificate.splitlines() for line in predicted)
 
 
 @pytest.mark.parametrize("plan", ["two", "five", "recommended", "vehicle"])

@@ -41,7 +41,7 @@ def test_two_positions_bound_table_matches_the_closed_form(cli: Cli) -> None:
     difference over g·cos45°·sin5° (eq. 12), so σ(k33) = √2·σ/(g cos a sin b) and its effect
     at 1 g is g·σ(k33); bias x and z are the level means themselves (eq. 11).
     """
-    doc = plan_json(cli, "--plan", "two", "--no-tilt")
+    doc = plan_json(cli, "--plan", "two", "--no-tilt", "--seconds", "30")
     r = rows(doc)
     sigma_mean = 1.0 / np.sqrt(30.0)
     a, b = np.deg2rad(45.0), np.deg2rad(5.0)
@@ -76,13 +76,13 @@ def test_two_positions_full_k_is_not_identifiable(cli: Cli) -> None:
 
 
 def test_five_positions_names_bias_z_against_beta0(cli: Cli) -> None:
-    run = cli(["plan", "--plan", "five"])
+    run = cli(["plan", "--plan", "five", "--seconds", "30"])  # the paper's 30 s each
     assert run.code == 0, run.err
     lines = run.out.splitlines()
     assert lines[0].startswith("plan five: 150 s")
     assert "poorly separable: accel.bias[2] and base_tilt.beta0 (correlation -0.9996)" in lines
     assert re.search(r"worst-case bound: 4\.2\d* counts \(accel\.bias\[2\]\)", run.out)
-    doc = plan_json(cli, "--plan", "five")
+    doc = plan_json(cli, "--plan", "five", "--seconds", "30")
     corr = [f for f in doc["findings"] if f["correlation"] is not None]
     assert [f["parameters"] for f in corr] == [["accel.bias[2]", "base_tilt.beta0"]]
     assert corr[0]["correlation"] == pytest.approx(-0.9996, abs=5e-5)
@@ -210,7 +210,9 @@ def test_vehicle_plan_lists_positions_minutes_and_its_stated_prior(cli: Cli) -> 
     assert len(doc["positions"]) == 8
     assert max(abs(p["alpha_deg"]) + abs(p["beta_deg"]) for p in doc["positions"]) == 10.0
     assert {p["psi_deg"] for p in doc["positions"]} == {0.0, 90.0, 180.0, 270.0}
-    assert doc["operator_minutes"] == pytest.approx((8 * 60 + 8 * 180) / 60)
+    # the session's times: 120 s for the first position (its noise), the plan's 60 s after
+    assert doc["seconds_per_position"] == [120.0] + [60.0] * 7
+    assert doc["operator_minutes"] == pytest.approx((120 + 7 * 60 + 8 * 180) / 60)
     r = rows(doc)
     k_nominal = 1.0 / DEFAULT_ACCEL_LSB
     assert r["accel.K[1][1]"]["prior"]["sigma"] == pytest.approx(0.01 * k_nominal)
@@ -306,7 +308,9 @@ def test_plan_shows_each_limit_beside_the_sigma_the_session_will_get(
     run = cli(["solve", rec.path, "--no-check", "--json", "-"])
     assert run.code == 0, run.err
     got = json.loads(run.out)["acceptance"]["values"]
-    forecast = {r["key"]: r for r in plan_json(cli, "--plan", "two")["acceptance"]}
+    # timed as the recording was (30 s each): the forecast is then solve's own σ
+    doc = plan_json(cli, "--plan", "two", "--seconds", "30")
+    forecast = {r["key"]: r for r in doc["acceptance"]}
     for key in ("max_bias_sigma_mg", "max_scale_sigma_ppm"):
         assert forecast[key]["predicted"] == pytest.approx(got[key], rel=0.05), key
     assert forecast["max_scale_sigma_ppm"]["meets"] is False

@@ -220,7 +220,7 @@ def _short_plan(seconds: float = 30.0) -> Plan:
 @pytest.mark.parametrize(
     ("random_walk", "low", "high"),
     [
-        # white noise only: no ADEV minimum, the upper clip 120 s
+        # white noise only: no ADEV minimum, the upper clip: the plan's 120 s
         (0.0, 120.0, 120.0),
         # q = 0.2 counts/√s with N = 0.31 counts·√s: τ* = √3·N/q ≈ 2.7 s on every axis,
         # far below the 15 s clip even when the fit on 120 s misses q by a factor 4
@@ -240,9 +240,9 @@ def test_averaging_time_follows_the_noise_of_the_first_position(
     )
     # no gyro model: the accelerometer's axes alone decide (test_averaging_rule has the gyro)
     spec = JointSpec(accel_k="diag", tilt="rigid", gyro="none")
-    bench = Bench([truth], _short_plan(), averaging=AveragingPolicy(), spec=spec)
+    bench = Bench([truth], _short_plan(120.0), averaging=AveragingPolicy(), spec=spec)
     assert bench.proc.seconds_for(0) == 120.0
-    assert bench.proc.seconds_for(1) == 30.0  # until the noise is known
+    assert bench.proc.seconds_for(1) == 120.0  # until the noise is known: the plan's
     bench.position()
     events = bench.do("accept")
     chosen = of(events, ev.AveragingTimeChosen)[0]
@@ -258,6 +258,9 @@ def test_a_user_averaging_time_overrides_the_noise(diag_truth: Truth) -> None:
     bench = Bench([diag_truth], _short_plan(), averaging=AveragingPolicy(user_s=20.0))
     assert bench.proc.seconds_for(0) == 120.0  # max(120 s, the user's value)
     assert bench.proc.seconds_for(1) == 20.0
+    plain = Bench([diag_truth], _short_plan(), averaging=AveragingPolicy())
+    assert plain.proc.seconds_for(0) == 120.0  # max(120 s, the plan's 30 s): the noise
+    assert plain.proc.seconds_for(1) == 30.0  # the plan's, a budget the noise may shorten
     policy = AveragingPolicy(user_s=150.0)
     assert policy.first_seconds() == 150.0
     assert AveragingPolicy(fixed_s=4.0).first_seconds() == 4.0
