@@ -4,7 +4,7 @@
 ``--truth FILE`` or drawn at random from ``--seed``) sit on python-can's ``virtual`` bus in
 this process; an automatic operator runs the same procedure the TUI runs (skips the warm-up,
 confirms each pose — the simulated unit is moved there —, accepts each position, solves,
-writes with the transactional write, verifies at level). ``--seconds S`` averages every
+writes with the transactional write, verifies at two poses). ``--seconds S`` averages every
 position S seconds (skipping the long first recording); ``--time-scale`` runs the simulated
 clock faster than the wall clock. Into ``--out`` (the tool's own directory: files there are
 replaced) go per node the recording CSV, the verification CSV, the calibration JSON with the
@@ -37,6 +37,7 @@ from canimucal.model.positions import Plan
 from canimucal.model.vocabulary.plans import CUSTOM, DEFAULT_PLAN, PLANS, builtin_names, plan_help
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
+from canimucal.runtime.certificate import verified_line
 from canimucal.runtime.operator import run_automatic
 from canimucal.runtime.readback_check import comparison_table, readback_deviations
 from canimucal.runtime.resume import load_resume_state, recorded_plan, resumed_message
@@ -223,11 +224,11 @@ def _report_cancelled(
 def _deadline_s(plan: Plan, args: argparse.Namespace) -> float:
     """Return the wall seconds after which the automatic operator gives up.
 
-    Four times the sample time the plan needs (at most 120 s a position, settling, the
-    verification) at the time scale, plus two minutes.
+    Four times the sample time the plan needs (at most 120 s a position, settling, the two
+    verification poses) at the time scale, plus two minutes.
     """
     per_position_s = (args.seconds or 120.0) + 10.0
-    sample_s = (len(plan.positions) + 1) * per_position_s
+    sample_s = (len(plan.positions) + 2) * per_position_s
     return 120.0 + 4.0 * sample_s / args.time_scale
 
 
@@ -274,6 +275,9 @@ def _results(
             continue
         record = json.loads(link.record_path.read_text())
         documents[str(node_id)] = record
+        verdict = session.verification_verdict(node_id)
+        if verdict:
+            lines.append(f"node {node_id} verification: {verdict}")
         lines += [f"node {node_id} (serial {link.identity.serial}): read back from the device"]
         lines.append(comparison_table(readback_deviations(record, truths[node_id])))
         lines.append(f"wrote {link.record_path}, {link.certificate_path}, {truth_path}")
@@ -310,6 +314,8 @@ def _narrative(event: ev.Event) -> str:
             f"{event.norm_error_calibrated_ms2:+.4f} m/s²; tilt calibrated "
             f"{event.tilt_calibrated_deg[0]:+.3f}°, {event.tilt_calibrated_deg[1]:+.3f}°"
         )
+    if isinstance(event, ev.PoseVerified):
+        return f"  {verified_line(event)}"
     if isinstance(event, ev.ProcedureFinished) and event.cancelled:
         return "procedure cancelled"
     return ""

@@ -177,6 +177,13 @@ def forecast(
             "mg",
             None,
         ),
+        LimitForecast(
+            "max_verify_tilt_error_deg",
+            "tilt error after the write",
+            limits.max_verify_tilt_error_deg,
+            "°",
+            None,
+        ),
     ]
 
 

@@ -2,7 +2,7 @@
 
 The app owns the screen flow: connection → plan → (the site question, when no flag gave the
 site) → position (the procedure, with its I/O
-worker) → results → write confirmation (modal) → position (verification at level) →
+worker) → results → write confirmation (modal) → position (the verification poses) →
 verification. A screen that is done posts a message (:mod:`canimucal.tui.messages`) and the
 app pushes the next screen, so no screen imports another. Errors are shown in
 :class:`~canimucal.tui.modals.ErrorModal`, never as a traceback.
@@ -136,7 +136,14 @@ class CalibrationApp(App[int]):
     def on_procedure_ended(self, message: ProcedureEnded) -> None:
         """Show the verification and the files once the procedure finished or was cancelled."""
         self.push_screen(
-            VerificationScreen(message.checks, message.saved, message.writes, message.finished)
+            VerificationScreen(
+                message.checks,
+                message.saved,
+                message.writes,
+                message.finished,
+                verified=message.verified,
+                verdicts=message.verdicts,
+            )
         )
 
     # -- exits ------------------------------------------------------------------------------

@@ -303,11 +303,25 @@ def test_write_and_verification_flow(diag_truth: Truth) -> None:
     if bench.proc.phase is not Phase.WRITING:
         bench.proc.begin_write(override=True)
     events = bench.proc.write_finished(0x10, True, "written")
-    verify = of(events, ev.PoseInstructed)[0]
-    assert verify.verification and not np.any(verify.position.angles)
+    # two poses other than the fit's level one: five's most tilted, then level turned 90°
+    first = of(events, ev.PoseInstructed)[0]
+    assert first.verification and (first.index, first.total) == (0, 2)
+    assert np.rad2deg(first.position.angles).round(6).tolist() == [45.0, 5.0, 0.0]
+    assert first.words.startswith("verification 1/2: tilt 45° about z")
     bench.position()
-    done = of(bench.events, ev.LevelChecked)
-    assert [c.stage for c in done] == ["before", "after"]
+    second = of(bench.events, ev.PoseInstructed)[-1]
+    assert second.verification and (second.index, second.total) == (1, 2)
+    assert np.rad2deg(second.position.angles).round(6).tolist() == [0.0, 0.0, 90.0]
+    assert bench.proc.phase is Phase.INSTRUCT
+    assert bench.proc.skip() == []  # a verification pose is never skipped
+    bench.position()
+    assert [c.stage for c in of(bench.events, ev.LevelChecked)] == ["before"]
+    verified = of(bench.events, ev.PoseVerified)
+    assert [v.index for v in verified] == [0, 1]
+    for v in verified:  # within the limits (five cannot tell bias z from beta0: the turn shows
+        # it, a few tenths of a degree; the level pose the fit started from would not)
+        assert abs(v.norm_error_calibrated_ms2) < 0.005 and v.tilt_error_calibrated_deg < 2.0
+    assert verified[1].tilt_error_calibrated_deg < verified[1].tilt_error_nominal_deg
     assert bench.proc.phase is Phase.DONE
     assert of(bench.events, ev.ProcedureFinished)
 

@@ -21,6 +21,10 @@ from canimucal.tui.screens.results import ResultsScreen
 from canimucal.tui.screens.verification import VerificationScreen
 from tests.support.tui_fakes import FakeSource, live, node_status, screen_text, solved_event
 
+TILTED = PlannedPosition(float(np.deg2rad(10.0)), 0.0, 0.0)
+TURNED = PlannedPosition(0.0, 0.0, float(np.deg2rad(90.0)))
+"""The vehicle plan's verification poses (procedure/verification.py)."""
+
 SIZE = (80, 24)
 pytestmark = pytest.mark.asyncio
 
@@ -283,7 +287,7 @@ async def test_a_procedure_failure_is_a_modal_with_its_title(tmp_path: Path) -> 
         assert "redo" not in enabled(app) and "quit" in enabled(app)
 
 
-async def test_the_end_of_the_procedure_shows_the_level_check_before_and_after(
+async def test_the_end_of_the_procedure_shows_the_level_check_and_the_verification_poses(
     tmp_path: Path,
 ) -> None:
     app = make_app(FakeSource(tmp_path), autoconnect=False)
@@ -294,7 +298,8 @@ async def test_the_end_of_the_procedure_shows_the_level_check_before_and_after(
             ev.LevelChecked(16, "before", 0.0412, (-0.28, 1.19), -0.00003, (-0.6, 0.16)),
             ev.RecordSaved(16, "out/calibration.json", "out/certificate.md", "out/rec.csv"),
             ev.WriteFinished(16, True, "written and verified", "out/backups/4242-x.json"),
-            ev.LevelChecked(16, "after", 0.0399, (-0.25, 1.16), -0.0012, (-0.57, 0.12)),
+            ev.PoseVerified(16, 0, 2, TILTED, "raise the rear wheels 10°", 0.05, 0.002, 0.8, 0.2),
+            ev.PoseVerified(16, 1, 2, TURNED, "turn 90° right", 0.04, -0.001, 0.7, 0.1),
             ev.PhaseChanged(Phase.DONE, Phase.AVERAGING),
             ev.ProcedureFinished(),
         ]
@@ -303,7 +308,10 @@ async def test_the_end_of_the_procedure_shows_the_level_check_before_and_after(
         assert isinstance(app.screen, VerificationScreen)
         text = screen_text(app)
         assert "before |f|−g nominal +0.0412 → calibrated -0.0000" in text
-        assert "after  |f|−g nominal +0.0399 → calibrated -0.0012" in text
+        flat = " ".join(text.split())  # wrapped at 80 columns
+        assert "verification 1/2: |f|−g nominal +5.10 → calibrated +0.20 mg" in flat
+        assert "tilt error nominal 0.80° → calibrated 0.20°" in flat
+        assert "pose: raise the rear wheels 10°" in flat
         assert "out/certificate.md" in text and "written and verified" in text
 
 
