@@ -16,6 +16,7 @@ from canimucal.io.recording_writer import write_recording
 from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, STANDARD_GRAVITY
 from canimucal.sim.truth import Truth
+from tests.support.bare_numbers import bare_numbers
 
 Cli = Callable[[Sequence[Any]], Any]  # conftest.cli: argv -> CliRun(code, out, err)
 
@@ -191,12 +192,19 @@ def test_allan_text_report(cli: Cli, still_recording: Path) -> None:
     run = cli(["allan", still_recording])
     assert run.code == 0, run.err
     assert run.out.startswith("Allan deviation of position 0")
-    found = re.findall(r"x: white ([0-9.e+-]+) counts/√Hz \(([0-9.e+-]+) ", run.out)
+    found = re.findall(
+        r"x: white ([0-9.e+-]+) counts/√Hz \[[^]]*\] \(([0-9.e+-]+) (\S+)\)", run.out
+    )
     assert len(found) == 2  # accel and gyro
-    accel_counts, accel_si = map(float, found[0])
-    assert accel_counts == pytest.approx(ACCEL_DENSITY_SI / DEFAULT_ACCEL_LSB, rel=0.10)
-    assert accel_si == pytest.approx(ACCEL_DENSITY_SI, rel=0.10)
+    (accel_counts, accel_mg, unit), (gyro_counts, gyro_deg_s, gyro_unit) = found
+    assert float(accel_counts) == pytest.approx(ACCEL_DENSITY_SI / DEFAULT_ACCEL_LSB, rel=0.10)
+    # beside the counts, the operator's unit of the sensor (the units registry's mg, °/s)
+    assert unit == "mg/√Hz" and gyro_unit == "°/s/√Hz"
+    g = STANDARD_GRAVITY
+    assert float(accel_mg) == pytest.approx(ACCEL_DENSITY_SI / g * 1000, rel=0.10)
+    assert float(gyro_deg_s) == pytest.approx(np.rad2deg(GYRO_DENSITY_SI), rel=0.10)
     assert "recommended averaging time:" in run.out
+    assert not bare_numbers(run.out)  # every number carries its unit
 
 
 def test_allan_too_short_is_exit_2(cli: Cli, simulated: Callable[..., Any]) -> None:
@@ -270,28 +278,33 @@ def test_allan_text_and_json_agree_and_every_interval_holds_its_value(
     assert common is not None and float(common.group(1)) == pytest.approx(
         doc["best_averaging_s"], abs=0.5
     )
+    term = r"([0-9.e+-]+) {u} \[([0-9.e+-]+)–([0-9.e+-]+) {u}\] \(([0-9.e+-]+) \S+\)"
     pattern = (
-        r"  ([xyz]): white ([0-9.e+-]+) counts/√Hz \(.*?\) \[([0-9.e+-]+)–([0-9.e+-]+)\], "
-        r"bias instability ([0-9.e+-]+) counts \[([0-9.e+-]+)–([0-9.e+-]+)\], "
-        r"random walk ([0-9.e+-]+) counts/√s \[([0-9.e+-]+)–([0-9.e+-]+)\], "
-        r"best averaging ([0-9.e+-]+) s"
-    )
+        r"  ([xyz]): white " + term.format(u="counts/√Hz")
+        + ", bias instability " + term.format(u="counts")
+        + ", random walk " + term.format(u="counts/√s")
+        + r", best averaging ([0-9.e+-]+) s"
+    )  # fmt: skip
     rows = re.findall(pattern, text.out)
     assert len(rows) == 6, text.out
     for i, row in enumerate(rows):
         sensor, axis = ("accel", "gyro")[i // 3], "xyz".index(row[0])
         block = doc["sensors"][sensor]
+        operator = doc[sensor]["operator"]
         numbers = [float(v) for v in row[1:]]
         for j, key in enumerate(
             ("white_noise_density_counts", "bias_instability_counts",
              "random_walk_counts_per_sqrt_s")
         ):  # fmt: skip
-            value, low, high = numbers[3 * j : 3 * j + 3]
+            value, low, high, shown = numbers[4 * j : 4 * j + 4]
             assert low <= value <= high
             entry = block[key][axis]
             lo, hi = entry["ci95"]
             assert lo <= entry["value"] <= hi
             assert value == pytest.approx(entry["value"], rel=2e-3, abs=2e-3)
+            own = operator[("white_noise_density", "bias_instability", "random_walk")[j]]
+            assert shown == pytest.approx(own[axis], rel=2e-3, abs=2e-3)
+        numbers = numbers[:9] + [numbers[12]]  # the best averaging time last
         assert numbers[9] == pytest.approx(block["best_averaging_s"][axis], rel=2e-3)
         assert block["best_averaging_s"][axis] == doc[sensor]["best_averaging_s_per_axis"][axis]
 
