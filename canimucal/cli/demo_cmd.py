@@ -30,6 +30,7 @@ import numpy as np
 
 from canimucal.cli.output import add_json_option, check_outputs, dumps, emit
 from canimucal.cli.user_config import user_acceptance
+from canimucal.cli.vehicle_options import add_vehicle_size_options, vehicle_size_from_args
 from canimucal.io.atomic import make_directory, write_text_atomic
 from canimucal.io.plans import resolve_plan
 from canimucal.io.truth import load_truth
@@ -72,6 +73,7 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("--truth", help="truth JSON for the simulated unit(s) (default: random)")
     p.add_argument("--seed", type=int, default=2026, help="random seed (truth and noise)")
     p.add_argument("--seconds", type=float, help="averaging seconds of every position")
+    add_vehicle_size_options(p)  # the demo's simulated unit: used, not saved
     p.add_argument("--nodes", type=int, default=1, help="simulated nodes on one rigid body")
     p.add_argument("--gyro", choices=("mems", "nav"), default="mems", help="gyro grade")
     p.add_argument(
@@ -147,6 +149,7 @@ def _check_numbers(args: argparse.Namespace) -> None:
         raise InputError(f"--seconds must be positive, got {args.seconds}")
     if not args.time_scale > 0:
         raise InputError(f"--time-scale must be positive, got {args.time_scale}")
+    vehicle_size_from_args(args)  # a length that is not one: exit 2 before any work
 
 
 def run(args: argparse.Namespace) -> int:
@@ -183,6 +186,8 @@ def run(args: argparse.Namespace) -> int:
             overwrite=True,
             operator=args.operator,
             site_name=args.site,
+            vehicle_size=vehicle_size_from_args(args),
+            remember_size=False,
         )
         resumed = session.procedure.config.resume_from
         if resumed is not None:
@@ -252,6 +257,7 @@ def _run_tui(
     source.resume = bool(args.resume)
     source.operator, source.site_name = args.operator, args.site
     source.gyro_g = args.gyro_g
+    source.vehicle_size, source.remember_size = vehicle_size_from_args(args), False
     custom = plan if plan_name == CUSTOM else None
     app = make_app(source, plan_name=plan_name, gyro=args.gyro, custom_plan=custom)
     try:

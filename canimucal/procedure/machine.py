@@ -447,7 +447,7 @@ class Procedure:
         pose = self.target
         index, total = self.index, len(self.config.plan.positions)
         seconds = self.seconds_for(self.index)
-        words = describe_pose(pose, self.config.mounting)
+        words = describe_pose(pose, self.config.mounting, self.config.vehicle_size)
         if self.verifying:
             index, total = self.verify_index, len(self.verify_poses)
             words = f"verification {index + 1}/{total}: {words}"
@@ -508,7 +508,7 @@ class Procedure:
         """Judge one verification pose on every written node; then the next, or done."""
         events: list[ev.Event] = []
         pose, total = self.target, len(self.verify_poses)
-        words = describe_pose(pose, self.config.mounting)
+        words = describe_pose(pose, self.config.mounting, self.config.vehicle_size)
         for node_id, average in averages.items():
             result = self.write_results.get(node_id)
             if node_id not in self.solutions or result is None or not result.ok:

@@ -92,6 +92,7 @@ class CalibrationApp(App[int]):
             acceptance=getattr(self.source, "acceptance", None),
             averaging=getattr(self.source, "averaging", None),
             prior_k_sigma=getattr(self.source, "prior_k_sigma", None),
+            vehicle_size=getattr(self.source, "vehicle_size", None),
         )
         self.push_screen(plan_screen)
 

@@ -226,16 +226,30 @@ def test_headless_demo_with_gyro_g_estimates_g_and_writes_it(
 
 
 def test_vehicle_plan_on_a_sloped_floor_completes(
-    cli: Callable[[Sequence[str]], Any], tmp_path: Path
+    cli: Callable[[Sequence[str]], Any], tmp_path: Path, own_user_dirs: UserDirs
 ) -> None:
-    """Issue 22: a floor tilted 1.5° about each axis refused position 3 on every attempt."""
+    """Issue 22: a floor tilted 1.5° about each axis refused position 3 on every attempt.
+
+    With its wheelbase and track the tilts are worded as heights (wheelbase · sin 10° =
+    0.61 m on 3.5 m), every turn says to come back to the same tyre marks, and the
+    verification poses are worded for the vehicle too.
+    """
     truth = tmp_path / "truth.json"
     truth.write_text(json.dumps({"floor_slope_deg": [1.5, 1.5]}))
     out = tmp_path / "demo-out"
     argv = ["demo", *FAST, "--plan", "vehicle", "--truth", truth, "--out", out]
-    result = cli([*argv, "--json", tmp_path / "cal.json"])
+    size = ["--wheelbase", "3.5", "--track", "1.8"]
+    result = cli([*argv, *size, "--json", tmp_path / "cal.json"])
     assert result.code == 0, result.err
     assert "rejected" not in result.out
+    lines = result.out.splitlines()
+    assert any("raise the front wheels 0.61 m (10°)" in x for x in lines)
+    assert any("raise the left side 0.31 m (10°)" in x for x in lines)
+    turns = [x for x in lines if "turn the vehicle" in x]
+    assert len(turns) == 4 and all("come back to the same tyre marks" in x for x in turns)
+    verified = [x for x in lines if x.startswith("verification ")]
+    assert len(verified) == 2 and "raise the rear wheels 0.61 m (10°)" in verified[0]
+    assert not list(own_user_dirs.config.glob("mounting/*.toml"))  # the demo saves nothing
     record = json.loads((tmp_path / "cal.json").read_text())
     assert record["acceptance"]["passed"] is True  # the vehicle plan's own limits (§3)
     tilt = record["base_tilt_deg"]

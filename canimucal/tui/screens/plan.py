@@ -22,10 +22,11 @@ from textual.widgets import DataTable, Footer, Static
 
 from canimucal.analysis.acceptance import AcceptanceConfig
 from canimucal.errors import InputError
-from canimucal.io.mounting import BODY, load_mounting
+from canimucal.io.mounting import BODY, load_mounting, load_vehicle_size
 from canimucal.model.mounting import DEFAULT_MOUNTING, MountingMap
 from canimucal.model.plan import BoundTable
 from canimucal.model.positions import Plan
+from canimucal.model.vehicle_size import VehicleSize
 from canimucal.model.vocabulary.plans import DEFAULT_PLAN, PLANS, worded_for_vehicle
 from canimucal.procedure.averaging import AveragingPolicy, averaged_sensors, describe_rule
 from canimucal.runtime.plan_forecast import (
@@ -86,6 +87,7 @@ class PlanScreen(Screen[None]):
         acceptance: AcceptanceConfig | None = None,
         averaging: AveragingPolicy | None = None,
         prior_k_sigma: float | None = None,
+        vehicle_size: VehicleSize | None = None,
     ) -> None:
         super().__init__()
         for entry in PLANS.values():  # the registry's keys, read when the screen is built
@@ -97,6 +99,8 @@ class PlanScreen(Screen[None]):
         self.averaging = averaging or AveragingPolicy()
         """The sessions' averaging rule (``--seconds``): shown, not chosen."""
         self.prior_k_sigma = prior_k_sigma
+        self.vehicle_size = vehicle_size
+        """``--wheelbase``/``--track`` (None: the size saved for the unit, if any)."""
         """The relative σ of the prior on K a session holds (``--prior-k-sigma``; None: the
         plan's own)."""
         self.acceptance = acceptance or AcceptanceConfig()
@@ -184,19 +188,37 @@ class PlanScreen(Screen[None]):
         return self.statuses[0].identity.serial if self.statuses else None
 
     def instructions_line(self) -> str:
-        """Say how the instructions will be worded (module doc), in one line at 80 columns."""
+        """Say how the instructions will be worded (module doc), at 80 columns.
+
+        For a vehicle, a second line gives its wheelbase and track (tilts as heights), or
+        says that ``--wheelbase`` and ``--track`` would word them so.
+        """
         vehicle = worded_for_vehicle(self.plan_name)
         if self.mount_map == BODY or (self.mount_map is None and not vehicle):
             return "instructions in the unit's own axes · m words them for a vehicle"
+        size = self._size_line()
         if isinstance(self.mount_map, MountingMap):
-            return f"vehicle wording: mount {self.mount_map.text()} · m changes it"
+            return f"vehicle wording: mount {self.mount_map.text()} · m changes it\n{size}"
         try:
             saved = None if self.serial is None else load_mounting(self.serial)
         except InputError as exc:
             return f"mounting: {exc}"
         if saved is not None:
-            return f"vehicle wording: mount {saved.text()}, as saved · m changes it"
-        return f"vehicle wording: mount {DEFAULT_MOUNTING.text()}, the default · m changes it"
+            return f"vehicle wording: mount {saved.text()}, as saved · m changes it\n{size}"
+        default = DEFAULT_MOUNTING.text()
+        return f"vehicle wording: mount {default}, the default · m changes it\n{size}"
+
+    def _size_line(self) -> str:
+        """``tilts as heights: wheelbase 3.5 m, track 1.8 m`` (or how to get them)."""
+        size = self.vehicle_size
+        if size is None and self.serial is not None:
+            try:
+                size = load_vehicle_size(self.serial)
+            except InputError:
+                size = None
+        if size is None or not size.known:
+            return "tilts as angles (--wheelbase M and --track M word them as heights)"
+        return f"tilts as heights: {size.text()}"
 
     def action_mount(self) -> None:
         """Ask how the unit is mounted; the answer words the instructions and is saved."""
