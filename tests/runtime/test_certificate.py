@@ -156,10 +156,15 @@ def test_every_value_of_the_certificate_carries_its_unit() -> None:
     )
     report = AcceptanceReport((Check("worst bias σ", 0.1, 5.0, "mg", True, "max_bias_sigma_mg"),))
     level = LevelChecked(16, "before", 0.02, (0.1, -0.2), 0.001, (0.0, 0.01))
-    facts = SessionFacts(scales=Scales(lsb, gyro_lsb, G))
+    facts = SessionFacts(
+        scales=Scales(lsb, gyro_lsb, G),
+        verified=tuple(_after(0.0012)),  # the verification table's cells are checked too
+        plan_times="position 1 120 s (it measures the noise), then at most 60 s each",
+    )
     text = certificate_markdown(
         record, Identity(1, 2, 3, 7, "imu"), report, LIMITS, [level], facts=facts
     )
+    assert "| 1/2: alpha 10°, beta 0°, psi 0° | +10.20 mg | +0.12 mg | 1.00° | 0.10° |" in text
     units = {q.shown_unit for q in QUANTITIES.values()} | {
         q.operator_unit for q in QUANTITIES.values()
     }
