@@ -9,14 +9,13 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from canimucal.model.vocabulary.plans import builtin_names, builtin_plan
-from canimucal.procedure.pose_picture import field_guide
+from canimucal.runtime.plan_forecast import field_guide_pages
 
 
 def main(argv: list[str]) -> int:
     """Write the guide into ``argv[0]`` (default docs/); return the exit status."""
     docs = Path(argv[0]) if argv else Path(__file__).resolve().parent.parent / "docs"
-    markdown, pictures = field_guide([builtin_plan(name) for name in builtin_names()])
+    markdown, pictures = field_guide_pages()
     (docs / "field-guide").mkdir(parents=True, exist_ok=True)
     for name, svg in pictures.items():
         (docs / "field-guide" / name).write_text(svg, encoding="utf-8")

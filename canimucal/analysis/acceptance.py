@@ -42,7 +42,11 @@ class AcceptanceLimits:
     max_rms_ms2: float = 0.05
     min_fit_p: float = 1e-4
     max_verify_norm_error_mg: float = 5.0
-    """Verification: |f| − g of the calibrated re-read at level, in mg (1 mg = g/1000)."""
+    """Verification: |f| − g of the calibrated re-read at each verification pose, mg."""
+    max_verify_tilt_error_deg: float = 2.0
+    """Verification: the calibrated direction of f against the pose's (with the fitted base
+    tilt), degrees: above the pose-setting error of a vehicle tilt (0.5° 1σ: beyond 2° at
+    3e-4), below what a wrong sign, a swapped axis or a bias of ~35 mg would show."""
 
     def as_dict(self) -> dict[str, float]:
         """Return the limits by key, as ``acceptance.toml`` and the calibration JSON name them."""

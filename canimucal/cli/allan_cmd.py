@@ -2,6 +2,9 @@
 
 Also the fitted noise terms with intervals, a drift test, each axis's best averaging time and
 one for all axes (:mod:`canimucal.analysis.static_noise`; docs/design.md §2 conventions).
+Every number carries its unit: the terms in counts (the device's) with their intervals, and
+beside them in the operator's unit of the sensor's bias (mg, °/s: the units registry,
+:data:`~canimucal.model.vocabulary.units.QUANTITIES`, at the recording's LSBs and g).
 """
 
 from __future__ import annotations
@@ -27,7 +30,9 @@ from canimucal.cli.input_options import INPUT_HELP, SECOND_HELP, add_input_optio
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.errors import InputError
 from canimucal.io.recording import Recording
+from canimucal.model.sensor import STANDARD_GRAVITY
 from canimucal.model.static import detect_static_intervals
+from canimucal.model.vocabulary.units import QUANTITIES, Scales
 
 ALLAN_SCHEMA = "canimucal.allan/1"
 """``allan --json`` (docs/design.md §5)."""
@@ -69,7 +74,8 @@ def run(args: argparse.Namespace) -> int:
     sa = analyse_static(rec, rows, recording_lsb(rec), where=where, min_seconds=MIN_SENSOR_SECONDS)
     if held is not None:
         sa = replace(sa, warnings=(held.line(), *sa.warnings))
-    emit(args, _document(sa), _report(sa))
+    g = _site_g(rec)
+    emit(args, _document(sa, g), _report(sa, g))
     return 0
 
 
@@ -116,8 +122,28 @@ def _si(values: NDArray[np.float64], lsb: float) -> list[float]:
     return [float(v) for v in np.asarray(values) * lsb]
 
 
-def _document(sa: StaticAnalysis) -> dict[str, Any]:
-    """Build the JSON: per sensor the ADEV, the terms with intervals, drift, best times."""
+def operator_units(sa: StaticAnalysis, g: float) -> dict[str, tuple[float, str]]:
+    """Per sensor, the operator's unit of one count and its name (mg, °/s: the registry's)."""
+    scales = Scales(sa.lsb["accel"], sa.lsb["gyro"], g)
+    out = {}
+    for name in sa.sensors:
+        quantity = QUANTITIES[f"{name}.bias"]
+        out[name] = (quantity.to_operator(scales), quantity.operator_unit)
+    return out
+
+
+def _site_g(rec: Recording) -> float:
+    """Return the recording's g (m/s²), else standard gravity (1 mg = g/1000)."""
+    g = rec.header.get("g")
+    ok = isinstance(g, int | float) and not isinstance(g, bool) and np.isfinite(g) and g > 0
+    return float(g) if ok else STANDARD_GRAVITY  # type: ignore[arg-type]
+
+
+def _document(sa: StaticAnalysis, g: float = STANDARD_GRAVITY) -> dict[str, Any]:
+    """Build the JSON: per sensor the ADEV, the terms with intervals, drift, best times.
+
+    ``operator`` holds the terms in the operator's unit of the sensor (mg or °/s per count).
+    """
     out: dict[str, Any] = {
         "schema": ALLAN_SCHEMA,
         "stretch": sa.where,
@@ -138,25 +164,47 @@ def _document(sa: StaticAnalysis) -> dict[str, Any]:
             "random_walk_counts_per_sqrt_s": terms.random_walk,
             "best_averaging_s": sa.choice.seconds,
             "best_averaging_s_per_axis": [float(v) for v in sa.choice.optima_s[name]],
+            "operator": _operator_terms(sa, name, g),
         }
     return out
 
 
-def _report(sa: StaticAnalysis) -> str:
+def _operator_terms(sa: StaticAnalysis, name: str, g: float) -> dict[str, Any]:
+    """Return one sensor's noise terms in the operator's unit (``allan --json``)."""
+    factor, unit = operator_units(sa, g)[name]
+    terms = sa.sensors[name].terms
+    return {
+        "units": {
+            "white_noise_density": f"{unit}/√Hz",
+            "bias_instability": unit,
+            "random_walk": f"{unit}/√s",
+        },
+        "white_noise_density": [float(v) * factor for v in terms.white_noise_density],
+        "bias_instability": [float(v) * factor for v in terms.bias_instability],
+        "random_walk": [float(v) * factor for v in terms.random_walk],
+    }
+
+
+def _report(sa: StaticAnalysis, g: float = STANDARD_GRAVITY) -> str:
     lines = [f"Allan deviation of {sa.where}, {sa.seconds:.1f} s"]
+    units = operator_units(sa, g)
     for name, s in sa.sensors.items():
-        unit = "m/s²/√Hz" if name == "accel" else "rad/s/√Hz"
-        terms, ci, lsb = s.terms, s.intervals, sa.lsb[name]
-        lines.append(f"{name} (95 % intervals in brackets):")
+        terms, ci = s.terms, s.intervals
+        factor, unit = units[name]
+        lines.append(f"{name} (95 % intervals in brackets; in {unit} at the recording's LSB):")
         for axis, label in enumerate("xyz"):
-            n = terms.white_noise_density[axis]
+            parts = (
+                ("white", terms.white_noise_density, ci.white_noise_density, "/√Hz", ".4g"),
+                ("bias instability", terms.bias_instability, ci.bias_instability, "", ".3g"),
+                ("random walk", terms.random_walk, ci.random_walk, "/√s", ".3g"),
+            )
+            cells = [
+                f"{what} {value[axis]:{fmt}} counts{per} [{_band(band[axis])} counts{per}] "
+                f"({value[axis] * factor:.3g} {unit}{per})"
+                for what, value, band, per, fmt in parts
+            ]
             lines.append(
-                f"  {label}: white {n:.4g} counts/√Hz ({n * lsb:.3g} {unit}) "
-                f"[{_band(ci.white_noise_density[axis])}], "
-                f"bias instability {terms.bias_instability[axis]:.3g} counts "
-                f"[{_band(ci.bias_instability[axis])}], "
-                f"random walk {terms.random_walk[axis]:.3g} counts/√s "
-                f"[{_band(ci.random_walk[axis])}], best averaging "
+                f"  {label}: {', '.join(cells)}, best averaging "
                 f"{best_averaging_text(sa, name, axis)}"
             )
         verdict = "bias_drift" if s.drift_named else "no bias_drift"

@@ -42,7 +42,14 @@ from canimucal.io.recording import Recording
 from canimucal.io.truth import write_truth
 from canimucal.model.positions import Plan
 from canimucal.model.vocabulary.effects import EFFECTS
-from canimucal.model.vocabulary.units import QUANTITIES
+from canimucal.model.vocabulary.units import (
+    QUANTITIES,
+    SCALE_FAMILIES,
+    Scales,
+    family_of,
+    operator_value,
+    with_unit,
+)
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -187,7 +194,8 @@ def report_text(a: Analysis, reference: Reference | None, replayed: list[ReplayR
         "",
         *_estimates(a, reference),
         "",
-        "What the base model (bias + diagonal scale + white noise) gets wrong:",
+        "What the base model (bias + diagonal scale + white noise) gets wrong (residual of "
+        "each position's mean, in mg and °/s at the recording's LSB):",
         *_residual_table(a),
         _lack_of_fit(a),
         *_allan_lines(a),
@@ -253,6 +261,7 @@ def _estimates(a: Analysis, ref: Reference | None) -> list[str]:
     # the Earth rate fitted as a nuisance (no latitude or orientation), at the nominal scale
     earth = "rad/s" if a.session.gyro_lsb_known else "counts"
     rows += [(name, earth, None) for name in (*EARTH_RATE_NAMES, EARTH_RATE_VERTICAL)]
+    scales = _scales(a)
     for name, unit, factory in rows:
         if name not in vals:
             continue
@@ -260,6 +269,7 @@ def _estimates(a: Analysis, ref: Reference | None) -> list[str]:
         text = f"  {name:<16} {v:12.3f} ± {s:.3g} {unit}"
         if name.startswith("gyro.earth_rate"):
             text = f"  {name:<24} {v:12.3g} ± {s:.3g} {unit}"
+        text += _operator_text(name, unit, v, s, scales, a.session.gyro_lsb_known)
         if factory is not None:
             text += f"   factory {factory:9.1f}   difference {(v - factory) / s:+.1f}σ"
         out.append(text)
@@ -272,12 +282,57 @@ def _estimates(a: Analysis, ref: Reference | None) -> list[str]:
     return out
 
 
+def _scales(a: Analysis) -> Scales:
+    """Return the nominal LSBs and g the analysis ran at (the operator's units' scales)."""
+    return Scales(a.session.accel_lsb, a.session.gyro_lsb, a.session.g)
+
+
+def _operator_text(
+    name: str, unit: str, value: float, sigma: float, scales: Scales, gyro_known: bool
+) -> str:
+    """``  (−6.25 ± 0.43 mg)``: an estimate in the operator's unit ("" when there is none)."""
+    if name.startswith("gyro.earth_rate"):
+        if unit != "rad/s":
+            return ""
+        deg = float(np.rad2deg(1.0))
+        return f"  ({with_unit(value * deg, sigma * deg, '°/s', digits=4)})"
+    family = family_of(name)
+    if family.startswith("gyro") and not gyro_known:
+        return ""  # counts of an unknown LSB: no °/s to give
+    diagonal = family in SCALE_FAMILIES
+    shown = operator_value(family, value, scales, diagonal=diagonal)
+    spread = abs(operator_value(family, sigma, scales))
+    return f"  ({with_unit(shown, spread, QUANTITIES[family].operator_unit, digits=4)})"
+
+
+def residual_units(label: str, scales: Scales, gyro_known: bool) -> tuple[str, float, str]:
+    """Return a residual column's head, the factor to the operator's unit and that unit.
+
+    Accelerometer residuals in counts (the joint fit) or m/s² (the |f| = g fit) become mg;
+    gyro residuals in counts become °/s, or stay counts when the file gives no gyro LSB.
+    """
+    if label.startswith("|f|"):
+        return "|f| − g", 1000.0 / scales.g, "mg"
+    sensor = label.split(".", 1)[0]
+    if sensor == "gyro" and not gyro_known:
+        return label, 1.0, "counts"
+    quantity = QUANTITIES[f"{sensor}.bias"]
+    return label, quantity.to_operator(scales), quantity.operator_unit
+
+
 def _residual_table(a: Analysis) -> list[str]:
+    """Tabulate the base fit's residual of each position and channel, each with its unit."""
     r = a.result
-    head = "  pos  " + "  ".join(f"{lbl:>14}" for lbl in r.residual_labels)
+    columns = [
+        residual_units(lbl, _scales(a), a.session.gyro_lsb_known) for lbl in r.residual_labels
+    ]
+    head = "  pos  " + "  ".join(f"{name:>16}" for name, _, _ in columns)
     out = [head]
     for k, row in enumerate(r.residuals):
-        out.append(f"  {k:3d}  " + "  ".join(f"{v:14.4g}" for v in row))
+        cells = [
+            f"{v * factor:+.4g} {unit}" for v, (_, factor, unit) in zip(row, columns, strict=True)
+        ]
+        out.append(f"  {k:3d}  " + "  ".join(f"{cell:>16}" for cell in cells))
     return out
 
 

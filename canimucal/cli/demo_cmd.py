@@ -4,7 +4,7 @@
 ``--truth FILE`` or drawn at random from ``--seed``) sit on python-can's ``virtual`` bus in
 this process; an automatic operator runs the same procedure the TUI runs (skips the warm-up,
 confirms each pose — the simulated unit is moved there —, accepts each position, solves,
-writes with the transactional write, verifies at level). ``--seconds S`` averages every
+writes with the transactional write, verifies at two poses). ``--seconds S`` averages every
 position S seconds (skipping the long first recording); ``--time-scale`` runs the simulated
 clock faster than the wall clock. Into ``--out`` (the tool's own directory: files there are
 replaced) go per node the recording CSV, the verification CSV, the calibration JSON with the
@@ -30,6 +30,7 @@ import numpy as np
 
 from canimucal.cli.output import add_json_option, check_outputs, dumps, emit
 from canimucal.cli.user_config import user_acceptance
+from canimucal.cli.vehicle_options import add_vehicle_size_options, vehicle_size_from_args
 from canimucal.io.atomic import make_directory, write_text_atomic
 from canimucal.io.plans import resolve_plan
 from canimucal.io.truth import load_truth
@@ -37,6 +38,7 @@ from canimucal.model.positions import Plan
 from canimucal.model.vocabulary.plans import CUSTOM, DEFAULT_PLAN, PLANS, builtin_names, plan_help
 from canimucal.procedure import events as ev
 from canimucal.procedure.averaging import AveragingPolicy
+from canimucal.runtime.certificate import verified_line
 from canimucal.runtime.operator import run_automatic
 from canimucal.runtime.readback_check import comparison_table, readback_deviations
 from canimucal.runtime.resume import load_resume_state, recorded_plan, resumed_message
@@ -71,6 +73,7 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument("--truth", help="truth JSON for the simulated unit(s) (default: random)")
     p.add_argument("--seed", type=int, default=2026, help="random seed (truth and noise)")
     p.add_argument("--seconds", type=float, help="averaging seconds of every position")
+    add_vehicle_size_options(p)  # the demo's simulated unit: used, not saved
     p.add_argument("--nodes", type=int, default=1, help="simulated nodes on one rigid body")
     p.add_argument("--gyro", choices=("mems", "nav"), default="mems", help="gyro grade")
     p.add_argument(
@@ -146,6 +149,7 @@ def _check_numbers(args: argparse.Namespace) -> None:
         raise InputError(f"--seconds must be positive, got {args.seconds}")
     if not args.time_scale > 0:
         raise InputError(f"--time-scale must be positive, got {args.time_scale}")
+    vehicle_size_from_args(args)  # a length that is not one: exit 2 before any work
 
 
 def run(args: argparse.Namespace) -> int:
@@ -182,6 +186,8 @@ def run(args: argparse.Namespace) -> int:
             overwrite=True,
             operator=args.operator,
             site_name=args.site,
+            vehicle_size=vehicle_size_from_args(args),
+            remember_size=False,
         )
         resumed = session.procedure.config.resume_from
         if resumed is not None:
@@ -223,11 +229,11 @@ def _report_cancelled(
 def _deadline_s(plan: Plan, args: argparse.Namespace) -> float:
     """Return the wall seconds after which the automatic operator gives up.
 
-    Four times the sample time the plan needs (at most 120 s a position, settling, the
-    verification) at the time scale, plus two minutes.
+    Four times the sample time the plan needs (at most 120 s a position, settling, the two
+    verification poses) at the time scale, plus two minutes.
     """
     per_position_s = (args.seconds or 120.0) + 10.0
-    sample_s = (len(plan.positions) + 1) * per_position_s
+    sample_s = (len(plan.positions) + 2) * per_position_s
     return 120.0 + 4.0 * sample_s / args.time_scale
 
 
@@ -251,6 +257,7 @@ def _run_tui(
     source.resume = bool(args.resume)
     source.operator, source.site_name = args.operator, args.site
     source.gyro_g = args.gyro_g
+    source.vehicle_size, source.remember_size = vehicle_size_from_args(args), False
     custom = plan if plan_name == CUSTOM else None
     app = make_app(source, plan_name=plan_name, gyro=args.gyro, custom_plan=custom)
     try:
@@ -274,6 +281,9 @@ def _results(
             continue
         record = json.loads(link.record_path.read_text())
         documents[str(node_id)] = record
+        verdict = session.verification_verdict(node_id)
+        if verdict:
+            lines.append(f"node {node_id} verification: {verdict}")
         lines += [f"node {node_id} (serial {link.identity.serial}): read back from the device"]
         lines.append(comparison_table(readback_deviations(record, truths[node_id])))
         lines.append(f"wrote {link.record_path}, {link.certificate_path}, {truth_path}")
@@ -310,6 +320,8 @@ def _narrative(event: ev.Event) -> str:
             f"{event.norm_error_calibrated_ms2:+.4f} m/s²; tilt calibrated "
             f"{event.tilt_calibrated_deg[0]:+.3f}°, {event.tilt_calibrated_deg[1]:+.3f}°"
         )
+    if isinstance(event, ev.PoseVerified):
+        return f"  {verified_line(event)}"
     if isinstance(event, ev.ProcedureFinished) and event.cancelled:
         return "procedure cancelled"
     return ""

@@ -17,9 +17,8 @@ from canimucal.errors import InputError
 from canimucal.io.grouping import position_rows
 from canimucal.io.plans import plan_to_dict, resolve_plan
 from canimucal.model.layout import JointSpec
-from canimucal.model.plan import BoundTable, cramer_rao, plan_prior
+from canimucal.model.plan import BoundTable
 from canimucal.model.positions import Plan
-from canimucal.model.sensor import DEFAULT_ACCEL_LSB, STANDARD_GRAVITY
 from canimucal.model.vocabulary.plans import (
     CUSTOM,
     DEFAULT_PLAN,
@@ -30,9 +29,12 @@ from canimucal.model.vocabulary.plans import (
 )
 from canimucal.procedure.averaging import (
     AveragingPolicy,
+    PlanSchedule,
     averaged_sensors,
     choose_time,
     describe_rule,
+    later_budget_s,
+    scheduled_plan,
 )
 from canimucal.runtime.inputs import read_recording
 from canimucal.runtime.plan_forecast import (
@@ -40,6 +42,10 @@ from canimucal.runtime.plan_forecast import (
     forecast,
     forecast_document,
     forecast_lines,
+    plan_bounds,
+    schedule,
+    session_spec,
+    table_cells,
 )
 
 PLAN_SCHEMA = "canimucal.plan/1"
@@ -54,9 +60,11 @@ def add_subparser(subparsers: Any) -> None:
         "plan",
         help="Cramér–Rao bound of every parameter for a plan",
         description="Print the Cramér–Rao bound of every parameter of a plan (white noise "
-        "1 count/√Hz, K = I/LSB, zero tilt), its positions and operator minutes, and the "
-        "combinations it cannot determine or only poorly separates. --compare ranks the "
-        "built-in plans by worst bound and operator minutes.",
+        "1 count/√Hz, K = I/LSB, zero tilt) at the seconds its session averages each "
+        "position, for the model that session fits, its positions and operator minutes, "
+        "and the combinations it cannot determine or only poorly separates; the TUI's plan "
+        "screen shows the same figures. --compare ranks the built-in plans by worst bound "
+        "and operator minutes.",
     )
     p.add_argument(
         "--plan",
@@ -75,8 +83,17 @@ def add_subparser(subparsers: Any) -> None:
         help="relative 1σ of the factory K held as a prior (default: the plan's own, "
         "vehicle 0.01; others none)",
     )
-    add_model_options(p, default_tilt=True)
-    p.add_argument(
+    add_model_options(p, default_tilt=None, default_model=None)
+    timing = p.add_mutually_exclusive_group()
+    timing.add_argument(
+        "--seconds",
+        type=float,
+        metavar="S",
+        help="average every position S seconds, the first included (as the TUI's and "
+        "demo's --seconds; default: the session's rule, at least 120 s for the first "
+        "position, then each position's seconds in the plan)",
+    )
+    timing.add_argument(
         "--total-seconds",
         type=float,
         help="spread this total averaging time equally over the positions",
@@ -100,27 +117,37 @@ def add_subparser(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Compute and print the bound table."""
     check_outputs(args)
-    spec = spec_from_args(args)
+    for flag, value in (("--seconds", args.seconds), ("--total-seconds", args.total_seconds)):
+        if value is not None and not (np.isfinite(value) and value > 0):
+            raise InputError(f"{flag} must be > 0, got {value:g}")
     if args.compare:
+        compare = argparse.Namespace(**vars(args))  # one model for every plan: diag K + tilt
+        compare.model = args.model or "diag"
+        compare.tilt = True if args.tilt is None else args.tilt
+        spec = spec_from_args(compare)
         plans = [builtin_plan(name) for name in builtin_names()]
         if args.plan not in builtin_names():
             plans.append(resolve_plan(args.plan))
-        tables = [(plan, _table(args, _timed(args, plan), spec)) for plan in plans]
+        tables = [(plan, _table(args, plan, spec)) for plan in plans]
         compared = {
             "schema": PLAN_COMPARISON_SCHEMA,
-            "plans": [bound_document(t, p) for p, t in tables],
+            "plans": [bound_document(t, p, _schedule(args, p)) for p, t in tables],
         }
-        emit(args, compared, comparison_report(tables))
+        emit(args, compared, comparison_report(tables, [_schedule(args, p) for p in plans]))
         return 0
-    plan = _timed(args, resolve_plan(args.plan))
+    plan = resolve_plan(args.plan)
+    spec = _plan_spec(args, plan)
     table = _table(args, plan, spec)
-    document = bound_document(table, plan)
-    report = bound_report(table, plan)
+    times = _schedule(args, plan)
+    document = bound_document(table, plan, times)
+    report = bound_report(table, plan, times)
     if args.gyro == "moves":
         moves = gyro_move_bounds(plan)
         document["gyro_moves"] = moves_document(moves)
         report += moves_report(moves)
-    averaging, text = _averaging(args.noise, averaged_sensors(args.gyro or "mems"))
+    averaging, text = _averaging(
+        args.noise, averaged_sensors(args.gyro or "mems"), _policy(args, plan), plan
+    )
     document["averaging"] = averaging
     report += text
     rows = _acceptance_forecast(args, plan, spec)
@@ -130,12 +157,41 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _averaging(noise: str | None, sensors: tuple[str, ...]) -> tuple[dict[str, Any], str]:
+def _plan_name(plan: Plan) -> str:
+    """Return the registry's name of ``plan`` (``custom`` for a plan file)."""
+    return plan.name if plan.name in builtin_names() else CUSTOM
+
+
+def _plan_spec(args: argparse.Namespace, plan: Plan) -> JointSpec:
+    """Return the flags' model, each flag left out taken from what the plan's session fits."""
+    session = session_spec(_plan_name(plan))
+    filled = argparse.Namespace(**vars(args))
+    filled.model = args.model or session.accel_k
+    filled.tilt = session.tilt != "none" if args.tilt is None else args.tilt
+    return spec_from_args(filled)
+
+
+def _policy(args: argparse.Namespace, plan: Plan) -> AveragingPolicy:
+    """Return the session's averaging rule, or each position at ``--seconds`` (or a share)."""
+    if args.seconds is not None:
+        return AveragingPolicy(fixed_s=args.seconds)
+    if args.total_seconds is not None:
+        return AveragingPolicy(fixed_s=args.total_seconds / len(plan.positions))
+    return AveragingPolicy()
+
+
+def _schedule(args: argparse.Namespace, plan: Plan) -> PlanSchedule:
+    return schedule(plan, _policy(args, plan))
+
+
+def _averaging(
+    noise: str | None, sensors: tuple[str, ...], policy: AveragingPolicy, plan: Plan
+) -> tuple[dict[str, Any], str]:
     """Describe the procedure's averaging rule, and its per-axis result on a still recording.
 
-    ``sensors``: those whose axes decide (the procedure's gyro model, ``mems`` by default).
+    ``sensors``: those whose axes decide (the procedure's gyro model, ``mems`` by default);
+    the noise's choice is clipped to the plan's seconds, as the session clips it.
     """
-    policy = AveragingPolicy()
     rule = describe_rule(policy, sensors)
     doc: dict[str, Any] = {"rule": rule}
     text = textwrap.fill(f"averaging: {rule}", 80, subsequent_indent="  ") + "\n"
@@ -146,7 +202,9 @@ def _averaging(noise: str | None, sensors: tuple[str, ...]) -> tuple[dict[str, A
     if rows is None:
         rows = max(position_rows(rec)[0], key=len, default=np.arange(0))
     samples = {"accel": [rec.accel[rows]], "gyro": [rec.gyro[rows]]}
-    event = choose_time(policy, samples, rec.sample_rate_hz, sensors)
+    event = choose_time(
+        AveragingPolicy(), samples, rec.sample_rate_hz, sensors, later_budget_s(plan)
+    )
     if event.source != "noise":
         raise InputError(f"--noise: {noise} has too few still samples for an Allan deviation")
     doc.update(
@@ -168,31 +226,25 @@ def _acceptance_forecast(
     A built-in plan is judged with the model its session fits (the plan registry's); the
     limits are the user's ``acceptance.toml`` over the plan's own defaults (docs/design.md §3).
     """
-    name = plan.name if plan.name in builtin_names() else CUSTOM
-    entry = PLANS.get(name)
-    if entry is not None and entry.plan is not None:
-        spec = JointSpec(accel_k=entry.accel_k, tilt=entry.tilt, gyro=spec.gyro)
+    name = _plan_name(plan)
+    session = session_spec(name, spec.gyro)
     limits = user_acceptance().limits(name)
-    return forecast(plan, limits, spec, prior_k_sigma=args.prior_k_sigma)
-
-
-def _timed(args: argparse.Namespace, plan: Plan) -> Plan:
-    return plan if args.total_seconds is None else plan.with_total_seconds(args.total_seconds)
+    return forecast(
+        plan, limits, session, policy=_policy(args, plan), prior_k_sigma=args.prior_k_sigma
+    )
 
 
 def _table(args: argparse.Namespace, plan: Plan, spec: JointSpec) -> BoundTable:
     latitude = None if args.latitude_deg is None else float(np.deg2rad(args.latitude_deg))
     if args.prior_k_sigma is not None and not args.prior_k_sigma > 0:
         raise InputError(f"--prior-k-sigma must be > 0, got {args.prior_k_sigma:g}")
-    prior = plan_prior(plan, spec, DEFAULT_ACCEL_LSB, k_sigma=args.prior_k_sigma)
-    return cramer_rao(
+    return plan_bounds(
         plan,
         spec,
-        k_nominal_counts_per_ms2=1.0 / DEFAULT_ACCEL_LSB,
-        g=STANDARD_GRAVITY,
+        policy=_policy(args, plan),
         latitude=latitude,
         include_tolerance=args.with_tolerance,
-        prior_sigma={name: sigma for name, (_mean, sigma) in prior.items()},
+        prior_k_sigma=args.prior_k_sigma,
     )
 
 
@@ -223,16 +275,21 @@ def moves_report(bounds: GyroMoveBounds) -> str:
     return "\n".join(lines) + "\n"
 
 
-def bound_document(table: BoundTable, plan: Plan) -> dict[str, Any]:
-    """Return the JSON form of a bound table, with the plan's positions and operator time."""
+def bound_document(table: BoundTable, plan: Plan, times: PlanSchedule) -> dict[str, Any]:
+    """Return the JSON form of a bound table, with the plan's positions and operator time.
+
+    ``positions`` are the plan's own (a custom plan file's keys); ``seconds_per_position``,
+    ``total_seconds`` and ``operator_minutes`` the session's times (``times``).
+    """
     worst = table.worst_case_counts
     entry = PLANS.get(table.plan)
     return {
         "schema": PLAN_SCHEMA,
         "plan": table.plan,
         **({"description": entry.description} if entry is not None else {}),
-        "total_seconds": plan.total_seconds,
-        "operator_minutes": plan.operator_minutes,
+        "total_seconds": times.total_seconds,
+        "operator_minutes": times.operator_minutes,
+        "seconds_per_position": list(times.seconds),
         "positions": plan_to_dict(plan)["positions"],
         "model": _spec_dict(table),
         "parameters": [
@@ -272,26 +329,23 @@ def _spec_dict(table: BoundTable) -> dict[str, Any]:
     }
 
 
-def bound_report(table: BoundTable, plan: Plan) -> str:
+def bound_report(table: BoundTable, plan: Plan, times: PlanSchedule) -> str:
     """Format the bound table, the positions and the priors as text (fits 80 columns)."""
     entry = PLANS.get(table.plan)
     lines = [
-        f"plan {table.plan}: {plan.total_seconds:g} s of averaging in all, "
-        f"{plan.operator_minutes:.0f} operator minutes",
+        f"plan {table.plan}: {times.totals_words()}",
         *([entry.description] if entry is not None else []),
-        "bounds at white noise 1 count/√Hz, K = I/LSB, zero tilt",
-        *_position_lines(plan),
+        *textwrap.wrap(f"times: {times.times_words()}", 80, subsequent_indent="  "),
+        "bounds at these times, white noise 1 count/√Hz, K = I/LSB, zero tilt",
+        *_position_lines(plan, times),
         f"{'parameter':<22}{'σ (own units)':>16} {'unit':<14}{'effect at 1 g':>14}",
     ]
-    for r in table.rows:
-        name = r.name.replace("base_tilt.", "tilt.")
+    for r, (name, sigma, unit, effect) in zip(table.rows, table_cells(table), strict=True):
         if r.sigma is None or r.effect_counts is None:
-            lines.append(f"{name:<22}{'—':>16} {r.unit:<14}{'undetermined':>14}")
+            lines.append(f"{name:<22}{sigma:>16} {unit:<14}{effect:>14}")
             continue
-        sigma = np.rad2deg(r.sigma) if r.unit == "rad" else r.sigma
-        unit = "deg" if r.unit == "rad" else r.unit
         mark = " *" if r.prior_sigma is not None else ""
-        lines.append(f"{name:<22}{sigma:>16.4g} {unit:<14}{r.effect_counts:>9.4g} cnt{mark}")
+        lines.append(f"{name:<22}{sigma:>16} {unit:<14}{effect:>9} cnt{mark}")
     priors = [r for r in table.rows if r.prior_sigma is not None]
     if priors:
         lines.append(
@@ -307,9 +361,10 @@ def bound_report(table: BoundTable, plan: Plan) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _position_lines(plan: Plan) -> list[str]:
+def _position_lines(plan: Plan, times: PlanSchedule) -> list[str]:
     lines = []
-    for k, p in enumerate(plan_to_dict(plan)["positions"], start=1):
+    positions = plan_to_dict(scheduled_plan(plan, times))["positions"]
+    for k, p in enumerate(positions, start=1):
         turn = f"psi {p['psi_deg']:g}°"
         tolerance = f"±{p['tolerance_deg']:g}°"
         if "psi_tolerance_deg" in p:
@@ -321,13 +376,13 @@ def _position_lines(plan: Plan) -> list[str]:
     return lines
 
 
-def comparison_report(tables: list[tuple[Plan, BoundTable]]) -> str:
+def comparison_report(tables: list[tuple[Plan, BoundTable]], schedules: list[PlanSchedule]) -> str:
     """One line per plan: worst bound, its parameter, operator minutes, largest tilt, prior."""
     lines = [
         f"{'plan':<13}{'worst bound':>12} {'parameter':<16}{'minutes':>8}"
         f"{'max tilt':>9} {'prior':<12}"
     ]
-    for plan, table in tables:
+    for (plan, table), times in zip(tables, schedules, strict=True):
         worst = table.worst_case_counts
         worst_text = f"{worst:.3g} cnt" if np.isfinite(worst) else "unbounded"
         tilt = max(max(abs(p.alpha), abs(p.beta)) for p in plan.positions)
@@ -336,7 +391,7 @@ def comparison_report(tables: list[tuple[Plan, BoundTable]]) -> str:
             prior = "K (flag)"
         lines.append(
             f"{plan.name:<13}{worst_text:>12} {table.worst_parameter:<16}"
-            f"{plan.operator_minutes:>8.0f}{np.rad2deg(tilt):>8.0f}° {prior:<12}"
+            f"{times.operator_minutes:>8.0f}{np.rad2deg(tilt):>8.0f}° {prior:<12}"
         )
     lines.append("worst bound: largest effect at 1 g of any parameter (counts), 1σ")
     return "\n".join(lines) + "\n"

@@ -18,20 +18,24 @@ import argparse
 import contextlib
 import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from canimucal.cli.bus_options import add_bus_options, node_ids, open_from_args
+from canimucal.cli.vehicle_options import add_vehicle_size_options, vehicle_size_from_args
 from canimucal.device.log_formats import check_log_target
 from canimucal.errors import DeviceError, InputError
 from canimucal.io.atomic import per_node_path, refuse_existing
 from canimucal.io.plans import resolve_plan
 from canimucal.io.recording import HeaderValue
 from canimucal.io.recording_writer import RecordingWriter
+from canimucal.model.mounting import MountingMap
 from canimucal.model.positions import DEFAULT_SECONDS, Plan, PlannedPosition
-from canimucal.model.vocabulary.plans import CUSTOM, plan_help
+from canimucal.model.vehicle_size import VehicleSize
+from canimucal.model.vocabulary.plans import CUSTOM, builtin_names, plan_help
 from canimucal.sim.schedule import set_by_operator
 from canimucal.sim.truth import Truth
 
@@ -97,6 +101,14 @@ def add_subparser(subparsers: Any) -> None:
         default=POSE_TRANSIENT_S,
         help=f"move time between scheduled poses (default {POSE_TRANSIENT_S:g} s)",
     )
+    p.add_argument(
+        "--mount",
+        metavar="MAP",
+        help="how the unit sits in the vehicle (x=forward,y=down,z=left; 'body': the unit's "
+        "axes): --plan's poses are then worded for the vehicle, as the vehicle plan is by "
+        "default (the map saved for the unit's serial, else that default)",
+    )
+    add_vehicle_size_options(p)
     add_site_options(p)
     add_bus_options(p)
     p.set_defaults(run=run)
@@ -138,6 +150,9 @@ def check_args(args: argparse.Namespace) -> Plan:
         raise InputError("--settle-s and --transient-s must be ≥ 0")
     if args.append and args.overwrite:
         raise InputError("--append and --overwrite exclude each other")
+    vehicle_size_from_args(args)  # a length that is not one, or a bad map: exit 2 here
+    if args.mount is not None and args.mount.strip().lower() != "body":
+        MountingMap.parse(args.mount)
     if args.position is not None:
         plan = _single_position_plan(args)
     else:
@@ -286,18 +301,50 @@ def _record(args: argparse.Namespace, session: Devices, recorder: Recorder, plan
         recorder.record_scheduled(plan, transient_s=args.transient_s, guard_s=GUARD_S)
     else:
         refused = None if args.no_pose_check else _refused
-        recorder.record_prompted(plan, _prompt, settle_s=args.settle_s, refused=refused)
+        prompt = _prompter(*_wording(args, session, plan))
+        recorder.record_prompted(plan, prompt, settle_s=args.settle_s, refused=refused)
 
 
-def _prompt(index: int, position: PlannedPosition) -> None:
-    alpha, beta, psi = np.rad2deg(position.angles)
-    print(
-        f"position {index}: put the unit at alpha {alpha:g} beta {beta:g} psi {psi:g} deg, "
-        f"press Enter ({position.seconds:g} s)",
-        flush=True,
-    )
-    if not sys.stdin.readline():
-        raise InputError("no operator input: stdin closed (use --follow-schedule or --sim)")
+def _wording(
+    args: argparse.Namespace, session: Devices, plan: Plan
+) -> tuple[MountingMap | None, VehicleSize | None]:
+    """Return the map and size that word the prompts, chosen as a session chooses them."""
+    from canimucal.io.mounting import BODY, choose_vehicle_size
+    from canimucal.runtime.wiring import instruction_mounting
+
+    serial = next(iter(session.identities().values())).serial
+    name = plan.name if plan.name in builtin_names() else CUSTOM
+    text = args.mount.strip() if args.mount is not None else None
+    mount = BODY if text is not None and text.lower() == BODY else text
+    mounting, note = instruction_mounting(name, serial, mount, False)
+    if mounting is None:
+        return None, None
+    sized = choose_vehicle_size(serial, vehicle_size_from_args(args))
+    for line in (note, sized.note):
+        if line:
+            print(f"note: {line}", flush=True)
+    return mounting, sized.size
+
+
+def _prompter(
+    mounting: MountingMap | None, size: VehicleSize | None
+) -> Callable[[int, PlannedPosition], None]:
+    """Return the prompt of each pose: its angles, and for a vehicle the TUI's words."""
+    from canimucal.procedure.posecheck import describe_pose
+
+    def prompt(index: int, position: PlannedPosition) -> None:
+        alpha, beta, psi = np.rad2deg(position.angles)
+        angles = f"alpha {alpha:g} beta {beta:g} psi {psi:g} deg"
+        if mounting is None:
+            what = f"put the unit at {angles}"
+        else:
+            words = " ".join(describe_pose(position, mounting, size).split())
+            what = f"{words} ({angles})"
+        print(f"position {index}: {what}, press Enter ({position.seconds:g} s)", flush=True)
+        if not sys.stdin.readline():
+            raise InputError("no operator input: stdin closed (use --follow-schedule or --sim)")
+
+    return prompt
 
 
 def _refused(index: int, why: str) -> None:

@@ -9,12 +9,16 @@ from typing import Any
 
 from canimucal.analysis.calibrate import Solution
 from canimucal.analysis.solve import solve_recording
+from canimucal.analysis.static_noise import recording_lsb
 from canimucal.cli.input_options import INPUT_HELP, SECOND_HELP, add_input_options, read_input
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.cli.spec_options import add_model_options, choice_from_args
 from canimucal.cli.user_config import user_acceptance
 from canimucal.io.calibration import RecordingRef, sha256_of
-from canimucal.model.vocabulary.units import QUANTITIES
+from canimucal.io.recording import Recording
+from canimucal.model.sensor import STANDARD_GRAVITY
+from canimucal.model.vocabulary.units import Scales
+from canimucal.runtime.certificate import NOT_ESTIMATED, value_rows
 
 
 def add_subparser(subparsers: Any) -> None:
@@ -70,7 +74,10 @@ def run(args: argparse.Namespace) -> int:
     for warning in solved.solution.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     verdict = solved.verdict
-    text = solution_report(solved.solution, solved.g_source) + (verdict.text if verdict else "")
+    conditions = solved.record.conditions
+    scales = recording_scales(rec, conditions.g if conditions is not None else None)
+    report = solution_report(solved.solution, solved.g_source, scales)
+    text = report + (verdict.text if verdict else "")
     emit(args, solved.record.to_dict(), text)
     if verdict is not None and not verdict.block.passed and not args.no_check:
         print(
@@ -80,22 +87,22 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def solution_report(solution: Solution, g_source: str) -> str:
-    """Every parameter with its σ, what was not determined, and the fit quality."""
+def solution_report(solution: Solution, g_source: str, scales: Scales | None = None) -> str:
+    """Every parameter with its σ and unit, what was not determined, and the fit quality.
+
+    Each value in the file's unit (counts, counts/(m/s²), deg) and, given ``scales`` (the
+    nominal LSBs and g), beside it in the operator's (mg, ppm from nominal, °, °/s): the
+    certificate's rows (:func:`~canimucal.runtime.certificate.value_rows`).
+    """
     r = solution.record
-    lines = [f"plan {r.plan}; g = {r.conditions.g if r.conditions else '?'} m/s² ({g_source})"]
-    lines += _vector_lines(_label("accel.bias"), r.accel.bias, r.accel.bias_sigma)
-    lines += _matrix_lines(_label("accel.K"), r.accel.K, r.accel.K_sigma)
-    if r.base_tilt_deg is not None:
-        t, deg = r.base_tilt_deg, QUANTITIES["base_tilt"].shown_unit
-        s = t.sigma or (None, None)
-        lines.append(
-            f"base tilt: alpha0 {_pm(t.alpha0, s[0])} {deg}, beta0 {_pm(t.beta0, s[1])} {deg}"
-        )
-    if r.gyro is not None:
-        lines += _vector_lines(_label("gyro.bias"), r.gyro.bias, r.gyro.bias_sigma)
-        lines += _matrix_lines(_label("gyro.S"), r.gyro.S, r.gyro.S_sigma)
-        lines += _matrix_lines(_label("gyro.G"), r.gyro.G, r.gyro.G_sigma)
+    g = r.conditions.g if r.conditions is not None else None
+    g_text = "not given" if g is None else f"{g:g} m/s²"
+    lines = [f"plan {r.plan}; g = {g_text} ({g_source})"]
+    rows = _folded(value_rows(r.to_dict(), scales))
+    width = max((len(name) for name, _, _ in rows), default=0)
+    wide = max((len(device) for _, device, _ in rows), default=0)
+    lines.append(f"{'parameter':<{width}}  {'value ± σ (device)':<{wide}}  operator's units")
+    lines += [f"{name:<{width}}  {device:<{wide}}  {shown}" for name, device, shown in rows]
     for name, reason in solution.undetermined.items():
         lines.append(f"not determined: {name}: {reason}")
     if r.fit is not None and r.fit.rms is not None:
@@ -106,30 +113,21 @@ def solution_report(solution: Solution, g_source: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _label(family: str) -> str:
-    """``accel K (counts per m/s²)``: a parameter family in words, with its unit."""
-    return f"{family.replace('.', ' ')} ({QUANTITIES[family].unit_words})"
+def _folded(rows: list[tuple[str, str, str]]) -> list[tuple[str, str, str]]:
+    """One row for a family held at nominal throughout (``gyro.G  nominal (not estimated)``)."""
+    families: dict[str, list[tuple[str, str, str]]] = {}
+    for row in rows:
+        families.setdefault(row[0].split("[", 1)[0], []).append(row)
+    out = []
+    for family, members in families.items():
+        if len(members) > 1 and all(device == NOT_ESTIMATED for _, device, _ in members):
+            out.append((family, NOT_ESTIMATED, "—"))
+        else:
+            out += members
+    return out
 
 
-def _pm(value: float | None, sigma: float | None) -> str:
-    if value is None:
-        return "null (held at nominal)"
-    return f"{value:.6g} ± {sigma:.2g}" if sigma is not None else f"{value:.6g} (held)"
-
-
-def _vector_lines(title: str, values: Any, sigmas: Any) -> list[str]:
-    if values is None:
-        return [f"{title}: null (held at nominal)"]
-    sig = sigmas or (None,) * 3
-    return [f"{title}: " + ", ".join(_pm(v, s) for v, s in zip(values, sig, strict=True))]
-
-
-def _matrix_lines(title: str, values: Any, sigmas: Any) -> list[str]:
-    if values is None or all(v is None for row in values for v in row):
-        return [f"{title}: null (held at nominal)"]
-    sig = sigmas or ((None,) * 3,) * 3
-    rows = [
-        "  [" + ", ".join(_pm(v, s) for v, s in zip(row, srow or (None,) * 3, strict=True)) + "]"
-        for row, srow in zip(values, sig, strict=True)
-    ]
-    return [f"{title}:", *rows]
+def recording_scales(rec: Recording, g: float | None) -> Scales:
+    """Return a recording's nominal LSBs (its header's, else nominal) and the g it used."""
+    lsb = recording_lsb(rec)
+    return Scales(lsb["accel"], lsb["gyro"], g or STANDARD_GRAVITY)

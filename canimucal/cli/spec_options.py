@@ -8,13 +8,24 @@ from canimucal.analysis.session_model import ModelChoice
 from canimucal.model.layout import JointSpec
 
 
-def add_model_options(parser: argparse.ArgumentParser, *, default_tilt: bool) -> None:
-    """Add the flags that choose the joint model."""
+def add_model_options(
+    parser: argparse.ArgumentParser,
+    *,
+    default_tilt: bool | None,
+    default_model: str | None = "diag",
+) -> None:
+    """Add the flags that choose the joint model.
+
+    ``default_tilt`` and ``default_model`` None: each flag left out reads None, for the
+    caller to fill in (``plan``: the model the plan's session fits).
+    """
+    session = " (default: what the plan's session fits)"
     parser.add_argument(
         "--model",
         choices=("diag", "full"),
-        default="diag",
-        help="scale factors only (diag) or with cross-axis terms (full); applies to K and S",
+        default=default_model,
+        help="scale factors only (diag) or with cross-axis terms (full); applies to K and S"
+        + (session if default_model is None else ""),
     )
     tilt = parser.add_mutually_exclusive_group()
     tilt.add_argument(
@@ -22,7 +33,8 @@ def add_model_options(parser: argparse.ArgumentParser, *, default_tilt: bool) ->
         dest="tilt",
         action="store_true",
         default=default_tilt,
-        help="estimate the base tilt" + (" (default)" if default_tilt else ""),
+        help="estimate the base tilt"
+        + (session if default_tilt is None else " (default)" if default_tilt else ""),
     )
     tilt.add_argument("--no-tilt", dest="tilt", action="store_false", help="assume a level base")
     parser.add_argument(

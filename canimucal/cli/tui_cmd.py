@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from canimucal.cli.bus_options import add_bus_options, device_settings, node_ids
+from canimucal.cli.vehicle_options import add_vehicle_size_options, vehicle_size_from_args
 from canimucal.errors import InputError
 from canimucal.io.mounting import BODY
 from canimucal.io.plans import resolve_plan
@@ -73,8 +74,10 @@ def add_subparser(subparsers: Any) -> None:
     p.add_argument(
         "--replace-mount",
         action="store_true",
-        help="replace the mounting map saved for the unit's serial with --mount's",
+        help="replace the mounting map (and the vehicle size) saved for the unit's serial "
+        "with --mount's (and --wheelbase's, --track's)",
     )
+    add_vehicle_size_options(p)
     p.add_argument(
         "--prior-k",
         metavar="FILE",
@@ -146,8 +149,9 @@ def device_source(args: argparse.Namespace) -> DeviceSource:
 
     if args.seconds is not None and not args.seconds > 0:
         raise InputError(f"--seconds must be positive, got {args.seconds}")
-    if args.replace_mount and args.mount in (None, BODY):
-        raise InputError("--replace-mount needs --mount MAP (the map to save)")
+    size = vehicle_size_from_args(args)
+    if args.replace_mount and args.mount in (None, BODY) and size is None:
+        raise InputError("--replace-mount needs --mount MAP or --wheelbase/--track (what to save)")
     if args.prior_k_sigma is not None and not args.prior_k_sigma > 0:
         raise InputError(f"--prior-k-sigma must be > 0, got {args.prior_k_sigma:g}")
     if args.prior_k is not None:
@@ -167,6 +171,7 @@ def device_source(args: argparse.Namespace) -> DeviceSource:
         resume=bool(args.resume),
         mount=mount_choice(args.mount),
         replace_mount=args.replace_mount,
+        vehicle_size=size,
         prior_k=args.prior_k,
         prior_k_sigma=args.prior_k_sigma,
         gyro_g=bool(args.gyro_g),

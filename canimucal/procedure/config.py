@@ -16,6 +16,7 @@ from canimucal.model.layout import JointSpec
 from canimucal.model.mounting import MountingMap
 from canimucal.model.plan import KPrior
 from canimucal.model.positions import Plan, PlannedPosition, PositionAverage
+from canimucal.model.vehicle_size import VehicleSize
 from canimucal.procedure.averaging import AveragingPolicy
 
 LEVEL = PlannedPosition(0.0, 0.0, 0.0)
@@ -78,3 +79,5 @@ class ProcedureConfig:
     """How the unit sits in the vehicle: instructions worded for the vehicle (None: body axes)."""
     mounting_note: str = ""
     """Where ``mounting`` came from, for the operator (asked, saved for the serial, default)."""
+    vehicle_size: VehicleSize | None = None
+    """The vehicle's wheelbase and track: its tilts worded as heights (None: as angles)."""

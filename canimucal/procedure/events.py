@@ -277,6 +277,28 @@ class LevelChecked(Event):
 
 
 @dataclass(frozen=True)
+class PoseVerified(Event):
+    """One verification pose re-read after the write: |f| − g and the tilt error.
+
+    ``index`` of ``total`` verification poses (:mod:`~canimucal.procedure.verification`),
+    ``words`` how the pose was worded; |f| − g in m/s², the tilt error the angle (degrees)
+    between the measured direction of f and the one the pose predicts with the fitted base
+    tilt, nominal (the device's raw counts at nominal LSB) and calibrated (the values
+    written, applied as the firmware applies them).
+    """
+
+    node_id: int
+    index: int
+    total: int
+    position: PlannedPosition
+    words: str
+    norm_error_nominal_ms2: float
+    norm_error_calibrated_ms2: float
+    tilt_error_nominal_deg: float
+    tilt_error_calibrated_deg: float
+
+
+@dataclass(frozen=True)
 class DeviceEventReported(Event):
     """The node reported something on the bus (a notice; the machine reacts where needed).
 

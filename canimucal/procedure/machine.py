@@ -2,7 +2,8 @@
 
 warm-up → for each position: instruct → (operator confirms) → wait for stillness → pose
 check → average with progress → accept or redo → solve → review → write (by the runner) →
-verification at the level pose → done. Every method returns the events it caused (see
+verification at two poses other than the fit's level one (:mod:`.verification`) → done.
+Every method returns the events it caused (see
 :mod:`canimucal.procedure.events`); a display shows them, an automatic operator reacts to them.
 
 Time is sample time (:class:`~canimucal.procedure.tracks.NodeTrack`): a simulated node run
@@ -25,7 +26,7 @@ from canimucal.model.plan import KPrior
 from canimucal.model.positions import PlannedPosition, Pose, PositionAverage, average_position
 from canimucal.model.samples import SampleBlock
 from canimucal.procedure import events as ev
-from canimucal.procedure.averaging import averaged_sensors, choose_time
+from canimucal.procedure.averaging import averaged_sensors, choose_time, later_budget_s
 from canimucal.procedure.config import LEVEL, ProcedureConfig, ResumeState
 from canimucal.procedure.events import Phase
 from canimucal.procedure.gyro_fit import ConfirmedMove, fit_confirmed_moves
@@ -33,6 +34,7 @@ from canimucal.procedure.level import level_check
 from canimucal.procedure.movecheck import MoveTracker
 from canimucal.procedure.posecheck import FloorFit, PoseCheck, describe_pose, measured_force
 from canimucal.procedure.tracks import Attempt, LabelledRows, NodeTrack, live_readout
+from canimucal.procedure.verification import pose_verified, verification_poses
 from canimucal.procedure.warmup import WarmupTracker, progress_event
 
 logger = logging.getLogger(__name__)
@@ -67,6 +69,10 @@ class Procedure:
         self.phase = Phase.WARMUP if config.warmup else Phase.INSTRUCT
         self.index = 0
         self.verifying = False
+        self.verify_index = 0
+        """The verification pose being measured (:func:`.verification_poses`)."""
+        self.verified: dict[int, list[ev.PoseVerified]] = {n: [] for n in config.node_ids}
+        """Per node, the verification poses re-read after the write, in order."""
         self.seconds_later: float | None = None
         self.resumed_time: ev.AveragingTimeChosen | None = None
         """On resume: the later positions' time, chosen from the recorded first position."""
@@ -93,16 +99,21 @@ class Procedure:
     @property
     def target(self) -> PlannedPosition:
         """The pose the unit should be in now."""
-        return LEVEL if self.verifying else self.config.plan.positions[self.index]
+        if self.verifying:
+            return self.verify_poses[self.verify_index]
+        return self.config.plan.positions[self.index]
+
+    @property
+    def verify_poses(self) -> tuple[PlannedPosition, ...]:
+        """The poses re-read after the write (:func:`.verification_poses` of the plan)."""
+        return verification_poses(self.config.plan)
 
     def seconds_for(self, index: int) -> float:
         """Averaging time of position ``index``."""
-        policy = self.config.averaging
         if self.verifying:
             return self.config.verify_seconds
-        if index == 0:
-            return policy.first_seconds()
-        return policy.later_seconds(self.seconds_later)[0]
+        planned = self.config.plan.positions[index].seconds
+        return self.config.averaging.seconds_for(index, planned, self.seconds_later)
 
     def averages(self, node_id: int) -> list[PositionAverage]:
         """Return the accepted averages of one node, in plan order."""
@@ -365,6 +376,8 @@ class Procedure:
         """Leave the current position out (not allowed for the first, level one)."""
         if self.phase not in (Phase.INSTRUCT, Phase.SETTLING) or self.index == 0:
             return []
+        if self.verifying:
+            return []
         self.skipped.add(self.index)
         self.pending_moves = {}
         for tracker in self.move_trackers.values():
@@ -407,7 +420,7 @@ class Procedure:
     def write_finished(
         self, node_id: int, ok: bool, message: str, backup_path: str | None = None
     ) -> list[ev.Event]:
-        """Take the runner's report of one node's write; after the last, verify at level."""
+        """Take the runner's report of one node's write; after the last, verify (module doc)."""
         result = ev.WriteFinished(node_id, ok, message, backup_path)
         self.write_results[node_id] = result
         if len(self.write_results) < len(self.config.node_ids):
@@ -432,12 +445,13 @@ class Procedure:
     def _instruct(self) -> list[ev.Event]:
         events = self._set_phase(Phase.INSTRUCT)
         pose = self.target
-        total = len(self.config.plan.positions)
+        index, total = self.index, len(self.config.plan.positions)
         seconds = self.seconds_for(self.index)
-        words = describe_pose(pose, self.config.mounting)
+        words = describe_pose(pose, self.config.mounting, self.config.vehicle_size)
         if self.verifying:
-            words = "verification: " + words
-        return events + [ev.PoseInstructed(self.index, total, pose, words, seconds, self.verifying)]
+            index, total = self.verify_index, len(self.verify_poses)
+            words = f"verification {index + 1}/{total}: {words}"
+        return events + [ev.PoseInstructed(index, total, pose, words, seconds, self.verifying)]
 
     def _next_position(self) -> list[ev.Event]:
         self.pending_averages = {}
@@ -461,6 +475,7 @@ class Procedure:
             samples,
             self.config.sample_rate_hz,
             averaged_sensors(self.config.spec.gyro),
+            later_budget_s(self.config.plan),
         )
         if event.source == "noise":
             self.seconds_later = event.seconds
@@ -475,6 +490,7 @@ class Procedure:
             samples,
             self.config.sample_rate_hz,
             averaged_sensors(self.config.spec.gyro),
+            later_budget_s(self.config.plan),
         )
         if event.source == "noise":
             self.seconds_later = event.seconds
@@ -489,13 +505,27 @@ class Procedure:
         return event
 
     def _verified(self, averages: dict[int, PositionAverage]) -> list[ev.Event]:
+        """Judge one verification pose on every written node; then the next, or done."""
         events: list[ev.Event] = []
+        pose, total = self.target, len(self.verify_poses)
+        words = describe_pose(pose, self.config.mounting, self.config.vehicle_size)
         for node_id, average in averages.items():
-            if node_id in self.solutions and self.write_results.get(node_id, None) is not None:
-                events.append(self._level_event(node_id, "after", average, self.solutions[node_id]))
+            result = self.write_results.get(node_id)
+            if node_id not in self.solutions or result is None or not result.ok:
+                continue
+            record = self.solutions[node_id].record
+            event = pose_verified(
+                node_id, self.verify_index, total, pose, words, average, record, self.config.site
+            )
+            self.verified[node_id].append(event)
+            events.append(event)
         for track in self.tracks.values():
             track.attempt = None
             track.decide(-1, None)
+        self.pending_averages = {}
+        if self.verify_index + 1 < total:
+            self.verify_index += 1
+            return events + self._instruct()
         return events + self._set_phase(Phase.DONE) + [ev.ProcedureFinished()]
 
 

@@ -10,7 +10,7 @@ L), so a body vector ``e`` lies along ``Cᵀ e`` in L.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from xml.sax.saxutils import escape
 
 import numpy as np
@@ -20,6 +20,7 @@ from canimucal.model.frames import position_dcm
 from canimucal.model.mounting import DEFAULT_MOUNTING
 from canimucal.model.positions import Plan, Pose
 from canimucal.model.vocabulary.plans import worded_for_vehicle
+from canimucal.procedure.averaging import PlanSchedule, plan_schedule
 from canimucal.procedure.posecheck import describe_pose
 
 Array = NDArray[np.float64]
@@ -123,8 +124,15 @@ def _arrow(start: Array, end: Array, colour: str) -> str:
     )
 
 
-def field_guide(plans: Sequence[Plan]) -> tuple[str, dict[str, str]]:
-    """Return the field guide's Markdown and its pictures ``{file name: SVG}``, one per pose."""
+def field_guide(
+    plans: Sequence[Plan], notes: Mapping[str, Sequence[str]] | None = None
+) -> tuple[str, dict[str, str]]:
+    """Return the field guide's Markdown and its pictures ``{file name: SVG}``, one per pose.
+
+    Each position's seconds and the operator's minutes are the session's
+    (:func:`~canimucal.procedure.averaging.plan_schedule`); ``notes`` adds lines under a
+    plan's summary, by plan name (the σ it predicts).
+    """
     pictures: dict[str, str] = {}
     lines = [
         "# Field guide: the poses of each plan",
@@ -141,8 +149,13 @@ def field_guide(plans: Sequence[Plan]) -> tuple[str, dict[str, str]]:
         "",
     ]
     for plan in plans:
-        lines += [f"## {plan.name}", "", *_plan_summary(plan), ""]
-        for k, position in enumerate(plan.positions, start=1):
+        times = plan_schedule(plan)
+        lines += [f"## {plan.name}", "", *_plan_summary(plan, times), ""]
+        note = (notes or {}).get(plan.name)
+        lines += [*note, ""] if note else []
+        for k, (position, seconds) in enumerate(
+            zip(plan.positions, times.seconds, strict=True), start=1
+        ):
             name = f"{plan.name}-{k}.svg"
             alpha, beta, psi = (float(x) for x in np.rad2deg(position.angles))
             heading = f"{plan.name} {k}: alpha {alpha:g}°, beta {beta:g}°, psi {psi:g}°"
@@ -152,7 +165,7 @@ def field_guide(plans: Sequence[Plan]) -> tuple[str, dict[str, str]]:
                 "",
                 f"![{plan.name} position {k}](field-guide/{name})",
                 "",
-                f"{_one_line(describe_pose(position))}; {position.seconds:g} s; "
+                f"{_one_line(describe_pose(position))}; {seconds:g} s; "
                 f"±{np.rad2deg(position.tolerance):g}° 1σ"
                 + (
                     f" (turn ±{np.rad2deg(position.psi_tolerance):g}°)"
@@ -173,10 +186,11 @@ def _one_line(words: str) -> str:
     return words.replace("\n", " ")
 
 
-def _plan_summary(plan: Plan) -> list[str]:
+def _plan_summary(plan: Plan, times: PlanSchedule) -> list[str]:
     text = (
-        f"{len(plan.positions)} positions, {plan.total_seconds:g} s of averaging, about "
-        f"{plan.operator_minutes:.0f} minutes of the operator's time."
+        f"{len(plan.positions)} positions, {times.total_seconds:g} s of averaging, about "
+        f"{times.operator_minutes:.0f} minutes of the operator's time "
+        f"({plan.setup_seconds:g} s to set up each position). Times: {times.times_words()}."
     )
     if plan.prior_k_sigma is not None:
         text += (

@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from canimucal.model.frames import ay, gravity_direction_angles, position_dcm, specific_force_level
 from canimucal.model.mounting import MountingMap, vehicle_attitude
 from canimucal.model.positions import Pose
+from canimucal.model.vehicle_size import VehicleSize
 
 Array = NDArray[np.float64]
 
@@ -182,10 +183,15 @@ def check_pose(pose: Pose, f_measured: Array, g: float, tolerance_deg: float) ->
     )
 
 
-def describe_pose(pose: Pose, mounting: MountingMap | None = None) -> str:
-    """Describe the pose in words: for the vehicle given a ``mounting`` map, else in body axes."""
+def describe_pose(
+    pose: Pose, mounting: MountingMap | None = None, size: VehicleSize | None = None
+) -> str:
+    """Describe the pose in words: for the vehicle given a ``mounting`` map, else in body axes.
+
+    ``size`` (the vehicle's wheelbase and track) words the vehicle's tilts as heights.
+    """
     if mounting is not None:
-        return describe_vehicle_pose(pose, mounting)
+        return describe_vehicle_pose(pose, mounting, size)
     return describe_body_pose(pose)
 
 
@@ -193,33 +199,57 @@ _WORDING_STEP_DEG = 0.1
 """Vehicle angles are worded to 0.1° (a ladder tilt is set to a few tenths at best)."""
 
 
-def describe_vehicle_pose(pose: Pose, mounting: MountingMap) -> str:
+BACK_TO_THE_MARKS = "come back to the same tyre marks"
+"""Said after every turn on the spot: the floor's slope is the slope under those marks."""
+MARK_THE_TYRES = "mark where its tyres stand"
+"""Said at the start pose: the marks every later pose comes back to."""
+
+
+def describe_vehicle_pose(
+    pose: Pose, mounting: MountingMap, size: VehicleSize | None = None
+) -> str:
     """Word ``pose`` as the vehicle's turn on the spot, then its front and side tilt.
 
     The turn is relative to the vehicle's heading at the plan's reference pose (the start
-    heading); "raise the front wheels" then "raise the left side" are the pitch and roll of
-    :func:`~canimucal.model.mounting.vehicle_attitude`, in that order. One step a line.
+    heading), the start pose says to mark the tyres and every other pose to come back to
+    those marks (the floor slope the fit learns is the one under them); "raise the front
+    wheels" then "raise the left side" are the pitch and roll of
+    :func:`~canimucal.model.mounting.vehicle_attitude`, in that order, as heights with
+    ``size`` ("raise the front wheels 0.61 m (10°)": wheelbase · sin(pitch), track ·
+    sin(roll)). One step a line.
     """
     attitude = vehicle_attitude(pose, mounting)
     turn, front, left = (
         round(a / _WORDING_STEP_DEG) * _WORDING_STEP_DEG + 0.0
         for a in (attitude.turn_left_deg, attitude.front_up_deg, attitude.left_up_deg)
     )
+    size = size or VehicleSize()
     tilts = []
     if front != 0.0:
-        tilts.append(f"raise the {'front' if front > 0 else 'rear'} wheels {abs(front):g}°")
+        amount = _rise_words(size.front_rise_m(front), front)
+        tilts.append(f"raise the {'front' if front > 0 else 'rear'} wheels {amount}")
     if left != 0.0:
-        tilts.append(f"raise the {'left' if left > 0 else 'right'} side {abs(left):g}°")
+        amount = _rise_words(size.side_rise_m(left), left)
+        tilts.append(f"raise the {'left' if left > 0 else 'right'} side {amount}")
     if turn == 0.0:
         if not tilts:
-            return "park the vehicle level at the start heading"
-        steps = ["keep the vehicle at the start heading"]
+            return _steps(["park the vehicle level at the start heading", MARK_THE_TYRES])
+        steps = ["put the vehicle at the start heading on the same tyre marks"]
     elif abs(turn) == 180.0:
         steps = ["turn the vehicle round on the spot (180° from the start heading)"]
+        steps.append(BACK_TO_THE_MARKS)
     else:
         side = "left" if turn > 0 else "right"
         steps = [f"turn the vehicle on the spot to {abs(turn):g}° {side} of the start heading"]
+        steps.append(BACK_TO_THE_MARKS)
     return _steps(steps + (tilts or ["park it level"]))
+
+
+def _rise_words(rise_m: float | None, angle_deg: float) -> str:
+    """``0.61 m (10°)`` with a known length, else ``10°``."""
+    if rise_m is None:
+        return f"{abs(angle_deg):g}°"
+    return f"{rise_m:.2f} m ({abs(angle_deg):g}°)"
 
 
 def _steps(steps: list[str]) -> str:

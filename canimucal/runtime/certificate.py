@@ -2,9 +2,11 @@
 
 Identity, date, operator and site, conditions, units, every value ± σ (k = 1; null: held at
 nominal), the acceptance limits and how the result met them, whether it was written, the
-verification verdict, whether the warm-up was skipped, the level check before (new
-parameters applied in software to the session's level position) and after the write (raw
-data re-read at level), and the warnings. Device text is escaped for Markdown and HTML.
+verification verdict, whether the warm-up was skipped, the level check before the write
+(new parameters applied in software to the session's level position), the verification
+poses re-read after it (:mod:`canimucal.procedure.verification`: |f| − g and the tilt error
+of each, against their limits), and the warnings. Device text is escaped for Markdown and
+HTML.
 """
 
 from __future__ import annotations
@@ -14,13 +16,17 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from canimucal.analysis.acceptance import AcceptanceLimits, AcceptanceReport
 from canimucal.device.client import Identity
 from canimucal.io.calibration import Calibration, Verification, calibration_to_dict
 from canimucal.model.mounting import MountingMap
+from canimucal.model.sensor import STANDARD_GRAVITY
 from canimucal.model.vocabulary.plans import PLANS
 from canimucal.model.vocabulary.units import QUANTITIES, Scales, operator_value, with_unit
-from canimucal.procedure.events import LevelChecked
+from canimucal.procedure.events import LevelChecked, PoseVerified
+from canimucal.runtime.plan_forecast import LimitForecast
 from canimucal.untrusted import markdown_text
 
 K1_STATEMENT = (
@@ -51,6 +57,14 @@ class SessionFacts:
     scales: Scales | None = None
     """The node's nominal LSBs and g: the values in the operator's units (mg, ppm, °, °/s)
     beside the device's (None: the device's only)."""
+    plan_times: str = ""
+    """The plan's times as the plan screen showed them before the first position
+    (:meth:`~canimucal.procedure.averaging.PlanSchedule.words`; "" unknown)."""
+    forecast: tuple[LimitForecast, ...] = ()
+    """Each acceptance limit beside the σ the plan predicted before the first position
+    (:func:`~canimucal.runtime.plan_forecast.forecast`; empty: not known)."""
+    verified: tuple[PoseVerified, ...] = ()
+    """The verification poses re-read after the write, in order (empty: none)."""
 
 
 def mounting_text(mounting: MountingMap | None, note: str = "") -> str:
@@ -60,39 +74,47 @@ def mounting_text(mounting: MountingMap | None, note: str = "") -> str:
     return note or mounting.text()
 
 
-def verification_of(
-    after: LevelChecked | None, written: bool, limits: AcceptanceLimits, g: float
-) -> Verification:
-    """Judge the re-read at level after the write: |f| − g within the stated limit.
+NORM_KEY, TILT_KEY = "max_verify_norm_error_mg", "max_verify_tilt_error_deg"
+"""The verification's limits (:class:`AcceptanceLimits`), the keys of its values."""
 
-    Not done (``done`` false, ``passed`` false) when nothing was written or the session ended
-    before the level re-read.
+
+def verification_of(
+    verified: Sequence[PoseVerified], written: bool, limits: AcceptanceLimits, g: float
+) -> Verification:
+    """Judge the poses re-read after the write: each |f| − g and tilt error within its limit.
+
+    ``values`` hold the worst of the poses. Not done (``done`` false, ``passed`` false) when
+    nothing was written or the session ended before every verification pose was re-read.
     """
-    limit = {"max_verify_norm_error_mg": limits.max_verify_norm_error_mg}
-    if not written or after is None:
+    limit = {NORM_KEY: limits.max_verify_norm_error_mg, TILT_KEY: limits.max_verify_tilt_error_deg}
+    if not written or not verified or len(verified) < verified[0].total:
         return Verification(passed=False, done=False, written=written, limits=limit)
-    error_mg = abs(after.norm_error_calibrated_ms2) / g * 1000.0
+    norm_mg = max(abs(v.norm_error_calibrated_ms2) for v in verified) / g * 1000.0
+    tilt_deg = max(v.tilt_error_calibrated_deg for v in verified)
     return Verification(
-        passed=error_mg <= limits.max_verify_norm_error_mg,
+        passed=norm_mg <= limit[NORM_KEY] and tilt_deg <= limit[TILT_KEY],
         done=True,
         written=True,
         limits=limit,
-        values={"max_verify_norm_error_mg": error_mg},
+        values={NORM_KEY: norm_mg, TILT_KEY: tilt_deg},
     )
 
 
-def _verification_text(v: Verification | None, acceptance_passed: bool) -> str:
+def verification_verdict(v: Verification | None, acceptance_passed: bool) -> str:
     """Say what was verified; "PASSED" only when the calibration's acceptance passed too.
 
-    The verification re-reads the level pose after the write: it shows the device applies
-    the values, not that they are good enough, so a failed acceptance is never "PASSED"
-    beside it (issue 22).
+    The verification re-reads poses after the write: it shows the device applies the values
+    and that they hold away from the level pose, not that their σ is good enough, so a failed
+    acceptance is never "PASSED" beside it (issue 22).
     """
     if v is None or not v.done:
-        return "NOT DONE (the session ended before the re-read at level)"
-    value = v.values.get("max_verify_norm_error_mg", float("nan"))
-    limit = v.limits.get("max_verify_norm_error_mg", float("nan"))
-    what = f"abs(f) − g at level re-read after the write {value:.3g} mg (limit {limit:g} mg)"
+        return "NOT DONE (the session ended before the verification poses were re-read)"
+    norm, tilt = v.values.get(NORM_KEY, float("nan")), v.values.get(TILT_KEY, float("nan"))
+    what = (
+        f"the verification poses re-read after the write: worst abs(f) − g {norm:.3g} mg "
+        f"(limit {v.limits.get(NORM_KEY, float('nan')):g} mg), worst tilt error {tilt:.3g}° "
+        f"(limit {v.limits.get(TILT_KEY, float('nan')):g}°)"
+    )
     if not v.passed:
         return f"FAILED: {what}"
     if not acceptance_passed:
@@ -106,32 +128,37 @@ def _verification_text(v: Verification | None, acceptance_passed: bool) -> str:
 NOT_ESTIMATED = "nominal (not estimated)"
 
 
-def _cells(family: str, value: Any, sigma: Any, scales: Scales | None, diagonal: bool) -> str:
-    """``12.3 ± 0.1 counts | 6.01 ± 0.05 mg``: the file's unit and the operator's."""
+def _cells(
+    family: str, value: Any, sigma: Any, scales: Scales | None, diagonal: bool
+) -> tuple[str, str]:
+    """``(12.3 ± 0.1 counts, 6.01 ± 0.05 mg)``: the file's unit and the operator's."""
     if value is None:
-        return f"{NOT_ESTIMATED} | —"
+        return NOT_ESTIMATED, "—"
     quantity = QUANTITIES[family]
     device = with_unit(value, sigma, quantity.shown_unit)
     if scales is None:
-        return f"{device} | —"
+        return device, "—"
     per_file = quantity.file_per_unit  # the file holds the base tilt in degrees
     shown = operator_value(family, value / per_file, scales, diagonal=diagonal)
     shown_sigma = None if sigma is None else abs(operator_value(family, sigma / per_file, scales))
-    return f"{device} | {with_unit(shown, shown_sigma, quantity.operator_unit, digits=4)}"
+    return device, with_unit(shown, shown_sigma, quantity.operator_unit, digits=4)
 
 
-def _vector_rows(family: str, values: Any, sigmas: Any, scales: Scales | None) -> list[str]:
+def _vector_rows(
+    family: str, values: Any, sigmas: Any, scales: Scales | None
+) -> list[tuple[str, str, str]]:
     if values is None:
         return []
     sig = sigmas or [None] * len(values)
     pairs = zip(values, sig, strict=False)
     return [
-        f"| {family}[{i}] | {_cells(family, v, s, scales, False)} |"
-        for i, (v, s) in enumerate(pairs)
+        (f"{family}[{i}]", *_cells(family, v, s, scales, False)) for i, (v, s) in enumerate(pairs)
     ]
 
 
-def _matrix_rows(family: str, values: Any, sigmas: Any, scales: Scales | None) -> list[str]:
+def _matrix_rows(
+    family: str, values: Any, sigmas: Any, scales: Scales | None
+) -> list[tuple[str, str, str]]:
     if values is None:
         return []
     rows = []
@@ -139,30 +166,41 @@ def _matrix_rows(family: str, values: Any, sigmas: Any, scales: Scales | None) -
         sig_row = sigmas[i] if sigmas else [None] * 3
         pairs = zip(row, sig_row, strict=False)
         rows += [
-            f"| {family}[{i}][{j}] | {_cells(family, v, s, scales, i == j)} |"
+            (f"{family}[{i}][{j}]", *_cells(family, v, s, scales, i == j))
             for j, (v, s) in enumerate(pairs)
         ]
     return rows
 
 
-def _values_table(d: dict[str, Any], scales: Scales | None) -> list[str]:
+def value_rows(d: dict[str, Any], scales: Scales | None) -> list[tuple[str, str, str]]:
+    """Every value of a calibration document: name, value ± σ (device), (operator's units).
+
+    The certificate's table and ``solve``'s text; a value held at nominal reads so.
+    """
     accel, gyro = d["accel"], d.get("gyro") or {}
-    lines = [
-        "| parameter | value ± σ (device) | value ± σ (operator's units) |",
-        "|---|---|---|",
-    ]
-    lines += _vector_rows("accel.bias", accel.get("bias"), accel.get("bias_sigma"), scales)
-    lines += _matrix_rows("accel.K", accel.get("K"), accel.get("K_sigma"), scales)
-    lines += _vector_rows("gyro.bias", gyro.get("bias"), gyro.get("bias_sigma"), scales)
-    lines += _matrix_rows("gyro.S", gyro.get("S"), gyro.get("S_sigma"), scales)
-    lines += _matrix_rows("gyro.G", gyro.get("G"), gyro.get("G_sigma"), scales)
+    rows = _vector_rows("accel.bias", accel.get("bias"), accel.get("bias_sigma"), scales)
+    rows += _matrix_rows("accel.K", accel.get("K"), accel.get("K_sigma"), scales)
+    rows += _vector_rows("gyro.bias", gyro.get("bias"), gyro.get("bias_sigma"), scales)
+    rows += _matrix_rows("gyro.S", gyro.get("S"), gyro.get("S_sigma"), scales)
+    rows += _matrix_rows("gyro.G", gyro.get("G"), gyro.get("G_sigma"), scales)
     tilt = d.get("base_tilt_deg")
     if tilt:
         sig = tilt.get("sigma") or [None, None]
         for k, key in enumerate(("alpha0", "beta0")):
-            cells = _cells("base_tilt", tilt.get(key), sig[k], scales, False)
-            lines.append(f"| base tilt {key} | {cells} |")
-    return lines
+            rows.append(
+                (f"base tilt {key}", *_cells("base_tilt", tilt.get(key), sig[k], scales, False))
+            )
+    return rows
+
+
+def _values_table(d: dict[str, Any], scales: Scales | None) -> list[str]:
+    lines = [
+        "| parameter | value ± σ (device) | value ± σ (operator's units) |",
+        "|---|---|---|",
+    ]
+    return lines + [
+        f"| {name} | {device} | {shown} |" for name, device, shown in value_rows(d, scales)
+    ]
 
 
 def _or_not_given(value: Any, unit: str) -> str:
@@ -185,6 +223,37 @@ def _conditions(cond: dict[str, Any]) -> str:
         f"heading {_or_not_given(cond.get('heading_deg'), '°')}, "
         f"temperature {_or_not_given(cond.get('temp_c'), ' °C')}"
     )
+
+
+def verified_line(event: PoseVerified, g: float = STANDARD_GRAVITY) -> str:
+    """One verification pose in a line: |f| − g (mg) and the tilt error (°), nominal → new."""
+    to_mg = 1000.0 / g
+    return (
+        f"node {event.node_id} verification {event.index + 1}/{event.total}: |f|−g nominal "
+        f"{event.norm_error_nominal_ms2 * to_mg:+.2f} → calibrated "
+        f"{event.norm_error_calibrated_ms2 * to_mg:+.2f} mg; tilt error nominal "
+        f"{event.tilt_error_nominal_deg:.2f}° → calibrated {event.tilt_error_calibrated_deg:.2f}°"
+    )
+
+
+def verified_lines(verified: Sequence[PoseVerified], g: float) -> list[str]:
+    """Return the verification poses as a table: |f| − g and tilt error, nominal and new."""
+    if not verified:
+        return ["No verification pose was re-read after the write."]
+    lines = [
+        "| pose | abs(f) − g nominal | abs(f) − g calibrated | tilt error nominal | "
+        "tilt error calibrated |",
+        "|---|---|---|---|---|",
+    ]
+    for v in verified:
+        alpha, beta, psi = (float(np.rad2deg(x)) for x in v.position.angles)
+        lines.append(
+            f"| {v.index + 1}/{v.total}: alpha {alpha:g}°, beta {beta:g}°, psi {psi:g}° | "
+            f"{v.norm_error_nominal_ms2 / g * 1000:+.2f} mg | "
+            f"{v.norm_error_calibrated_ms2 / g * 1000:+.2f} mg | "
+            f"{v.tilt_error_nominal_deg:.2f}° | {v.tilt_error_calibrated_deg:.2f}° |"
+        )
+    return lines
 
 
 def _level_lines(checks: Sequence[LevelChecked]) -> list[str]:
@@ -228,7 +297,7 @@ def certificate_markdown(
         "",
         f"- Acceptance: {verdict}",
         f"- Written to the device: {'yes' if facts.written else 'no'}",
-        f"- Verification: {_verification_text(facts.verification, acceptance.passed)}",
+        f"- Verification: {verification_verdict(facts.verification, acceptance.passed)}",
         f"- Warm-up: {facts.warmup}",
         "",
         "## Values",
@@ -243,23 +312,54 @@ def certificate_markdown(
         *[f"- {c.line()}" for c in acceptance.checks],
         f"- limits: bias σ ≤ {limits.max_bias_sigma_mg:g} mg, scale σ ≤ "
         f"{limits.max_scale_sigma_ppm:g} ppm, rms ≤ {limits.max_rms_ms2:g} m/s², "
-        f"χ² p ≥ {limits.min_fit_p:g}",
+        f"χ² p ≥ {limits.min_fit_p:g}; after the write, at each verification pose, "
+        f"abs(f) − g ≤ {limits.max_verify_norm_error_mg:g} mg and tilt error ≤ "
+        f"{limits.max_verify_tilt_error_deg:g}°",
     ]
     if acceptance.held_nominal:
         lines.append(f"- held at nominal: {', '.join(acceptance.held_nominal)}")
+    lines += [f"- {line}" for line in _predicted_lines(facts)]
     lines += ["", "## Level check", "", *_level_lines(level_checks)]
+    if facts.verified:
+        lines += ["", "## Verification poses after the write", "", *_verified_table(facts)]
     if record.verification is not None and not record.verification.done:
         lines += [
             "",
             "## Verification: NOT DONE",
             "",
             "The calibration was written to the device, but the session ended before the "
-            "level check after the write: the device holds these values unverified.",
+            "verification poses were re-read: the device holds these values unverified.",
         ]
     if warnings:
         lines += ["", "## Warnings", "", *[f"- {w}" for w in warnings]]
     lines += ["", "## Sign-off", "", "Operator: ______________________  Date: ____________"]
     return "\n".join(lines) + "\n"
+
+
+def _verified_table(facts: SessionFacts) -> list[str]:
+    """Return the verification table, then each pose's wording."""
+    g = facts.scales.g if facts.scales is not None else STANDARD_GRAVITY
+    words = [f"- pose {v.index + 1}: {_one_line(v.words)}" for v in facts.verified]
+    return [*verified_lines(facts.verified, g), "", *words]
+
+
+def _one_line(words: str) -> str:
+    return " ".join(words.split())
+
+
+def _predicted_lines(facts: SessionFacts) -> list[str]:
+    """``predicted before position 1: worst bias σ ≤ 12 mg: plan predicts 10.1 mg, …``."""
+    return [f"predicted before position 1: {r.line()}" for r in facts.forecast if r.predicted]
+
+
+def _times_text(d: dict[str, Any], facts: SessionFacts) -> str:
+    """``planned: position 1 120 s, then …; averaged 120, 60, … s`` (the record's seconds)."""
+    seconds = [p.get("seconds") for p in d.get("positions") or []]
+    averaged = ", ".join(f"{s:.3g}" for s in seconds if isinstance(s, int | float))
+    parts = [f"planned {facts.plan_times}"] if facts.plan_times else []
+    if averaged:
+        parts.append(f"averaged {averaged} s")
+    return "; ".join(parts) or "not given"
 
 
 def _plan_text(d: dict[str, Any], escape: Callable[[str], str]) -> str:
@@ -284,6 +384,7 @@ def _head(d: dict[str, Any], identity: Identity, facts: SessionFacts) -> list[st
         f"hardware {markdown_text(identity.hardware_version) or '—'}, "
         f"software {markdown_text(identity.software_version) or '—'}",
         f"- Plan: {_plan_text(d, markdown_text)}, {len(d.get('positions') or [])} positions",
+        f"- Times: {_times_text(d, facts)}",
         f"- Mounting: {markdown_text(facts.mounting) if facts.mounting else 'unit axes (bench)'}",
         f"- Conditions: {_conditions(cond)}",
         f"- Fit: {_fit_text(fit)}",
@@ -333,6 +434,7 @@ def certificate_html(
         ("Operator", e(facts.operator) if facts.operator else "not given"),
         ("Site", e(facts.site) if facts.site else "not given"),
         ("Plan", f"{_plan_text(d, e)}, {len(d.get('positions') or [])} positions"),
+        ("Times", e(_times_text(d, facts))),
         ("Mounting", e(facts.mounting) if facts.mounting else "unit axes (bench)"),
         ("Conditions", e(_conditions(cond))),
         ("Fit", e(_fit_text(fit))),
@@ -343,14 +445,27 @@ def certificate_html(
         (
             "Verification",
             _mark(
-                e(_verification_text(facts.verification, acceptance.passed)),
+                e(verification_verdict(facts.verification, acceptance.passed)),
                 facts.verification is not None and facts.verification.passed and acceptance.passed,
             ),
         ),
         ("Warm-up", e(facts.warmup)),
     ]
     checks = "".join(f"<li>{e(c.line())}</li>" for c in acceptance.checks)
+    checks += "".join(f"<li>{e(line)}</li>" for line in _predicted_lines(facts))
     level = _html_table(_level_lines(level_checks))
+    if facts.verified:
+        g = facts.scales.g if facts.scales is not None else STANDARD_GRAVITY
+        level += "<h2>Verification poses after the write</h2>" + _html_table(
+            verified_lines(facts.verified, g)
+        )
+        level += (
+            '<ul class="small">'
+            + "".join(
+                f"<li>pose {v.index + 1}: {e(_one_line(v.words))}</li>" for v in facts.verified
+            )
+            + "</ul>"
+        )
     values = _html_table(_values_table(d, facts.scales))
     warning_items = "".join(f"<li>{e(w)}</li>" for w in warnings) or "<li>none</li>"
     return f"""<!DOCTYPE html>

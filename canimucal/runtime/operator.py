@@ -27,9 +27,9 @@ def run_automatic(
     """Drive a session to the end with an automatic operator (the headless demo).
 
     Skips the warm-up, confirms each pose (moving the simulated nodes), accepts every
-    position, solves, writes when the acceptance limits pass (or ``write_anyway``), verifies
-    at level. Gives up (cancels) after ``MAX_REFUSALS`` refused poses in a row. Returns the
-    session's history (every event but the live readouts). With ``deadline_s`` (wall
+    position, solves, writes when the acceptance limits pass (or ``write_anyway``), sets each
+    verification pose. Gives up (cancels) after ``MAX_REFUSALS`` refused poses in a row.
+    Returns the session's history (every event but the live readouts). With ``deadline_s`` (wall
     seconds) a session that has not finished by then is cancelled and DeviceError raised:
     the sample clock is the procedure's, but a simulated bus that cannot keep up must not
     turn the demo into an endless wait.

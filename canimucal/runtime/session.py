@@ -65,7 +65,9 @@ from canimucal.runtime.certificate import (
     certificate_markdown,
     mounting_text,
     verification_of,
+    verification_verdict,
 )
+from canimucal.runtime.plan_forecast import schedule, session_forecast
 from canimucal.runtime.resume import partial_path
 from canimucal.sim.schedule import operator_angles
 from canimucal.simnode.node import SimulatedImuNode
@@ -397,7 +399,7 @@ class Session:
         site = proc.config.site
         result = proc.write_results.get(node_id)
         written = result is not None and result.ok
-        after = proc.level_checks.get((node_id, "after"))
+        verified = proc.verified.get(node_id, [])
         if proc.warmup_skipped:
             warmup = "skipped by the operator"
         elif proc.config.warmup:
@@ -408,10 +410,22 @@ class Session:
             operator=self.operator,
             site=self.site_name,
             written=written,
-            verification=verification_of(after, written, proc.config.limits, proc.config.site.g),
+            verification=verification_of(verified, written, proc.config.limits, site.g),
             warmup=warmup,
             mounting=mounting_text(proc.config.mounting, proc.config.mounting_note),
             scales=Scales(site.accel_lsb, site.gyro_lsb, site.g),
+            plan_times=schedule(proc.config.plan, proc.config.averaging).words(),
+            forecast=tuple(session_forecast(proc.config, node_id)),
+            verified=tuple(verified),
+        )
+
+    def verification_verdict(self, node_id: int) -> str:
+        """Return the certificate's verification line for one node ("" before a solution)."""
+        solved = self.procedure.solved
+        if solved is None or node_id not in solved.acceptance:
+            return ""
+        return verification_verdict(
+            self.facts(node_id).verification, solved.acceptance[node_id].passed
         )
 
     def _write_certificates(self, node_id: int) -> None:

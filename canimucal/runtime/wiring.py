@@ -34,11 +34,12 @@ from canimucal.device.client import NOTIFIER_CYCLE_S, Identity, ImuClient
 from canimucal.device.factory_k import device_k
 from canimucal.errors import InputError, NoDeviceError
 from canimucal.io.atomic import per_node_path
-from canimucal.io.mounting import choose_mounting
+from canimucal.io.mounting import choose_mounting, choose_vehicle_size
 from canimucal.model.layout import GyroSpec, JointSpec
 from canimucal.model.mounting import MountingMap
 from canimucal.model.plan import KPrior
 from canimucal.model.positions import Plan
+from canimucal.model.vehicle_size import VehicleSize
 from canimucal.model.vocabulary.plans import PLANS, VEHICLE_PRIOR_K_SIGMA, worded_for_vehicle
 from canimucal.procedure.machine import Procedure, ProcedureConfig
 from canimucal.runtime.resume import load_resume_state
@@ -278,6 +279,8 @@ class Devices:
         site_name: str | None = None,
         mount: MountingMap | str | None = None,
         replace_mount: bool = False,
+        vehicle_size: VehicleSize | None = None,
+        remember_size: bool = True,
         prior_k: str | None = None,
         prior_k_sigma: float | None = None,
         **config: Any,
@@ -288,7 +291,10 @@ class Devices:
         first node. Simulated nodes keep their backups in ``out_dir/backups`` by default.
         ``resume``: go on with the interrupted session in ``out_dir``, if its recordings came
         from these very units. ``mount`` (a map, ``"body"`` or None) and ``replace_mount``
-        choose how instructions are worded (:func:`instruction_mounting`). ``prior_k`` (a file)
+        choose how instructions are worded (:func:`instruction_mounting`), ``vehicle_size``
+        (else the one saved for the first node's serial) words a vehicle's tilts as heights
+        (:func:`~canimucal.io.mounting.choose_vehicle_size`; ``remember_size`` False: used,
+        neither saved nor looked up, as the demo does). ``prior_k`` (a file)
         and ``prior_k_sigma`` set the prior on K
         (:meth:`k_priors`); a resumed session without them keeps the prior its recordings
         say the first part held. ``config`` goes to :class:`ProcedureConfig`; without
@@ -310,6 +316,15 @@ class Devices:
         config["mounting"], config["mounting_note"] = instruction_mounting(
             plan_name, first_serial, mount, replace_mount
         )
+        if config["mounting"] is not None and not remember_size:  # the demo: nothing saved
+            config["vehicle_size"] = vehicle_size
+        elif config["mounting"] is not None:  # a vehicle: its tilts as heights when known
+            sized = choose_vehicle_size(first_serial, vehicle_size, replace=replace_mount)
+            config["vehicle_size"] = sized.size
+            if sized.note:
+                config["mounting_note"] = "; ".join(
+                    n for n in (config["mounting_note"], sized.note) if n
+                )
         resumed = config.get("resume_from")
         flags = prior_k is not None or prior_k_sigma is not None
         if "k_priors" in config:

@@ -2,7 +2,7 @@
 
 The app owns the screen flow: connection → plan → (the site question, when no flag gave the
 site) → position (the procedure, with its I/O
-worker) → results → write confirmation (modal) → position (verification at level) →
+worker) → results → write confirmation (modal) → position (the verification poses) →
 verification. A screen that is done posts a message (:mod:`canimucal.tui.messages`) and the
 app pushes the next screen, so no screen imports another. Errors are shown in
 :class:`~canimucal.tui.modals.ErrorModal`, never as a traceback.
@@ -26,7 +26,6 @@ from textual.binding import Binding
 from canimucal.io.site_memory import LastSite
 from canimucal.model.positions import Plan
 from canimucal.model.vocabulary.plans import CUSTOM, DEFAULT_PLAN, builtin_names, builtin_plan
-from canimucal.procedure.averaging import AveragingPolicy, averaged_sensors, describe_rule
 from canimucal.procedure.machine import Phase
 from canimucal.signals import EXIT_INTERRUPTED
 from canimucal.tui.messages import PlanWanted, ProcedureEnded, ResultsReady, StartWanted
@@ -84,7 +83,6 @@ class CalibrationApp(App[int]):
 
     def on_plan_wanted(self, message: PlanWanted) -> None:
         """Show the plan screen once the connection screen is done."""
-        policy = getattr(self.source, "averaging", None)
         plan_screen = PlanScreen(
             message.statuses,
             self.plans,
@@ -92,9 +90,9 @@ class CalibrationApp(App[int]):
             gyro=self.gyro,
             mount=self.source.mount,
             acceptance=getattr(self.source, "acceptance", None),
-            averaging=describe_rule(
-                policy if policy is not None else AveragingPolicy(), averaged_sensors(self.gyro)
-            ),
+            averaging=getattr(self.source, "averaging", None),
+            prior_k_sigma=getattr(self.source, "prior_k_sigma", None),
+            vehicle_size=getattr(self.source, "vehicle_size", None),
         )
         self.push_screen(plan_screen)
 
@@ -139,7 +137,14 @@ class CalibrationApp(App[int]):
     def on_procedure_ended(self, message: ProcedureEnded) -> None:
         """Show the verification and the files once the procedure finished or was cancelled."""
         self.push_screen(
-            VerificationScreen(message.checks, message.saved, message.writes, message.finished)
+            VerificationScreen(
+                message.checks,
+                message.saved,
+                message.writes,
+                message.finished,
+                verified=message.verified,
+                verdicts=message.verdicts,
+            )
         )
 
     # -- exits ------------------------------------------------------------------------------

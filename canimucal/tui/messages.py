@@ -101,9 +101,15 @@ class ProcedureEnded(Message):
         saved: list[ev.RecordSaved],
         writes: list[ev.WriteFinished],
         finished: ev.ProcedureFinished,
+        verified: list[ev.PoseVerified] | None = None,
+        verdicts: dict[int, str] | None = None,
     ) -> None:
         super().__init__()
         self.checks = checks
         self.saved = saved
         self.writes = writes
         self.finished = finished
+        self.verified = verified or []
+        """The verification poses re-read after the write."""
+        self.verdicts = verdicts or {}
+        """Per node, the certificate's verification line."""

@@ -27,6 +27,7 @@ from canimucal.io.site_memory import LastSite, read_last_site, save_last_site
 from canimucal.model.gravity import normal_gravity
 from canimucal.model.mounting import MountingMap
 from canimucal.model.positions import Plan
+from canimucal.model.vehicle_size import VehicleSize
 from canimucal.procedure.averaging import AveragingPolicy
 from canimucal.runtime.resume import recorded_site
 from canimucal.runtime.session import Session
@@ -134,6 +135,10 @@ class DeviceSource:
     """How the unit sits in the vehicle (``"body"``: body-axis wording; None: saved/default)."""
     replace_mount: bool = False
     """Replace the map saved for the unit's serial with ``mount``."""
+    vehicle_size: VehicleSize | None = None
+    """The vehicle's wheelbase and track (``--wheelbase``/``--track``; None: the saved ones)."""
+    remember_size: bool = True
+    """Save ``vehicle_size`` for the unit's serial and look a saved one up (not the demo)."""
     prior_k: str | None = None
     prior_k_sigma: float | None = None
     """The prior on K of a plan that holds one: ``prior_k`` a file (else the K each node
@@ -197,6 +202,8 @@ class DeviceSource:
             verify_seconds=self.verify_seconds,
             mount=self.mount,
             replace_mount=self.replace_mount,
+            vehicle_size=self.vehicle_size,
+            remember_size=self.remember_size,
             prior_k=self.prior_k,
             prior_k_sigma=self.prior_k_sigma,
             limits=self.acceptance.limits(plan_name),

@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 from canimucal.device.client import CalibrationReadout
 from canimucal.model.plan import BoundTable
 from canimucal.procedure import events as ev
+from canimucal.runtime.plan_forecast import table_cells
 
 Array = NDArray[np.float64]
 
@@ -144,17 +145,8 @@ def short_live_line(event: ev.SamplesReceived) -> str:
 
 
 def bound_rows(table: BoundTable) -> list[tuple[str, str, str, str]]:
-    """Rows of the Cramér–Rao table: parameter, σ, unit, effect at 1 g (counts)."""
-    rows = []
-    for r in table.rows:
-        name = r.name.replace("base_tilt.", "tilt.")
-        if r.sigma is None or r.effect_counts is None:
-            rows.append((name, "—", r.unit, "undetermined"))
-            continue
-        sigma = float(np.rad2deg(r.sigma)) if r.unit == "rad" else r.sigma
-        unit = "deg" if r.unit == "rad" else r.unit
-        rows.append((name, f"{sigma:.4g}", unit, f"{r.effect_counts:.3g}"))
-    return rows
+    """Rows of the Cramér–Rao table: parameter, σ, unit, effect at 1 g (counts), as ``plan``."""
+    return table_cells(table)
 
 
 def findings_text(table: BoundTable) -> str:

@@ -130,7 +130,9 @@ async def test_the_plan_screen_offers_the_new_plan_on_its_key(
         assert "t Tumble" in screen_text(app).splitlines()[-1]
         await pilot.press("t")
         await pilot.pause()
-        assert "plan tumble: 8 positions, 160 s of averaging" in screen_text(app)
+        text = screen_text(app)
+        assert "plan tumble: 8 positions" in text
+        assert "position 1 120 s (it measures the noise), then at most 20 s each" in text
 
 
 def test_a_recording_of_the_new_plan_is_solved_and_written_under_its_own_code(

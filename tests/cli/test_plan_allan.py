@@ -16,6 +16,7 @@ from canimucal.io.recording_writer import write_recording
 from canimucal.model.positions import Plan, PlannedPosition
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, STANDARD_GRAVITY
 from canimucal.sim.truth import Truth
+from tests.support.bare_numbers import bare_numbers
 
 Cli = Callable[[Sequence[Any]], Any]  # conftest.cli: argv -> CliRun(code, out, err)
 
@@ -41,7 +42,7 @@ def test_two_positions_bound_table_matches_the_closed_form(cli: Cli) -> None:
     difference over g·cos45°·sin5° (eq. 12), so σ(k33) = √2·σ/(g cos a sin b) and its effect
     at 1 g is g·σ(k33); bias x and z are the level means themselves (eq. 11).
     """
-    doc = plan_json(cli, "--plan", "two", "--no-tilt")
+    doc = plan_json(cli, "--plan", "two", "--no-tilt", "--seconds", "30")
     r = rows(doc)
     sigma_mean = 1.0 / np.sqrt(30.0)
     a, b = np.deg2rad(45.0), np.deg2rad(5.0)
@@ -76,13 +77,13 @@ def test_two_positions_full_k_is_not_identifiable(cli: Cli) -> None:
 
 
 def test_five_positions_names_bias_z_against_beta0(cli: Cli) -> None:
-    run = cli(["plan", "--plan", "five"])
+    run = cli(["plan", "--plan", "five", "--seconds", "30"])  # the paper's 30 s each
     assert run.code == 0, run.err
     lines = run.out.splitlines()
     assert lines[0].startswith("plan five: 150 s")
     assert "poorly separable: accel.bias[2] and base_tilt.beta0 (correlation -0.9996)" in lines
     assert re.search(r"worst-case bound: 4\.2\d* counts \(accel\.bias\[2\]\)", run.out)
-    doc = plan_json(cli, "--plan", "five")
+    doc = plan_json(cli, "--plan", "five", "--seconds", "30")
     corr = [f for f in doc["findings"] if f["correlation"] is not None]
     assert [f["parameters"] for f in corr] == [["accel.bias[2]", "base_tilt.beta0"]]
     assert corr[0]["correlation"] == pytest.approx(-0.9996, abs=5e-5)
@@ -191,12 +192,19 @@ def test_allan_text_report(cli: Cli, still_recording: Path) -> None:
     run = cli(["allan", still_recording])
     assert run.code == 0, run.err
     assert run.out.startswith("Allan deviation of position 0")
-    found = re.findall(r"x: white ([0-9.e+-]+) counts/√Hz \(([0-9.e+-]+) ", run.out)
+    found = re.findall(
+        r"x: white ([0-9.e+-]+) counts/√Hz \[[^]]*\] \(([0-9.e+-]+) (\S+)\)", run.out
+    )
     assert len(found) == 2  # accel and gyro
-    accel_counts, accel_si = map(float, found[0])
-    assert accel_counts == pytest.approx(ACCEL_DENSITY_SI / DEFAULT_ACCEL_LSB, rel=0.10)
-    assert accel_si == pytest.approx(ACCEL_DENSITY_SI, rel=0.10)
+    (accel_counts, accel_mg, unit), (gyro_counts, gyro_deg_s, gyro_unit) = found
+    assert float(accel_counts) == pytest.approx(ACCEL_DENSITY_SI / DEFAULT_ACCEL_LSB, rel=0.10)
+    # beside the counts, the operator's unit of the sensor (the units registry's mg, °/s)
+    assert unit == "mg/√Hz" and gyro_unit == "°/s/√Hz"
+    g = STANDARD_GRAVITY
+    assert float(accel_mg) == pytest.approx(ACCEL_DENSITY_SI / g * 1000, rel=0.10)
+    assert float(gyro_deg_s) == pytest.approx(np.rad2deg(GYRO_DENSITY_SI), rel=0.10)
     assert "recommended averaging time:" in run.out
+    assert not bare_numbers(run.out)  # every number carries its unit
 
 
 def test_allan_too_short_is_exit_2(cli: Cli, simulated: Callable[..., Any]) -> None:
@@ -210,7 +218,9 @@ def test_vehicle_plan_lists_positions_minutes_and_its_stated_prior(cli: Cli) -> 
     assert len(doc["positions"]) == 8
     assert max(abs(p["alpha_deg"]) + abs(p["beta_deg"]) for p in doc["positions"]) == 10.0
     assert {p["psi_deg"] for p in doc["positions"]} == {0.0, 90.0, 180.0, 270.0}
-    assert doc["operator_minutes"] == pytest.approx((8 * 60 + 8 * 180) / 60)
+    # the session's times: 120 s for the first position (its noise), the plan's 60 s after
+    assert doc["seconds_per_position"] == [120.0] + [60.0] * 7
+    assert doc["operator_minutes"] == pytest.approx((120 + 7 * 60 + 8 * 180) / 60)
     r = rows(doc)
     k_nominal = 1.0 / DEFAULT_ACCEL_LSB
     assert r["accel.K[1][1]"]["prior"]["sigma"] == pytest.approx(0.01 * k_nominal)
@@ -268,28 +278,33 @@ def test_allan_text_and_json_agree_and_every_interval_holds_its_value(
     assert common is not None and float(common.group(1)) == pytest.approx(
         doc["best_averaging_s"], abs=0.5
     )
+    term = r"([0-9.e+-]+) {u} \[([0-9.e+-]+)–([0-9.e+-]+) {u}\] \(([0-9.e+-]+) \S+\)"
     pattern = (
-        r"  ([xyz]): white ([0-9.e+-]+) counts/√Hz \(.*?\) \[([0-9.e+-]+)–([0-9.e+-]+)\], "
-        r"bias instability ([0-9.e+-]+) counts \[([0-9.e+-]+)–([0-9.e+-]+)\], "
-        r"random walk ([0-9.e+-]+) counts/√s \[([0-9.e+-]+)–([0-9.e+-]+)\], "
-        r"best averaging ([0-9.e+-]+) s"
-    )
+        r"  ([xyz]): white " + term.format(u="counts/√Hz")
+        + ", bias instability " + term.format(u="counts")
+        + ", random walk " + term.format(u="counts/√s")
+        + r", best averaging ([0-9.e+-]+) s"
+    )  # fmt: skip
     rows = re.findall(pattern, text.out)
     assert len(rows) == 6, text.out
     for i, row in enumerate(rows):
         sensor, axis = ("accel", "gyro")[i // 3], "xyz".index(row[0])
         block = doc["sensors"][sensor]
+        operator = doc[sensor]["operator"]
         numbers = [float(v) for v in row[1:]]
         for j, key in enumerate(
             ("white_noise_density_counts", "bias_instability_counts",
              "random_walk_counts_per_sqrt_s")
         ):  # fmt: skip
-            value, low, high = numbers[3 * j : 3 * j + 3]
+            value, low, high, shown = numbers[4 * j : 4 * j + 4]
             assert low <= value <= high
             entry = block[key][axis]
             lo, hi = entry["ci95"]
             assert lo <= entry["value"] <= hi
             assert value == pytest.approx(entry["value"], rel=2e-3, abs=2e-3)
+            own = operator[("white_noise_density", "bias_instability", "random_walk")[j]]
+            assert shown == pytest.approx(own[axis], rel=2e-3, abs=2e-3)
+        numbers = numbers[:9] + [numbers[12]]  # the best averaging time last
         assert numbers[9] == pytest.approx(block["best_averaging_s"][axis], rel=2e-3)
         assert block["best_averaging_s"][axis] == doc[sensor]["best_averaging_s_per_axis"][axis]
 
@@ -306,7 +321,9 @@ def test_plan_shows_each_limit_beside_the_sigma_the_session_will_get(
     run = cli(["solve", rec.path, "--no-check", "--json", "-"])
     assert run.code == 0, run.err
     got = json.loads(run.out)["acceptance"]["values"]
-    forecast = {r["key"]: r for r in plan_json(cli, "--plan", "two")["acceptance"]}
+    # timed as the recording was (30 s each): the forecast is then solve's own σ
+    doc = plan_json(cli, "--plan", "two", "--seconds", "30")
+    forecast = {r["key"]: r for r in doc["acceptance"]}
     for key in ("max_bias_sigma_mg", "max_scale_sigma_ppm"):
         assert forecast[key]["predicted"] == pytest.approx(got[key], rel=0.05), key
     assert forecast["max_scale_sigma_ppm"]["meets"] is False

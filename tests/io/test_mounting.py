@@ -9,11 +9,14 @@ import pytest
 from canimucal.errors import InputError
 from canimucal.io.mounting import (
     choose_mounting,
+    choose_vehicle_size,
     load_mounting,
+    load_vehicle_size,
     mounting_path,
     save_mounting,
 )
 from canimucal.model.mounting import DEFAULT_MOUNTING, MountingMap
+from canimucal.model.vehicle_size import VehicleSize
 
 TURNED = MountingMap.parse("x=left,y=down,z=back")
 
@@ -82,3 +85,27 @@ def test_choice_default_saved_requested_and_body(tmp_path: Path) -> None:
 
     body = choose_mounting(9, "body", config=config)
     assert body.mounting is None and "own axes" in body.note
+
+
+def test_the_vehicle_size_is_saved_beside_the_map_and_kept_when_the_map_changes(
+    tmp_path: Path,
+) -> None:
+    config = tmp_path / "config"
+    size = VehicleSize(wheelbase_m=3.5, track_m=1.8)
+    first = choose_vehicle_size(9, size, config=config)  # no file yet: saved, alone
+    assert first.size == size and "saved for serial 9" in first.note
+    assert load_vehicle_size(9, config) == size and load_mounting(9, config) is None
+    choose_mounting(9, "x=left,y=down,z=back", config=config)  # the map joins it
+    assert load_mounting(9, config) == TURNED and load_vehicle_size(9, config) == size
+    assert choose_vehicle_size(9, config=config).size == size  # loaded by serial next time
+    wider = choose_vehicle_size(9, VehicleSize(track_m=2.0), config=config)
+    assert wider.size == VehicleSize(3.5, 2.0)  # the wheelbase left out: the saved one
+    assert "keeps wheelbase 3.5 m, track 1.8 m" in wider.note
+    assert load_vehicle_size(9, config) == size  # not replaced without asking
+    choose_vehicle_size(9, VehicleSize(track_m=2.0), replace=True, config=config)
+    assert load_vehicle_size(9, config) == VehicleSize(3.5, 2.0)
+    assert load_mounting(9, config) == TURNED  # the map stays
+    path = mounting_path(9, config)
+    path.write_text('x = "forward"\ny = "down"\nz = "left"\nwheelbase_m = 350\n')
+    with pytest.raises(InputError, match="wheelbase_m must be a length in metres"):
+        load_vehicle_size(9, config)

@@ -220,7 +220,7 @@ def _short_plan(seconds: float = 30.0) -> Plan:
 @pytest.mark.parametrize(
     ("random_walk", "low", "high"),
     [
-        # white noise only: no ADEV minimum, the upper clip 120 s
+        # white noise only: no ADEV minimum, the upper clip: the plan's 120 s
         (0.0, 120.0, 120.0),
         # q = 0.2 counts/√s with N = 0.31 counts·√s: τ* = √3·N/q ≈ 2.7 s on every axis,
         # far below the 15 s clip even when the fit on 120 s misses q by a factor 4
@@ -240,9 +240,9 @@ def test_averaging_time_follows_the_noise_of_the_first_position(
     )
     # no gyro model: the accelerometer's axes alone decide (test_averaging_rule has the gyro)
     spec = JointSpec(accel_k="diag", tilt="rigid", gyro="none")
-    bench = Bench([truth], _short_plan(), averaging=AveragingPolicy(), spec=spec)
+    bench = Bench([truth], _short_plan(120.0), averaging=AveragingPolicy(), spec=spec)
     assert bench.proc.seconds_for(0) == 120.0
-    assert bench.proc.seconds_for(1) == 30.0  # until the noise is known
+    assert bench.proc.seconds_for(1) == 120.0  # until the noise is known: the plan's
     bench.position()
     events = bench.do("accept")
     chosen = of(events, ev.AveragingTimeChosen)[0]
@@ -258,6 +258,9 @@ def test_a_user_averaging_time_overrides_the_noise(diag_truth: Truth) -> None:
     bench = Bench([diag_truth], _short_plan(), averaging=AveragingPolicy(user_s=20.0))
     assert bench.proc.seconds_for(0) == 120.0  # max(120 s, the user's value)
     assert bench.proc.seconds_for(1) == 20.0
+    plain = Bench([diag_truth], _short_plan(), averaging=AveragingPolicy())
+    assert plain.proc.seconds_for(0) == 120.0  # max(120 s, the plan's 30 s): the noise
+    assert plain.proc.seconds_for(1) == 30.0  # the plan's, a budget the noise may shorten
     policy = AveragingPolicy(user_s=150.0)
     assert policy.first_seconds() == 150.0
     assert AveragingPolicy(fixed_s=4.0).first_seconds() == 4.0
@@ -300,11 +303,25 @@ def test_write_and_verification_flow(diag_truth: Truth) -> None:
     if bench.proc.phase is not Phase.WRITING:
         bench.proc.begin_write(override=True)
     events = bench.proc.write_finished(0x10, True, "written")
-    verify = of(events, ev.PoseInstructed)[0]
-    assert verify.verification and not np.any(verify.position.angles)
+    # two poses other than the fit's level one: five's most tilted, then level turned 90°
+    first = of(events, ev.PoseInstructed)[0]
+    assert first.verification and (first.index, first.total) == (0, 2)
+    assert np.rad2deg(first.position.angles).round(6).tolist() == [45.0, 5.0, 0.0]
+    assert first.words.startswith("verification 1/2: tilt 45° about z")
     bench.position()
-    done = of(bench.events, ev.LevelChecked)
-    assert [c.stage for c in done] == ["before", "after"]
+    second = of(bench.events, ev.PoseInstructed)[-1]
+    assert second.verification and (second.index, second.total) == (1, 2)
+    assert np.rad2deg(second.position.angles).round(6).tolist() == [0.0, 0.0, 90.0]
+    assert bench.proc.phase is Phase.INSTRUCT
+    assert bench.proc.skip() == []  # a verification pose is never skipped
+    bench.position()
+    assert [c.stage for c in of(bench.events, ev.LevelChecked)] == ["before"]
+    verified = of(bench.events, ev.PoseVerified)
+    assert [v.index for v in verified] == [0, 1]
+    for v in verified:  # within the limits (five cannot tell bias z from beta0: the turn shows
+        # it, a few tenths of a degree; the level pose the fit started from would not)
+        assert abs(v.norm_error_calibrated_ms2) < 0.005 and v.tilt_error_calibrated_deg < 2.0
+    assert verified[1].tilt_error_calibrated_deg < verified[1].tilt_error_nominal_deg
     assert bench.proc.phase is Phase.DONE
     assert of(bench.events, ev.ProcedureFinished)
 

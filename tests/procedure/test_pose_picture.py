@@ -10,7 +10,8 @@ import numpy as np
 
 from canimucal.model.positions import Pose
 from canimucal.model.vocabulary.plans import builtin_names, builtin_plan
-from canimucal.procedure.pose_picture import body_axes_in_level, field_guide, pose_svg, to_screen
+from canimucal.procedure.pose_picture import body_axes_in_level, pose_svg, to_screen
+from canimucal.runtime.plan_forecast import field_guide_pages
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 SVG = "{http://www.w3.org/2000/svg}"
@@ -52,7 +53,7 @@ def test_device_free_text_is_escaped() -> None:
 
 def test_committed_field_guide_is_current() -> None:
     """docs/field-guide.md and its pictures are what scripts/make_field_guide.py writes."""
-    markdown, pictures = field_guide([builtin_plan(name) for name in builtin_names()])
+    markdown, pictures = field_guide_pages()
     assert (DOCS / "field-guide.md").read_text(encoding="utf-8") == markdown
     for name, svg in pictures.items():
         assert (DOCS / "field-guide" / name).read_text(encoding="utf-8") == svg, name

@@ -10,8 +10,9 @@ from canimucal.analysis.acceptance import AcceptanceLimits, AcceptanceReport, Ch
 from canimucal.device.client import Identity
 from canimucal.io.calibration import Conditions, Device, record_from_estimates
 from canimucal.model.mounting import MountingMap
+from canimucal.model.positions import PlannedPosition
 from canimucal.model.vocabulary.units import QUANTITIES, Scales
-from canimucal.procedure.events import LevelChecked
+from canimucal.procedure.events import LevelChecked, PoseVerified
 from canimucal.runtime.certificate import (
     SessionFacts,
     certificate_html,
@@ -24,19 +25,33 @@ G = 9.80665
 LIMITS = AcceptanceLimits()
 
 
-def _after(norm_error_ms2: float) -> LevelChecked:
-    return LevelChecked(16, "after", 0.1, (0.0, 0.0), norm_error_ms2, (0.0, 0.0))
+TILTED = PlannedPosition(float(np.deg2rad(10.0)), 0.0, 0.0)
+TURNED = PlannedPosition(0.0, 0.0, float(np.deg2rad(90.0)))
 
 
-def test_verification_passes_within_its_limit_and_is_not_done_without_a_reread() -> None:
+def _after(norm_error_ms2: float, tilt_deg: float = 0.1) -> list[PoseVerified]:
+    """Both verification poses re-read: the first with the given errors, the second clean."""
+    return [
+        PoseVerified(16, 0, 2, TILTED, "raise the rear wheels 10°", 0.1, norm_error_ms2, 1.0,
+                     tilt_deg),
+        PoseVerified(16, 1, 2, TURNED, "turn 90° right", 0.1, 0.0, 1.0, 0.05),
+    ]  # fmt: skip
+
+
+def test_verification_passes_within_its_limits_and_is_not_done_without_every_pose() -> None:
     ok = verification_of(_after(0.004 * G / 1000), True, LIMITS, G)  # 0.004 mg
     assert ok.done and ok.passed and ok.written
-    assert ok.limits == {"max_verify_norm_error_mg": 5.0}
+    assert ok.limits == {"max_verify_norm_error_mg": 5.0, "max_verify_tilt_error_deg": 2.0}
+    assert np.isclose(ok.values["max_verify_tilt_error_deg"], 0.1)
     bad = verification_of(_after(-0.06), True, LIMITS, G)  # 6.1 mg > 5 mg
     assert bad.done and not bad.passed
     assert np.isclose(bad.values["max_verify_norm_error_mg"], 0.06 / G * 1000)
-    interrupted = verification_of(None, True, LIMITS, G)  # written, then the session ended
+    tilted = verification_of(_after(0.0, tilt_deg=2.5), True, LIMITS, G)  # 2.5° > 2°
+    assert tilted.done and not tilted.passed
+    interrupted = verification_of([], True, LIMITS, G)  # written, then the session ended
     assert not interrupted.done and not interrupted.passed and interrupted.written
+    one_of_two = verification_of(_after(0.0)[:1], True, LIMITS, G)
+    assert not one_of_two.done and not one_of_two.passed
     unwritten = verification_of(_after(0.0), False, LIMITS, G)
     assert not unwritten.done and unwritten.written is False
 
@@ -55,7 +70,7 @@ def test_certificate_states_the_verdicts_and_escapes_device_text() -> None:
         operator="A. <b>Tester</b>",
         site="Bay 3",
         written=True,
-        verification=verification_of(None, True, LIMITS, G),
+        verification=verification_of([], True, LIMITS, G),
         warmup="skipped by the operator",
         mounting=mounting_text(MountingMap.parse("x=left,y=down,z=back"), "asked for *this* run"),
     )
@@ -97,14 +112,18 @@ def test_a_failed_acceptance_is_never_passed_beside_a_good_reread() -> None:
     reread = verification_of(_after(0.004 * G / 1000), True, LIMITS, G)  # within its limit
     failed = AcceptanceReport((Check("worst bias σ", 8.2, 5.0, "mg", False, "max_bias_sigma_mg"),))
     passed = AcceptanceReport((Check("worst bias σ", 1.2, 5.0, "mg", True, "max_bias_sigma_mg"),))
-    facts = SessionFacts(written=True, verification=reread)
+    facts = SessionFacts(written=True, verification=reread, verified=tuple(_after(0.0)))
     for report, ok in ((failed, False), (passed, True)):
         args = (record, identity, report, LIMITS, [])
         markdown = certificate_markdown(*args, facts=facts)
         page = certificate_html(*args, facts=facts)
         line = next(x for x in markdown.splitlines() if x.startswith("- Verification:"))
         assert ("PASSED" in line) is ok, line
-        assert "re-read after the write 0.004 mg (limit 5 mg)" in line  # what was verified
+        # what was verified, against which limits
+        assert "re-read after the write: worst abs(f) − g 0.004 mg (limit 5 mg)" in line
+        assert "worst tilt error 0.1° (limit 2°)" in line
+        assert "| 1/2: alpha 10°, beta 0°, psi 0° |" in markdown  # each pose in the table
+        assert "pose 1: raise the rear wheels 10°" in markdown and "turn 90° right" in page
         if not ok:
             assert "acceptance FAILED" in line and "acceptance FAILED" in page
             assert "PASSED:" not in page
@@ -137,10 +156,15 @@ def test_every_value_of_the_certificate_carries_its_unit() -> None:
     )
     report = AcceptanceReport((Check("worst bias σ", 0.1, 5.0, "mg", True, "max_bias_sigma_mg"),))
     level = LevelChecked(16, "before", 0.02, (0.1, -0.2), 0.001, (0.0, 0.01))
-    facts = SessionFacts(scales=Scales(lsb, gyro_lsb, G))
+    facts = SessionFacts(
+        scales=Scales(lsb, gyro_lsb, G),
+        verified=tuple(_after(0.0012)),  # the verification table's cells are checked too
+        plan_times="position 1 120 s (it measures the noise), then at most 60 s each",
+    )
     text = certificate_markdown(
         record, Identity(1, 2, 3, 7, "imu"), report, LIMITS, [level], facts=facts
     )
+    assert "| 1/2: alpha 10°, beta 0°, psi 0° | +10.20 mg | +0.12 mg | 1.00° | 0.10° |" in text
     units = {q.shown_unit for q in QUANTITIES.values()} | {
         q.operator_unit for q in QUANTITIES.values()
     }

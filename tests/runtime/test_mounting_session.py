@@ -42,6 +42,9 @@ def test_a_session_loads_the_map_saved_for_its_unit_and_words_the_first_pose(
         events = session.procedure.start()
         session.finish()
     first = next(e for e in events if isinstance(e, ev.PoseInstructed))
-    assert first.words == "park the vehicle level at the start heading"
+    assert (
+        first.words
+        == "park the vehicle level at the start heading,\nthen mark where its tyres stand"
+    )
     with pytest.raises(InputError, match="mirror image"):
         instruction_mounting("vehicle", serial, "x=forward,y=left,z=down", False)

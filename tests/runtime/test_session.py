@@ -73,8 +73,24 @@ def test_the_session_saves_the_record_before_writing_and_adds_the_readback(
     assert sorted(set(rec.position.tolist()) - {-1}) == [0, 1]
     assert read_recording(tmp_path / "verification.csv").n_rows > 2 * rec.sample_rate_hz
     assert list((tmp_path / "backups").glob(f"{truth.serial}-*.json"))
-    after = [e for e in history if isinstance(e, ev.LevelChecked) and e.stage == "after"]
-    assert len(after) == 1 and abs(after[0].norm_error_calibrated_ms2) < 0.01
+    # two verification poses away from the fit's level one: the most tilted, a level turn
+    verified = [e for e in history if isinstance(e, ev.PoseVerified)]
+    assert [np.rad2deg(e.position.angles).round(3).tolist() for e in verified] == [
+        [45.0, 5.0, 0.0],
+        [0.0, 0.0, 90.0],
+    ]
+    for e in verified:
+        assert abs(e.norm_error_calibrated_ms2) < 0.01 and e.tilt_error_calibrated_deg < 1.0
+    final = record.verification
+    assert (
+        final is not None
+        and final.done
+        and set(final.values)
+        == {
+            "max_verify_norm_error_mg",
+            "max_verify_tilt_error_deg",
+        }
+    )
 
 
 def test_a_session_interrupted_after_the_write_records_the_verification_as_not_done(

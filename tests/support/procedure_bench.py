@@ -134,7 +134,7 @@ class Bench:
         self.move(self.proc.target)
         self.run(settle_s)
         out = self.do("confirm_pose")
-        done = (ev.PositionAveraged, ev.LevelChecked)
+        done = (ev.PositionAveraged, ev.PoseVerified)
         return out + self.run_until(done, max_s, alter=alter, block_n=50)
 
     def whole_plan(self) -> None:

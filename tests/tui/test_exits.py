@@ -128,7 +128,7 @@ async def test_quitting_after_the_write_says_the_verification_is_not_done(tmp_pa
         question = app.screen
         assert isinstance(question, ConfirmQuit)
         assert "Node 16 keeps the new calibration" in question.text
-        assert "verification at level is NOT done" in question.text
+        assert "verification poses are NOT re-read" in question.text
         assert "record it as not done." in screen_text(app)
         assert lines_fit(app)
         await pilot.press("y")

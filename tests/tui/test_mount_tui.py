@@ -9,6 +9,7 @@ import pytest
 
 from canimucal.io.mounting import load_mounting, save_mounting
 from canimucal.model.mounting import MountingMap
+from canimucal.model.vehicle_size import VehicleSize
 from canimucal.procedure.machine import Phase
 from canimucal.sim.truth import Truth
 from canimucal.tui.app import make_app
@@ -90,3 +91,26 @@ async def test_a_vehicle_session_words_its_first_pose_for_the_vehicle_and_says_w
         assert "mounting x=left,y=down,z=back saved for serial" in text
     serial = next(iter(source.statuses.values())).identity.serial
     assert load_mounting(serial) == MountingMap("left", "down", "back")
+
+
+async def test_the_plan_screen_says_whether_tilts_are_worded_as_heights(tmp_path: Path) -> None:
+    """--wheelbase/--track (or a size saved for the unit) word the tilts as heights."""
+    app = make_app(FakeSource(tmp_path), plan_name="vehicle", autoconnect=False)
+    async with app.run_test(size=SIZE) as pilot:
+        await app.push_screen(PlanScreen([node_status()], app.plans, plan_name="vehicle"))
+        await pilot.pause()
+        assert "tilts as angles (--wheelbase M and --track M word them as heights)" in (
+            screen_text(app)
+        )
+        sized = PlanScreen(
+            [node_status()], app.plans, plan_name="vehicle", vehicle_size=VehicleSize(3.5, 1.8)
+        )
+        await app.push_screen(sized)
+        await pilot.pause()
+        assert "tilts as heights: wheelbase 3.5 m, track 1.8 m" in screen_text(app)
+    save_mounting(SERIAL, None, size=VehicleSize(wheelbase_m=4.0))  # saved for the unit
+    app = make_app(FakeSource(tmp_path), plan_name="vehicle", autoconnect=False)
+    async with app.run_test(size=SIZE) as pilot:
+        await app.push_screen(PlanScreen([node_status()], app.plans, plan_name="vehicle"))
+        await pilot.pause()
+        assert "tilts as heights: wheelbase 4 m" in screen_text(app)

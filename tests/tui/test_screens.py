@@ -21,6 +21,10 @@ from canimucal.tui.screens.results import ResultsScreen
 from canimucal.tui.screens.verification import VerificationScreen
 from tests.support.tui_fakes import FakeSource, live, node_status, screen_text, solved_event
 
+TILTED = PlannedPosition(float(np.deg2rad(10.0)), 0.0, 0.0)
+TURNED = PlannedPosition(0.0, 0.0, float(np.deg2rad(90.0)))
+"""The vehicle plan's verification poses (procedure/verification.py)."""
+
 SIZE = (80, 24)
 pytestmark = pytest.mark.asyncio
 
@@ -82,7 +86,10 @@ async def test_plan_screen_shows_bounds_and_what_the_five_plan_cannot_separate(
         await pilot.pause()
         text = screen_text(app)
         assert "plan five: 5 positions" in text
-        assert "poorly separable: accel.bias[2] and base_tilt.beta0 (correlation -0.9996)" in text
+        screen = app.screen
+        assert isinstance(screen, PlanScreen)
+        findings = str(screen.findings.render())  # below the table: scrolled at 80×24
+        assert "poorly separable: accel.bias[2] and base_tilt.beta0 (correlation -0.99" in findings
         assert "accel.K[0][1]" not in text  # the five plan's model: diagonal K
         # the current plan's key is hidden, the others shown
         keys = {b.binding.key for b in app.active_bindings.values() if b.enabled}
@@ -101,7 +108,8 @@ async def test_the_plan_screen_offers_the_vehicle_plan_with_its_prior_at_80x24(
         await app.push_screen(PlanScreen([node_status()], app.plans, plan_name=app.plan_name))
         await pilot.pause()
         text = screen_text(app)
-        assert "plan vehicle: 8 positions, 480 s of averaging" in text
+        assert "plan vehicle: 8 positions" in text
+        assert "times: position 1 120 s (it measures the noise), then at most 60 s each" in text
         # its K prior (1 %) bounds the K columns its level poses leave open: finite σ
         assert "accel.K[0][1]" in text and "undetermined" not in text
         footer = text.splitlines()[-1]
@@ -279,7 +287,7 @@ async def test_a_procedure_failure_is_a_modal_with_its_title(tmp_path: Path) -> 
         assert "redo" not in enabled(app) and "quit" in enabled(app)
 
 
-async def test_the_end_of_the_procedure_shows_the_level_check_before_and_after(
+async def test_the_end_of_the_procedure_shows_the_level_check_and_the_verification_poses(
     tmp_path: Path,
 ) -> None:
     app = make_app(FakeSource(tmp_path), autoconnect=False)
@@ -290,7 +298,8 @@ async def test_the_end_of_the_procedure_shows_the_level_check_before_and_after(
             ev.LevelChecked(16, "before", 0.0412, (-0.28, 1.19), -0.00003, (-0.6, 0.16)),
             ev.RecordSaved(16, "out/calibration.json", "out/certificate.md", "out/rec.csv"),
             ev.WriteFinished(16, True, "written and verified", "out/backups/4242-x.json"),
-            ev.LevelChecked(16, "after", 0.0399, (-0.25, 1.16), -0.0012, (-0.57, 0.12)),
+            ev.PoseVerified(16, 0, 2, TILTED, "raise the rear wheels 10°", 0.05, 0.002, 0.8, 0.2),
+            ev.PoseVerified(16, 1, 2, TURNED, "turn 90° right", 0.04, -0.001, 0.7, 0.1),
             ev.PhaseChanged(Phase.DONE, Phase.AVERAGING),
             ev.ProcedureFinished(),
         ]
@@ -299,7 +308,10 @@ async def test_the_end_of_the_procedure_shows_the_level_check_before_and_after(
         assert isinstance(app.screen, VerificationScreen)
         text = screen_text(app)
         assert "before |f|−g nominal +0.0412 → calibrated -0.0000" in text
-        assert "after  |f|−g nominal +0.0399 → calibrated -0.0012" in text
+        flat = " ".join(text.split())  # wrapped at 80 columns
+        assert "verification 1/2: |f|−g nominal +5.10 → calibrated +0.20 mg" in flat
+        assert "tilt error nominal 0.80° → calibrated 0.20°" in flat
+        assert "pose: raise the rear wheels 10°" in flat
         assert "out/certificate.md" in text and "written and verified" in text
 
 
@@ -332,5 +344,5 @@ async def test_the_plan_screen_says_which_limits_a_plan_cannot_meet(tmp_path: Pa
         await pilot.pause()
         text = screen_text(app)
         assert "acceptance: this plan CANNOT meet max_scale_sigma_ppm" in text
-        assert "worst scale σ ≤ 3000 ppm: plan predicts 40056 ppm, CANNOT meet it" in text
+        assert "worst scale σ ≤ 3000 ppm: plan predicts 40054 ppm, CANNOT meet it" in text
         assert "[plan.two]" in text  # shown as text, not taken for markup

@@ -24,6 +24,10 @@ from canimucal.tui.screens.position import PositionScreen
 from canimucal.tui.screens.results import ResultsScreen
 from tests.support.tui_fakes import FakeSource, live, node_status, solved_event
 
+TILTED = PlannedPosition(float(np.deg2rad(10.0)), 0.0, 0.0)
+TURNED = PlannedPosition(0.0, 0.0, float(np.deg2rad(90.0)))
+"""The vehicle plan's verification poses (procedure/verification.py)."""
+
 SIZE = (80, 24)
 
 
@@ -107,7 +111,8 @@ def test_verification_screen(snap_compare: Any, tmp_path: Path) -> None:
             ev.LevelChecked(16, "before", 0.0412, (-0.28, 1.19), -0.00003, (-0.6, 0.16)),
             ev.RecordSaved(16, "out/calibration.json", "out/certificate.md", "out/rec.csv"),
             ev.WriteFinished(16, True, "written and verified", "out/backups/4242-x.json"),
-            ev.LevelChecked(16, "after", 0.0399, (-0.25, 1.16), -0.0012, (-0.57, 0.12)),
+            ev.PoseVerified(16, 0, 2, TILTED, "raise the rear wheels 10°", 0.05, 0.002, 0.8, 0.2),
+            ev.PoseVerified(16, 1, 2, TURNED, "turn 90° right", 0.04, -0.001, 0.7, 0.1),
             ev.ProcedureFinished(),
         ]
         screen.post_message(EventsArrived(events))

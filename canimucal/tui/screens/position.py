@@ -28,13 +28,20 @@ from canimucal.errors import CanimucalError
 from canimucal.flag_words import worded_for_flags
 from canimucal.procedure import events as ev
 from canimucal.procedure.machine import Phase
+from canimucal.runtime.certificate import verified_line
 from canimucal.runtime.resume import resumed_message
 from canimucal.runtime.session import SessionCommand, WriteOptions
 from canimucal.tui.messages import EventsArrived, ProcedureEnded, ResultsReady
 from canimucal.tui.modals import ConfirmSkip, ErrorModal
 from canimucal.tui.runner import Command, SessionRunner
 from canimucal.tui.source import NodeStatus
-from canimucal.tui.text import UNIT_BAR, UNIT_MARK, live_line, pose_drawing, short_live_line
+from canimucal.tui.text import (
+    UNIT_BAR,
+    UNIT_MARK,
+    live_line,
+    pose_drawing,
+    short_live_line,
+)
 from canimucal.untrusted import markup_text
 
 
@@ -106,6 +113,7 @@ class PositionScreen(Screen[None]):
         self.runner: SessionRunner | None = None
         self.live: dict[int, ev.SamplesReceived] = {}
         self.level_checks: list[ev.LevelChecked] = []
+        self.verified: list[ev.PoseVerified] = []
         self.saved: list[ev.RecordSaved] = []
         self.writes: list[ev.WriteFinished] = []
         self.solved: ev.Solved | None = None
@@ -187,7 +195,7 @@ class PositionScreen(Screen[None]):
         if written:
             lines.append(
                 f"Node {', '.join(written)} keeps the new calibration (written, read back and "
-                "stored). The verification at level is NOT done: calibration.json and the "
+                "stored). The verification poses are NOT re-read: calibration.json and the "
                 f"certificate in {where} record it as not done."
             )
         elif self.saved:
@@ -295,6 +303,8 @@ class PositionScreen(Screen[None]):
             self.seconds_left.update("done")
         elif isinstance(event, ev.LevelChecked):
             self.level_checks.append(event)
+        elif isinstance(event, ev.PoseVerified):
+            self.verified.append(event)
         elif isinstance(event, ev.RecordSaved):
             self.saved.append(event)
         elif isinstance(event, ev.WriteFinished):
@@ -311,7 +321,8 @@ class PositionScreen(Screen[None]):
             self.app.push_screen(ErrorModal(event.title, event.message))
 
     def _title(self) -> None:
-        what = "verification" if self.verification else f"position {self.index + 1}/{self.total}"
+        what = "verification" if self.verification else "position"
+        what += f" {self.index + 1}/{self.total}"
         words = PHASE_WORDS[self.phase]
         self.title_w.update(f"canimucal · {what} · {words}")
 
@@ -347,8 +358,21 @@ class PositionScreen(Screen[None]):
             self.post_message(ResultsReady(self.solved, self.statuses, self.decided))
         finished = [e for e in events if isinstance(e, ev.ProcedureFinished)]
         if finished:
+            session = None if self.runner is None else self.runner.session
+            verdicts = (
+                {}
+                if session is None
+                else {s.node_id: session.verification_verdict(s.node_id) for s in self.statuses}
+            )
             self.post_message(
-                ProcedureEnded(self.level_checks, self.saved, self.writes, finished[-1])
+                ProcedureEnded(
+                    self.level_checks,
+                    self.saved,
+                    self.writes,
+                    finished[-1],
+                    self.verified,
+                    {n: v for n, v in verdicts.items() if v},
+                )
             )
 
     def decided(self, command: Command | None) -> None:
@@ -391,6 +415,8 @@ def notice_text(event: ev.Event) -> str:
         return f"averaging time of the next positions: {event.describe()}"
     if isinstance(event, ev.WriteFinished):
         return f"write node {event.node_id}: {markup_text(event.message)}"
+    if isinstance(event, ev.PoseVerified):
+        return markup_text(verified_line(event))
     if isinstance(event, ev.RecordSaved):
         return f"saved {markup_text(str(event.record_path))}"
     if isinstance(event, ev.DeviceEventReported):
