@@ -13,7 +13,12 @@ from canimucal.cli.input_options import INPUT_HELP, SECOND_HELP, add_input_optio
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.cli.spec_options import add_model_options, choice_from_args
 from canimucal.cli.user_config import user_acceptance
-from canimucal.io.calibration import RecordingRef, sha256_of
+from canimucal.io.calibration import (
+    Calibration,
+    RecordingRef,
+    sha256_of,
+    slope_trim_correlation,
+)
 from canimucal.model.vocabulary.units import QUANTITIES
 
 
@@ -92,6 +97,8 @@ def solution_report(solution: Solution, g_source: str) -> str:
         lines.append(
             f"base tilt: alpha0 {_pm(t.alpha0, s[0])} {deg}, beta0 {_pm(t.beta0, s[1])} {deg}"
         )
+    if r.mounting_trim_deg is not None:
+        lines.append(trim_line(r))
     if r.gyro is not None:
         lines += _vector_lines(_label("gyro.bias"), r.gyro.bias, r.gyro.bias_sigma)
         lines += _matrix_lines(_label("gyro.S"), r.gyro.S, r.gyro.S_sigma)
@@ -104,6 +111,20 @@ def solution_report(solution: Solution, g_source: str) -> str:
         scatter = " and the pose scatter" if solution.joint is not None else ""
         lines.append(solution.quality.line(f"the within-position noise{scatter}"))
     return "\n".join(lines) + "\n"
+
+
+def trim_line(record: Calibration) -> str:
+    """``mounting trim: alpha … ± … deg, …`` and its largest correlation with the floor slope."""
+    t, deg = record.mounting_trim_deg, QUANTITIES["mounting_trim"].shown_unit
+    assert t is not None
+    s = t.sigma or (None, None, None)
+    parts = ", ".join(
+        f"{axis} {_pm(value, sigma)} {deg}"
+        for axis, value, sigma in zip(("alpha", "beta", "psi"), (t.alpha, t.beta, t.psi), s, strict=True)
+    )
+    correlation = slope_trim_correlation(record)
+    tail = "" if correlation is None else f" (largest correlation with the floor slope {correlation:+.2f})"
+    return f"mounting trim: {parts}{tail}"
 
 
 def _label(family: str) -> str:
