@@ -57,7 +57,7 @@ class ProcedureConfig:
     warmup_threshold_c_per_min: float = 0.1
     settle_s: float = 2.0
     pose_tolerance_deg: float = 3.0
-    first_pose_tolerance_deg: float = 5.0
+    first_pose_tolerance_deg: float = 8.0
     move_tolerance_deg: float | None = 15.0
     """Largest attitude error the gyro may see over a move (None: moves are not checked)."""
     gyro_moves: bool = True
