@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import textwrap
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -40,6 +41,7 @@ from canimucal.runtime.plan_forecast import (
     forecast,
     forecast_document,
     forecast_lines,
+    trim_forecast,
 )
 
 PLAN_SCHEMA = "canimucal.plan/1"
@@ -125,7 +127,8 @@ def run(args: argparse.Namespace) -> int:
     report += text
     rows = _acceptance_forecast(args, plan, spec)
     document["acceptance"] = forecast_document(rows)
-    report += "\n".join(forecast_lines(rows, plan.name)) + "\n"
+    trim = trim_forecast(plan, _session_spec(plan, spec), prior_k_sigma=args.prior_k_sigma)
+    report += "\n".join(forecast_lines(rows, plan.name, trim=trim)) + "\n"
     emit(args, document, report)
     return 0
 
@@ -169,11 +172,24 @@ def _acceptance_forecast(
     limits are the user's ``acceptance.toml`` over the plan's own defaults (docs/design.md §3).
     """
     name = plan.name if plan.name in builtin_names() else CUSTOM
-    entry = PLANS.get(name)
-    if entry is not None and entry.plan is not None:
-        spec = JointSpec(accel_k=entry.accel_k, tilt=entry.tilt, gyro=spec.gyro)
     limits = user_acceptance().limits(name)
-    return forecast(plan, limits, spec, prior_k_sigma=args.prior_k_sigma)
+    return forecast(plan, limits, _session_spec(plan, spec), prior_k_sigma=args.prior_k_sigma)
+
+
+def _session_spec(plan: Plan, spec: JointSpec) -> JointSpec:
+    """The model a session of ``plan`` fits: a built-in plan's (the registry's), else ``spec``."""
+    entry = PLANS.get(plan.name if plan.name in builtin_names() else CUSTOM)
+    if entry is None or entry.plan is None:
+        return spec
+    return JointSpec(accel_k=entry.accel_k, tilt=entry.tilt, gyro=spec.gyro, trim=entry.trim)
+
+
+def _with_trim(plan: Plan, spec: JointSpec) -> JointSpec:
+    """``spec`` with the mounting trim when ``plan`` is a built-in plan that fits it."""
+    entry = PLANS.get(plan.name)
+    if entry is None or entry.plan is None or not entry.trim:
+        return spec
+    return replace(spec, trim=True)
 
 
 def _timed(args: argparse.Namespace, plan: Plan) -> Plan:
@@ -184,6 +200,7 @@ def _table(args: argparse.Namespace, plan: Plan, spec: JointSpec) -> BoundTable:
     latitude = None if args.latitude_deg is None else float(np.deg2rad(args.latitude_deg))
     if args.prior_k_sigma is not None and not args.prior_k_sigma > 0:
         raise InputError(f"--prior-k-sigma must be > 0, got {args.prior_k_sigma:g}")
+    spec = _with_trim(plan, spec)  # the vehicle plan's mounting trim (docs/method.md §3)
     prior = plan_prior(plan, spec, DEFAULT_ACCEL_LSB, k_sigma=args.prior_k_sigma)
     return cramer_rao(
         plan,

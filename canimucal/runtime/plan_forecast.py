@@ -11,10 +11,12 @@ checked on the data.
 from __future__ import annotations
 
 import textwrap
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+
+import numpy as np
 
 from canimucal.analysis.acceptance import AcceptanceLimits
-from canimucal.model.layout import JointSpec
+from canimucal.model.layout import TRIM_NAMES, JointSpec
 from canimucal.model.plan import BoundTable, cramer_rao, plan_prior
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, STANDARD_GRAVITY
@@ -110,13 +112,60 @@ def _predicted(
     return (max(bias) if bias else None), (max(scale) if scale else None)
 
 
-def forecast_lines(rows: list[LimitForecast], plan_name: str, width: int = 78) -> list[str]:
-    """Word the forecast for the plan screen and ``plan``: head, one line a limit, summary."""
+def trim_forecast(
+    plan: Plan,
+    spec: JointSpec,
+    *,
+    accel_lsb: float = DEFAULT_ACCEL_LSB,
+    g: float = STANDARD_GRAVITY,
+    prior_k_sigma: float | None = None,
+) -> tuple[float, float, float] | None:
+    """The mounting trim's predicted σ (alpha, beta, psi; degrees), None when not fitted.
+
+    The same bound as :func:`forecast` (angle tolerances, the built-in node's noise, the
+    plan's prior on K): only a plan that fits the trim (``spec.trim``) determines it.
+    """
+    if not spec.trim:
+        return None
+    k = 1.0 / abs(accel_lsb)
+    prior = plan_prior(plan, spec, accel_lsb, k_sigma=prior_k_sigma)
+    table = cramer_rao(
+        plan,
+        replace(spec, gyro="none", gyro_g=False),
+        k_nominal_counts_per_ms2=k,
+        g=g,
+        noise_density=NOISE_DENSITY_MS2 * k,
+        include_tolerance=True,
+        prior_sigma={name: sigma for name, (_mean, sigma) in prior.items()},
+    )
+    sigmas = [table.bound(name).sigma for name in TRIM_NAMES]
+    if any(s is None for s in sigmas):
+        return None
+    alpha, beta, psi = (float(np.rad2deg(s)) for s in sigmas if s is not None)
+    return alpha, beta, psi
+
+
+def forecast_lines(
+    rows: list[LimitForecast],
+    plan_name: str,
+    width: int = 78,
+    trim: tuple[float, float, float] | None = None,
+) -> list[str]:
+    """Word the forecast for the plan screen and ``plan``: head, one line a limit, summary.
+
+    ``trim``: the mounting trim's predicted σ (:func:`trim_forecast`), said after the limits
+    (no acceptance limit holds it).
+    """
     lines = [
         "acceptance limits in force, and the σ this plan predicts (each position's angle "
         f"tolerance, noise {NOISE_DENSITY_MS2:g} m/s²/√Hz):",
         *[f"  {r.line()}" for r in rows],
     ]
+    if trim is not None:
+        lines.append(
+            f"  mounting trim (no limit): plan predicts σ {trim[0]:.2g}° alpha, "
+            f"{trim[1]:.2g}° beta, {trim[2]:.2g}° psi"
+        )
     cannot = [r.key for r in rows if r.meets is False]
     if cannot:
         lines.append(

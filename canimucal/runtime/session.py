@@ -116,6 +116,8 @@ class NodeLink:
     record_path: Path | None = None
     certificate_path: Path | None = None
     record: Calibration | None = None
+    trim_object: bool | None = None
+    """Whether the node has the mounting-trim object 0x2122 (known once written)."""
 
 
 class Session:
@@ -412,6 +414,7 @@ class Session:
             warmup=warmup,
             mounting=mounting_text(proc.config.mounting, proc.config.mounting_note),
             scales=Scales(site.accel_lsb, site.gyro_lsb, site.g),
+            trim_object=self.links[node_id].trim_object,
         )
 
     def _write_certificates(self, node_id: int) -> None:
@@ -439,9 +442,16 @@ class Session:
             except CanimucalError as exc:
                 events += self.procedure.write_finished(node_id, False, str(exc))
                 continue
+            link.trim_object = report.trim_object
             self._add_readback(node_id)
             backup = str(report.backup_path) if report.backup_path else None
-            events += self.procedure.write_finished(node_id, True, "written and verified", backup)
+            what = "written and verified"
+            if not report.trim_object and link.record.mounting_trim_deg is not None:
+                what += (
+                    "; the mounting trim was NOT written: the node has no 0x2122 (a firmware "
+                    "before it)"
+                )
+            events += self.procedure.write_finished(node_id, True, what, backup)
         return self._keep(events)
 
     def _add_readback(self, node_id: int) -> None:

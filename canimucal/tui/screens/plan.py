@@ -24,7 +24,7 @@ from canimucal.model.mounting import DEFAULT_MOUNTING, MountingMap
 from canimucal.model.plan import BoundTable, cramer_rao
 from canimucal.model.positions import Plan
 from canimucal.model.vocabulary.plans import DEFAULT_PLAN, PLANS, worded_for_vehicle
-from canimucal.runtime.plan_forecast import forecast, forecast_lines
+from canimucal.runtime.plan_forecast import forecast, forecast_lines, trim_forecast
 from canimucal.runtime.wiring import spec_for_plan
 from canimucal.tui.messages import StartWanted
 from canimucal.tui.modals import MountModal
@@ -148,7 +148,8 @@ class PlanScreen(Screen[None]):
         for row in bound_rows(table):
             self.table.add_row(*row)
         self.findings.update(findings_text(table))
-        self.forecast.update("\n".join(forecast_lines(rows, self.plan_name)))
+        trim = trim_forecast(plan, spec, accel_lsb=lsb)
+        self.forecast.update("\n".join(forecast_lines(rows, self.plan_name, trim=trim)))
 
     @property
     def serial(self) -> int | None:
