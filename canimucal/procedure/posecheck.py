@@ -108,10 +108,12 @@ class FloorFit:
 
     g: float
     seen: list[tuple[Pose, Array]] = field(default_factory=list)
+    _alone: FloorReading | None = field(default=None, repr=False)
 
     def add(self, pose: Pose, f_nominal: Array) -> None:
         """Take an accepted position's nominal specific force (m/s²) at its target ``pose``."""
         self.seen.append((pose, np.asarray(f_nominal, dtype=float)))
+        self._alone = None
 
     @property
     def empty(self) -> bool:
@@ -168,11 +170,13 @@ class FloorFit:
         f = np.asarray(f_nominal, dtype=float)
         if not self.seen:
             return check_pose(pose, f, self.g, tolerance_deg)
+        if self._alone is None:
+            self._alone = self.fit()
+        alone = check_pose(pose, self._alone.on_level_floor(pose, f), self.g, tolerance_deg)
+        if alone.passed or tolerance_deg <= 0.0:  # a live readout: the prediction alone
+            return alone
         joint = check_pose(pose, self.fit((pose, f)).on_level_floor(pose, f), self.g, tolerance_deg)
-        if joint.passed and tolerance_deg > 0.0:
-            return joint
-        alone = check_pose(pose, self.fit().on_level_floor(pose, f), self.g, tolerance_deg)
-        return alone if alone.passed or not joint.passed else joint
+        return joint if joint.passed else alone
 
 
 @dataclass(frozen=True)

@@ -261,7 +261,7 @@ def certificate_markdown(
         "",
         f"- Acceptance: {verdict}",
         f"- Written to the device: {'yes' if facts.written else 'no'}",
-        f"- Mounting trim: {markdown_text(trim_text(record, facts))}",
+        f"- Mounting trim: {trim_text(record, facts)}",
         f"- Verification: {_verification_text(facts.verification, acceptance.passed)}",
         f"- Warm-up: {facts.warmup}",
         "",
