@@ -177,7 +177,7 @@ def _acceptance_forecast(
 
 
 def _session_spec(plan: Plan, spec: JointSpec) -> JointSpec:
-    """The model a session of ``plan`` fits: a built-in plan's (the registry's), else ``spec``."""
+    """Return the model a session of ``plan`` fits: a built-in plan's own, or ``spec``."""
     entry = PLANS.get(plan.name if plan.name in builtin_names() else CUSTOM)
     if entry is None or entry.plan is None:
         return spec

@@ -135,7 +135,7 @@ def report(document: dict[str, Any]) -> str:
 
 
 def _trim_line(trim: Any) -> str:
-    """The alignment rotation the node applies, or that it has none (0x2122 absent)."""
+    """Word the alignment rotation the node applies, or that it has none (0x2122 absent)."""
     if trim is None:
         return (
             "mounting trim: no 0x2122 on this node (a firmware before it; 39-object CRC): "

@@ -120,10 +120,16 @@ def trim_line(record: Calibration) -> str:
     s = t.sigma or (None, None, None)
     parts = ", ".join(
         f"{axis} {_pm(value, sigma)} {deg}"
-        for axis, value, sigma in zip(("alpha", "beta", "psi"), (t.alpha, t.beta, t.psi), s, strict=True)
+        for axis, value, sigma in zip(
+            ("alpha", "beta", "psi"), (t.alpha, t.beta, t.psi), s, strict=True
+        )
     )
     correlation = slope_trim_correlation(record)
-    tail = "" if correlation is None else f" (largest correlation with the floor slope {correlation:+.2f})"
+    tail = (
+        ""
+        if correlation is None
+        else f" (largest correlation with the floor slope {correlation:+.2f})"
+    )
     return f"mounting trim: {parts}{tail}"
 
 

@@ -3,8 +3,9 @@
 The file holds the sensor models (K counts per m/s², S counts per rad/s, G, biases, tilt in
 degrees); the device holds their inverses M = K⁻¹ and N = S⁻¹ (m/s² and rad/s per count),
 biases, G, the tilt and the mounting trim in radians. ``null`` in the file means "not
-estimated: nominal" (zero bias, the nominal LSB's diagonal, G = 0, zero tilt, zero trim). A backup carries an ``objects``
-map of the raw device values, written back verbatim for a bit-exact restore.
+estimated: nominal" (zero bias, the nominal LSB's diagonal, G = 0, zero tilt, zero trim). A
+backup carries an ``objects`` map of the raw device values, written back verbatim for a
+bit-exact restore.
 """
 
 from __future__ import annotations
@@ -182,7 +183,7 @@ def record_from_block(
 
 
 def _trim_of(block: od.CalibrationBlock) -> MountingTrim | None:
-    """The block's mounting trim in degrees; None on a node without 0x2122."""
+    """Return the block's mounting trim in degrees; None on a node without 0x2122."""
     if block.mounting_trim_rad is None:
         return None
     alpha, beta, psi = (_finite(v) for v in np.rad2deg(np.asarray(block.mounting_trim_rad, float)))

@@ -424,7 +424,7 @@ def _factory_crc(nominal: Nominal) -> int:
 
 
 def _legacy_factory_crc(nominal: Nominal) -> int:
-    """The factory CRC of a node without 0x2122 (the 39-object layout)."""
+    """Return the factory CRC of a node without 0x2122 (the 39-object layout)."""
     return block_crc(
         {o.key: o.default_value(nominal) for o in LEGACY_CRC_OBJECTS}  # type: ignore[misc]
     )
@@ -479,7 +479,7 @@ bytes, so its first 39 objects are these in the same order (docs/design.md §4).
 
 
 def crc_objects(trim: bool) -> tuple[DeviceObject, ...]:
-    """The CRC layout of a node with the mounting-trim object (``trim``) or without it."""
+    """Return the CRC layout of a node with the mounting-trim object (``trim``) or without."""
     return CRC_OBJECTS if trim else LEGACY_CRC_OBJECTS
 
 

@@ -45,11 +45,10 @@ from canimucal.device.objects import (  # noqa: F401  (the indices, as od.X for 
     GYRO_G,
     GYRO_RAW,
     HARDWARE_VERSION,
-    LEGACY_CRC_OBJECTS,
-    MOUNTING_TRIM,
-    TRIM_KEYS,
     HEARTBEAT,
     IDENTITY,
+    LEGACY_CRC_OBJECTS,
+    MOUNTING_TRIM,
     NOMINAL,
     OBJECTS,
     RESTORE,
@@ -58,6 +57,7 @@ from canimucal.device.objects import (  # noqa: F401  (the indices, as od.X for 
     STORE,
     TPDO_COMM,
     TPDO_MAP,
+    TRIM_KEYS,
     Nominal,
     RangeContext,
     block_crc,
@@ -105,6 +105,7 @@ def crc_order(trim: bool) -> tuple[tuple[int, int, str], ...]:
 def calibration_objects(trim: bool) -> tuple[tuple[int, int, str], ...]:
     """:data:`CALIBRATION_OBJECTS` of a node with the mounting trim (``trim``) or without."""
     return tuple(entry for entry in CALIBRATION_OBJECTS if trim or entry[:2] not in TRIM_KEYS)
+
 
 OBJECT_CODES: dict[tuple[int, int], str] = {(i, s): c for i, s, c in CALIBRATION_OBJECTS}
 """Encoding code of each calibration object, keyed by ``(index, sub)``."""

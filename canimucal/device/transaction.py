@@ -192,7 +192,7 @@ def _target(
 def _backup_target(
     objects: Mapping[ObjectKey, float | int], trim: bool
 ) -> tuple[od.CalibrationBlock, dict[ObjectKey, float | int], int, int, bool]:
-    """A backup written back verbatim, or translated to the node's CRC layout.
+    """Write a backup back verbatim, or translated to the node's CRC layout.
 
     Taken from a node of the other layout, a backup whose CRC matched its values is written
     with the node's layout and that layout's CRC: a 39-object backup with a zero trim onto a

@@ -629,7 +629,7 @@ def covariance_si(record: Calibration) -> tuple[list[str], NDArray[np.float64]]:
 
 
 def slope_trim_correlation(record: Calibration) -> float | None:
-    """The largest correlation (by magnitude) between the floor slope and the mounting trim.
+    """Return the largest correlation (by magnitude) between floor slope and mounting trim.
 
     From the record's covariance; None when it holds no tilt or no trim. Turning the vehicle
     on the spot is what keeps it small (docs/method.md §3).

@@ -90,7 +90,7 @@ def dcm_stack(
 
 
 def trim_rotation(trim: Array) -> tuple[Array, Array]:
-    """The mounting trim ``R_m`` (unit ← vehicle) and ``dR_m/d(alpha_m, beta_m, psi_m)``.
+    """Return the mounting trim ``R_m`` (unit ← vehicle) and ``dR_m/d(alpha_m, beta_m, psi_m)``.
 
     ``R_m = Ay(psi_m) A2(beta_m) A1(alpha_m)``: the unit's pose in the vehicle in the angle
     convention of a position (docs/design.md §2, docs/method.md §3 "Floor slope and mounting

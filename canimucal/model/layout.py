@@ -255,9 +255,7 @@ def predict(layout: ParameterLayout, theta: Array, angles: Array, ctx: ModelCont
     if m == 6:
         w = c @ ctx.w_level
         dw_ang = np.einsum("nkij,j->nik", dc_ang, ctx.w_level)
-        dw_geo = np.einsum(
-            "nkij,j->nik", np.concatenate([dc_tilt, dc_trim], axis=1), ctx.w_level
-        )
+        dw_geo = np.einsum("nkij,j->nik", np.concatenate([dc_tilt, dc_trim], axis=1), ctx.w_level)
         mean[:, 3:] = par.gyro_bias + w @ par.S.T + f @ par.G.T  # eq. (35) + g-sensitivity
         d_angles[:, 3:] = par.S @ dw_ang + par.G @ df_ang
         gyro_geo = par.S @ dw_geo + par.G @ df_geo

@@ -173,7 +173,7 @@ class FloorFit:
         if self._alone is None:
             self._alone = self.fit()
         alone = check_pose(pose, self._alone.on_level_floor(pose, f), self.g, tolerance_deg)
-        if alone.passed or tolerance_deg <= 0.0:  # a live readout: the prediction alone
+        if tolerance_deg <= 0.0:  # a live readout: what the accepted positions predict
             return alone
         joint = check_pose(pose, self.fit((pose, f)).on_level_floor(pose, f), self.g, tolerance_deg)
         return joint if joint.passed else alone
@@ -189,7 +189,7 @@ class FloorReading:
     bias: Array
 
     def on_level_floor(self, pose: Pose, f: Array) -> Array:
-        """The measurement referred to a level floor and an exact mounting.
+        """Refer the measurement to a level floor and an exact mounting.
 
         ``m = C T0ᵀ Cᵀ R_mᵀ (f − b)``: what the unit would have shown at ``pose`` (m/s²).
         """

@@ -175,12 +175,11 @@ def _values_table(d: dict[str, Any], scales: Scales | None) -> list[str]:
 
 
 def trim_text(record: Calibration, facts: SessionFacts) -> str:
-    """What became of the mounting trim: written (the alignment the node applies), or not."""
+    """Say what became of the mounting trim: written (the alignment it applies), or not."""
     trim = record.mounting_trim_deg
     if trim is None:
-        return (
-            "not determined by this plan (its K holds any rotation of the unit's axes); "
-            + ("zero written to 0x2122" if facts.written and facts.trim_object else "none")
+        return "not determined by this plan (its K holds any rotation of the unit's axes); " + (
+            "zero written to 0x2122" if facts.written and facts.trim_object else "none"
         )
     sigma = trim.sigma or (None, None, None)
     values = (trim.alpha, trim.beta, trim.psi)

@@ -120,7 +120,7 @@ def trim_forecast(
     g: float = STANDARD_GRAVITY,
     prior_k_sigma: float | None = None,
 ) -> tuple[float, float, float] | None:
-    """The mounting trim's predicted σ (alpha, beta, psi; degrees), None when not fitted.
+    """Return the mounting trim's predicted σ (alpha, beta, psi; degrees); None: not fitted.
 
     The same bound as :func:`forecast` (angle tolerances, the built-in node's noise, the
     plan's prior on K): only a plan that fits the trim (``spec.trim``) determines it.

@@ -106,8 +106,8 @@ def spec_for_plan(plan_name: str, gyro: str = "mems", gyro_g: bool = False) -> J
 
     The plan registry's ``accel_k`` and ``tilt`` (two: diagonal K, no tilt; five: diagonal
     K and base tilt; the others full K and base tilt; the vehicle plan's mounting trim); a
-    name it does not hold gets full K and base tilt. ``gyro_g`` adds the gyro's g-sensitivity G (what the positions cannot
-    determine of it is held at zero and reported).
+    name it does not hold gets full K and base tilt. ``gyro_g`` adds the gyro's g-sensitivity
+    G (what the positions cannot determine of it is held at zero and reported).
     """
     grade = cast(GyroSpec, gyro)  # JointSpec checks the value
     entry = PLANS.get(plan_name)

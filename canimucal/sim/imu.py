@@ -2,8 +2,9 @@
 
 Per sample (docs/design.md §2): ``C`` body <- L from the pose, the base tilt and the mounting
 trim (``position_dcm``; ``C = R_m C_pose T0``, docs/method.md §3), ``f = C f_L`` and
-``w = C w_L + R_m w_motion`` (the body rate of a move, exact from the angle rates). Specific force from the motion itself (lever arms) is not modelled: a tilt on a step
-ladder is slow. Outputs in counts:
+``w = C w_L + R_m w_motion`` (the body rate of a move, exact from the angle rates). Specific
+force from the motion itself (lever arms) is not modelled: a tilt on a step ladder is slow.
+Outputs in counts:
 
 - accelerometer ``U = b + K f + quadratic ⊙ f² + temp_coeff (T − T0) + r + m + n``
 - gyro ``V = B + S w + G f + temp_coeff (T − T0) + r + m + n``

@@ -1,10 +1,10 @@
 """The simulator's truth: every parameter of the simulated unit (docs/design.md §5, truth JSON).
 
 Angles are radians inside (``alpha0``, ``beta0``, ``trim``, ``latitude``, ``heading``) and
-degrees in the JSON dict; every other value keeps the JSON's units: biases, quantization, random walk and bias
-instability in counts (output-referred), K counts per m/s², S counts per rad/s, G counts per
-m/s², quadratic counts per (m/s²)², temp_coeff counts/°C, noise densities input-referred
-(m/s²/√Hz and rad/s/√Hz).
+degrees in the JSON dict; every other value keeps the JSON's units: biases, quantization,
+random walk and bias instability in counts (output-referred), K counts per m/s², S counts
+per rad/s, G counts per m/s², quadratic counts per (m/s²)², temp_coeff counts/°C, noise
+densities input-referred (m/s²/√Hz and rad/s/√Hz).
 
 Defaults when a key is absent: ``nominal_lsb`` ±16 g (9.80665/2048 m/s² per count) and
 ±2000 °/s (π/(180·16.4) rad/s per count), K and S their inverses on the diagonal, G zero,
@@ -53,7 +53,8 @@ DEFAULT_HARDWARE_VERSION = "sim 1"
 DEFAULT_SOFTWARE_VERSION = "sim 1"
 _TOP_KEYS = tuple(
     "schema sample_rate_hz g latitude_deg height_m heading_deg serial tilt_model base_tilt_deg"
-    " floor_slope_deg mounting_trim_deg accel gyro temperature faults nmt_start heartbeat_ms store_delay_s"
+    " floor_slope_deg mounting_trim_deg accel gyro temperature faults nmt_start heartbeat_ms"
+    " store_delay_s"
     " store_pdo_mode"
     " storage_subs sync_pdos timer_skew_ppm calibration_store_sub documented_store_sub"
     " second_send_ms refuses_start trim_object"

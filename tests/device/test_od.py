@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import struct
 import zlib
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from hypothesis import strategies as st
 from canimucal.device import od
 from canimucal.device.bus import abort_text
 from canimucal.errors import InputError
+from canimucal.model.frames import trim_dcm
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
 
 A_LSB, G_LSB = DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
@@ -254,6 +256,26 @@ def test_apply_firmware_valid_inverts_sensor_model() -> None:
         accel, gyro = od.apply_firmware(block, valid, crc_ok, u, v, A_LSB, G_LSB)
         np.testing.assert_allclose(accel, u * A_LSB)
         np.testing.assert_allclose(gyro, v * G_LSB)
+
+
+def test_apply_firmware_turns_the_output_into_the_vehicle_frame() -> None:
+    """With the mounting trim R_m: a_v = R_mᵀ M (U − b), w_v = R_mᵀ N (V − B − G a)."""
+    trim = np.array([0.02, -0.03, 0.05])
+    r_m = trim_dcm(trim)  # unit ← vehicle
+    f_vehicle, w_vehicle = np.array([0.4, -9.7, 1.0]), np.array([0.01, 0.0, -0.02])
+    k, s = np.eye(3) / A_LSB, np.eye(3) / G_LSB
+    u, v = (r_m @ f_vehicle) @ k.T, (r_m @ w_vehicle) @ s.T  # the unit sees R_m x
+    zero = np.zeros(3)
+    block = od.CalibrationBlock(
+        zero, np.linalg.inv(k), zero, np.linalg.inv(s), np.zeros((3, 3)), np.zeros(2),
+        mounting_trim_rad=trim,
+    )  # fmt: skip
+    accel, gyro = od.apply_firmware(block, True, True, u, v, A_LSB, G_LSB)
+    np.testing.assert_allclose(accel, f_vehicle, atol=1e-12)
+    np.testing.assert_allclose(gyro, w_vehicle, atol=1e-15)
+    legacy = replace(block, mounting_trim_rad=None)  # no 0x2122: the unit's own axes
+    accel, _ = od.apply_firmware(legacy, True, True, u, v, A_LSB, G_LSB)
+    np.testing.assert_allclose(accel, r_m @ f_vehicle, atol=1e-12)
 
 
 def test_keys() -> None:

@@ -41,6 +41,7 @@ SIM_TRUTH_KEYS = (
     "documented_store_sub",
     "second_send_ms",
     "refuses_start",
+    "trim_object",
 )
 """Behaviours the simulated node takes from its truth JSON."""
 

@@ -5,8 +5,9 @@ Every parameter of the solver's vector (``accel.bias[i]``, ``accel.K[i][j]``,
 ``gyro.G[i][j]``) belongs to one
 :class:`Quantity`, which says in which unit the solver, the bound table and the files hold
 it, how it converts to SI and to the unit an operator reads (mg, ppm, °, °/s), and in which
-unit the calibration file holds it (the base tilt and the mounting trim in degrees). The results screen, the
-certificate, the CLI's text and the JSON outputs take their units from :data:`QUANTITIES`.
+unit the calibration file holds it (the base tilt and the mounting trim in degrees). The
+results screen, the certificate, the CLI's text and the JSON outputs take their units from
+:data:`QUANTITIES`.
 
 The conversions are factors (a σ converts as its value does): SI and operator values of a
 scale factor are relative to the nominal scale (``K·|LSB|``: 1 at nominal, in ppm an
