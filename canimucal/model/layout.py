@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.errors import ModelError
-from canimucal.model.dcm_stack import trimmed_stack
+from canimucal.model.dcm_stack import dcm_stack, trimmed_stack
 from canimucal.model.frames import (
     TiltModel,
     earth_rate_level,
@@ -239,14 +239,18 @@ def predict(layout: ParameterLayout, theta: Array, angles: Array, ctx: ModelCont
     """
     spec = layout.spec
     par = layout.unpack(theta, ctx.gyro_lsb)
-    c, dc_ang, dc_tilt, dc_trim = trimmed_stack(
-        angles, par.alpha0, par.beta0, spec.tilt_model, par.trim
-    )  # eq. (T1): C = R_m C_pose T0
+    if spec.trim:
+        c, dc_ang, dc_tilt, dc_trim = trimmed_stack(
+            angles, par.alpha0, par.beta0, spec.tilt_model, par.trim
+        )  # eq. (T1): C = R_m C_pose T0
+        dc_geo = np.concatenate([dc_tilt, dc_trim], axis=1)
+    else:
+        c, dc_ang, dc_geo = dcm_stack(angles, par.alpha0, par.beta0, spec.tilt_model)
     n, m, p = c.shape[0], spec.channels, layout.size
     mean, d_theta, d_angles = np.zeros((n, m)), np.zeros((n, m, p)), np.zeros((n, m, 3))
     f = c @ ctx.f_level
     df_ang = np.einsum("nkij,j->nik", dc_ang, ctx.f_level)  # d f / d angle k
-    df_geo = np.einsum("nkij,j->nik", np.concatenate([dc_tilt, dc_trim], axis=1), ctx.f_level)
+    df_geo = np.einsum("nkij,j->nik", dc_geo, ctx.f_level)
     mean[:, :3] = par.accel_bias + f @ par.K.T  # eq. (6)
     d_angles[:, :3] = par.K @ df_ang
     geometry = _geometry_columns(layout)
@@ -255,7 +259,7 @@ def predict(layout: ParameterLayout, theta: Array, angles: Array, ctx: ModelCont
     if m == 6:
         w = c @ ctx.w_level
         dw_ang = np.einsum("nkij,j->nik", dc_ang, ctx.w_level)
-        dw_geo = np.einsum("nkij,j->nik", np.concatenate([dc_tilt, dc_trim], axis=1), ctx.w_level)
+        dw_geo = np.einsum("nkij,j->nik", dc_geo, ctx.w_level)
         mean[:, 3:] = par.gyro_bias + w @ par.S.T + f @ par.G.T  # eq. (35) + g-sensitivity
         d_angles[:, 3:] = par.S @ dw_ang + par.G @ df_ang
         gyro_geo = par.S @ dw_geo + par.G @ df_geo
