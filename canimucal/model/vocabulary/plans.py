@@ -262,8 +262,7 @@ PLANS.register(
 PLANS.register(
     PlanEntry(
         "vehicle", VEHICLE, 6,
-        "the whole vehicle turned and raised 10°: biases, floor slope and mounting trim, "
-        "K held at a 1 % prior",
+        "the whole vehicle turned, raised 10°: biases, slope and trim; K at a 1 % prior",
         tui_key="v", vehicle=True, trim=True, acceptance=VEHICLE_ACCEPTANCE,
     )
 )  # fmt: skip
