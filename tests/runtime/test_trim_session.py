@@ -3,8 +3,9 @@
 The simulated node (a canopen ``LocalNode`` on python-can's virtual bus) is a unit bolted in
 with a trim of up to 2° about each axis, on a floor sloped by up to 3°; the automatic
 operator follows the vehicle plan. Every session completes (no pose refused), solves slope
-and trim within 4σ of the truth, writes the calibration, and the trim the node holds
-(0x2122, read back over SDO) is the one solved, to the bit of its REAL32 radians.
+and trim within 4σ of the truth (and the gyro's S from the moves, in the unit's axes),
+writes the calibration, and the trim the node holds (0x2122, read back over SDO) is the one
+solved, to the bit of its REAL32 radians.
 """
 
 from __future__ import annotations
@@ -69,5 +70,14 @@ def test_a_vehicle_session_with_slope_and_trim_writes_the_trim_it_solved(
     assert record.readback.mounting_trim_rad == pytest.approx(
         [od.decode("f32", b) for b in solved_trim], abs=0.0
     )
+    # the gyro's S from the moves is the unit's own: the moves are the poses as the unit,
+    # trimmed in the vehicle, turned (without the trim S would hold it: 20 counts, 10σ)
+    assert record.gyro is not None and record.gyro.S is not None
+    fitted = [(i, j) for i in range(3) for j in range(3) if record.gyro.S[i][j] is not None]
+    assert fitted and record.gyro.S_sigma is not None
+    for i, j in fitted:
+        value, sigma = record.gyro.S[i][j], record.gyro.S_sigma[i][j]
+        assert value is not None and sigma is not None
+        assert abs(value - truth.gyro.S[i, j]) < 4 * sigma, (i, j, value, sigma)
     certificate = (tmp_path / "certificate.md").read_text()
     assert "written to 0x2122, the node's output is aligned" in certificate
