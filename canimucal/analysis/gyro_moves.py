@@ -303,7 +303,8 @@ def move_between(
     trim and the alignment would count it twice).
     """
     (pa, mean_a), (pb, mean_b) = start, end
-    ca, cb = position_dcm(*pa, trim=trim), position_dcm(*pb, trim=trim)
+    ca = position_dcm(pa[0], pa[1], pa[2], trim=trim)
+    cb = position_dcm(pb[0], pb[1], pb[2], trim=trim)
     earth = None
     if site.latitude is not None:
         w_level = earth_rate_level(site.latitude, site.heading)
