@@ -36,7 +36,7 @@ Checker = Callable[[Any, str], Any]
 
 PARAMETER_NAME = re.compile(
     r"(accel|gyro)\.bias\[[0-2]\]|(accel\.K|gyro\.S|gyro\.G)\[[0-2]\]\[[0-2]\]"
-    r"|base_tilt\.(alpha0|beta0)"
+    r"|base_tilt\.(alpha0|beta0)|mounting_trim\.(alpha|beta|psi)"
 )
 """Names of the parameter vector (the calibration JSON's ``covariance.order``)."""
 

@@ -113,13 +113,15 @@ def recording_moves(
     pose_moves: bool = True,
     pose_sigmas: Mapping[int, float | Sequence[float]] | None = None,
     g_sensitivity: GSensitivity | None = None,
+    trim: Array | None = None,
 ) -> RecordingMoves:
     """Collect the moves of ``rec`` (module doc); ``pose_moves`` false keeps known turns only.
 
     ``pose_sigmas`` (label → 1σ in rad of that position's angles, one for all three or
     ``(alpha, beta, psi)``) replaces ``tolerance_deg`` for the positions it names (a known
     turn keeps ``√2 · tolerance``). ``g_sensitivity`` removes ``G f`` from the moves between
-    positions (:func:`move_between`).
+    positions (:func:`move_between`); ``trim`` is the mounting trim the accelerometer fit
+    found (the poses' rotations as the unit saw them, :func:`move_between`).
     """
     runs = _position_runs(rec)
     if not runs:
@@ -148,7 +150,7 @@ def recording_moves(
         for (la, _, a_end), (lb, b_start, _) in zip(runs, runs[1:], strict=False):
             label = f"position {la} → {lb}"
             pair = _pose_move(
-                rec, site, s0, (la, a_end), (lb, b_start), label, notes, g_sensitivity
+                rec, site, s0, (la, a_end), (lb, b_start), label, notes, g_sensitivity, trim
             )
             if pair is None:
                 continue
@@ -247,6 +249,7 @@ def _pose_move(
     label: str,
     notes: list[str],
     g_sensitivity: GSensitivity | None = None,
+    trim: Array | None = None,
 ) -> tuple[Move, Array] | None:
     (la, a_end), (lb, b_start) = start, end
     angles = np.deg2rad(np.column_stack([rec.alpha_deg, rec.beta_deg, rec.psi_deg]))
@@ -265,7 +268,7 @@ def _pose_move(
         if accel is not None and accel.shape == rows.shape:
             force = g_sensitivity.force(accel)
     return move_between(rows, rec.sample_rate_hz, site, s0, (pa, mean_a), (pb, mean_b),
-                        0.0, label, g_sensitivity, force, (la, lb))  # fmt: skip
+                        0.0, label, g_sensitivity, force, (la, lb), trim)  # fmt: skip
 
 
 def move_between(
@@ -280,6 +283,7 @@ def move_between(
     g_sensitivity: GSensitivity | None = None,
     force: Array | None = None,
     positions: tuple[int, int] | None = None,
+    trim: Array | None = None,
 ) -> tuple[Move, Array]:
     """Build the move from one still position to the next and its bias (counts).
 
@@ -292,9 +296,15 @@ def move_between(
     ``g_sensitivity`` and the move's specific force ``force`` (m/s², one row per gyro row),
     each mean also loses ``G f`` of its still pose (``f = C f_L``) and the move carries
     ``force``, so the fit integrates ``S⁻¹ (V − B − G f)`` (eq. 35 with g-sensitivity).
+    ``trim``: the unit's mounting trim ``(alpha_m, beta_m, psi_m)`` (rad), so each pose is
+    ``R_m C_pose`` (docs/method.md §3, eq. T1) and the move the unit turns is
+    ``R_m (C_b C_aᵀ) R_mᵀ``: the gyro's S is fitted in the unit's own axes, as K is, and the
+    device's alignment turns both outputs into the vehicle's (without it S would hold the
+    trim and the alignment would count it twice).
     """
     (pa, mean_a), (pb, mean_b) = start, end
-    ca, cb = position_dcm(*pa), position_dcm(*pb)
+    ca = position_dcm(pa[0], pa[1], pa[2], trim=trim)
+    cb = position_dcm(pb[0], pb[1], pb[2], trim=trim)
     earth = None
     if site.latitude is not None:
         w_level = earth_rate_level(site.latitude, site.heading)
@@ -370,10 +380,15 @@ def solve_gyro_moves(
     pose_moves: bool = True,
     pose_sigmas: Mapping[int, float | Sequence[float]] | None = None,
 ) -> tuple[Solution, MovesFit]:
-    """Estimate S from the recording's moves and put it in the solution's record."""
+    """Estimate S from the recording's moves and put it in the solution's record.
+
+    The moves are those of the poses as the unit saw them, with the mounting trim of the
+    solution's fit where it has one (the vehicle plan's).
+    """
     gs = g_sensitivity_of(solution, site)
+    trim = None if solution.joint is None else solution.joint.trim
     found = recording_moves(
-        rec, site, pose_moves=pose_moves, pose_sigmas=pose_sigmas, g_sensitivity=gs
+        rec, site, pose_moves=pose_moves, pose_sigmas=pose_sigmas, g_sensitivity=gs, trim=trim
     )
     fit = fit_recording_moves(found, site, None if gs is None else gs.G)
     return with_moves(solution, fit, (*found.notes, *g_unused_note(solution, gs))), fit

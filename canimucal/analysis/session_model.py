@@ -94,14 +94,30 @@ class SessionModel:
     """Where ``tolerance_deg`` came from: ``flag``, ``header``, else ``default`` (then the
     solve estimates the scatter from the data)."""
 
+    def _plan_poses(self, averages: Sequence[PositionAverage]) -> bool:
+        """Tell whether the recorded poses are the plan's, in order (within 0.05°)."""
+        plan = self.plan
+        if plan is None or len(plan.positions) != len(averages):
+            return False
+        planned = np.array([p.angles for p in plan.positions])
+        recorded = np.array([a.pose.angles for a in averages])
+        return bool(np.allclose(planned, recorded, atol=np.deg2rad(_MATCH_DEG)))
+
+    def with_trim(self, spec: JointSpec, averages: Sequence[PositionAverage]) -> JointSpec:
+        """``spec`` with the mounting trim when the plan fits one and these are its poses.
+
+        The plan registry's ``trim`` (the vehicle plan's, docs/method.md §3): a session of
+        that plan solved its trim, so its recording solves with it too.
+        """
+        entry = PLANS.get(self.plan_name) if self.plan_name else None
+        if entry is None or not entry.trim or not self._plan_poses(averages):
+            return spec
+        return replace(spec, trim=True)
+
     def tolerances(self, averages: Sequence[PositionAverage]) -> list[PositionAverage]:
         """Give each average its plan position's tolerances when the poses are the plan's."""
         plan = self.plan
-        if not self.plan_tolerances or plan is None or len(plan.positions) != len(averages):
-            return list(averages)
-        planned = np.array([p.angles for p in plan.positions])
-        recorded = np.array([a.pose.angles for a in averages])
-        if not np.allclose(planned, recorded, atol=np.deg2rad(_MATCH_DEG)):
+        if not self.plan_tolerances or plan is None or not self._plan_poses(averages):
             return list(averages)
         return [
             replace(a, pose=replace(a.pose, tolerance=p.tolerance, psi_tolerance=p.psi_tolerance))

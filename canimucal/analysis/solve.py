@@ -105,6 +105,7 @@ def solve_recording(
     if has_angles(rec):
         averages = session.tolerances(position_averages(rec, tolerance_deg=session.tolerance_deg))
         spec = choice.spec(has_gyro=all(a.mean_gyro is not None for a in averages))
+        spec = session.with_trim(spec, averages)  # the vehicle plan's mounting trim
         if session.tolerance_source == "default":  # no flag, no header: the data say
             averages, scatter = _estimated_scatter(averages, spec, site)
             notes += scatter

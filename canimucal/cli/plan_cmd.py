@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import textwrap
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -46,6 +47,7 @@ from canimucal.runtime.plan_forecast import (
     schedule,
     session_spec,
     table_cells,
+    trim_forecast,
 )
 
 PLAN_SCHEMA = "canimucal.plan/1"
@@ -152,7 +154,13 @@ def run(args: argparse.Namespace) -> int:
     report += text
     rows = _acceptance_forecast(args, plan, spec)
     document["acceptance"] = forecast_document(rows)
-    report += "\n".join(forecast_lines(rows, plan.name)) + "\n"
+    trim = trim_forecast(
+        plan,
+        session_spec(_plan_name(plan), spec.gyro),
+        policy=_policy(args, plan),
+        prior_k_sigma=args.prior_k_sigma,
+    )
+    report += "\n".join(forecast_lines(rows, plan.name, trim=trim)) + "\n"
     emit(args, document, report)
     return 0
 
@@ -234,13 +242,21 @@ def _acceptance_forecast(
     )
 
 
+def _with_trim(plan: Plan, spec: JointSpec) -> JointSpec:
+    """``spec`` with the mounting trim when ``plan`` is a built-in plan that fits it."""
+    entry = PLANS.get(plan.name)
+    if entry is None or entry.plan is None or not entry.trim:
+        return spec
+    return replace(spec, trim=True)
+
+
 def _table(args: argparse.Namespace, plan: Plan, spec: JointSpec) -> BoundTable:
     latitude = None if args.latitude_deg is None else float(np.deg2rad(args.latitude_deg))
     if args.prior_k_sigma is not None and not args.prior_k_sigma > 0:
         raise InputError(f"--prior-k-sigma must be > 0, got {args.prior_k_sigma:g}")
     return plan_bounds(
         plan,
-        spec,
+        _with_trim(plan, spec),  # the vehicle plan's mounting trim (docs/method.md §3)
         policy=_policy(args, plan),
         latitude=latitude,
         include_tolerance=args.with_tolerance,
@@ -355,7 +371,8 @@ def bound_report(table: BoundTable, plan: Plan, times: PlanSchedule) -> str:
     worst = table.worst_case_counts
     worst_text = f"{worst:.4g} counts" if np.isfinite(worst) else "unbounded"
     lines.append(f"worst-case bound: {worst_text} ({table.worst_parameter})")
-    lines.extend(f.message for f in table.separability.findings)
+    for finding in table.separability.findings:
+        lines += textwrap.wrap(finding.message, 80, subsequent_indent="  ")
     if not table.separability.findings:
         lines.append("every parameter is identifiable and separable under this plan")
     return "\n".join(lines) + "\n"

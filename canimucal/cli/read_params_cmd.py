@@ -124,6 +124,7 @@ def report(document: dict[str, Any]) -> str:
         *("  " + _row(row) for row in r["gyro_g"]),
         "base tilt (deg): "
         + _row([None if v is None else float(np.rad2deg(v)) for v in r["base_tilt_rad"]]),
+        _trim_line(r.get("mounting_trim_rad")),
     ]
     if "bus_load" in document:
         from canimucal.device.busload import BusLoad
@@ -131,6 +132,17 @@ def report(document: dict[str, Any]) -> str:
         load = document["bus_load"]
         lines.append(BusLoad(**{key: load[key] for key in BusLoad._fields}).text())
     return "\n".join(lines) + "\n"
+
+
+def _trim_line(trim: Any) -> str:
+    """Word the alignment rotation the node applies, or that it has none (0x2122 absent)."""
+    if trim is None:
+        return (
+            "mounting trim: no 0x2122 on this node (a firmware before it; 39-object CRC): "
+            "no alignment applied"
+        )
+    degrees = [None if v is None else float(np.rad2deg(v)) for v in trim]
+    return "mounting trim alpha, beta, psi (deg): " + _row(degrees)
 
 
 def _row(values: Any) -> str:

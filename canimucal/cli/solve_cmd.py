@@ -14,7 +14,12 @@ from canimucal.cli.input_options import INPUT_HELP, SECOND_HELP, add_input_optio
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.cli.spec_options import add_model_options, choice_from_args
 from canimucal.cli.user_config import user_acceptance
-from canimucal.io.calibration import RecordingRef, sha256_of
+from canimucal.io.calibration import (
+    Calibration,
+    RecordingRef,
+    sha256_of,
+    slope_trim_correlation,
+)
 from canimucal.io.recording import Recording
 from canimucal.model.sensor import STANDARD_GRAVITY
 from canimucal.model.vocabulary.units import Scales
@@ -103,6 +108,8 @@ def solution_report(solution: Solution, g_source: str, scales: Scales | None = N
     wide = max((len(device) for _, device, _ in rows), default=0)
     lines.append(f"{'parameter':<{width}}  {'value ± σ (device)':<{wide}}  operator's units")
     lines += [f"{name:<{width}}  {device:<{wide}}  {shown}" for name, device, shown in rows]
+    if r.mounting_trim_deg is not None:
+        lines.append(trim_line(r))
     for name, reason in solution.undetermined.items():
         lines.append(f"not determined: {name}: {reason}")
     if r.fit is not None and r.fit.rms is not None:
@@ -125,6 +132,17 @@ def _folded(rows: list[tuple[str, str, str]]) -> list[tuple[str, str, str]]:
         else:
             out += members
     return out
+
+
+def trim_line(record: Calibration) -> str:
+    """Say how far the mounting trim is told apart from the floor slope (its rows are above)."""
+    correlation = slope_trim_correlation(record)
+    if correlation is None:
+        return "mounting trim: fitted beside the floor slope"
+    return (
+        "mounting trim: fitted beside the floor slope, largest correlation with it "
+        f"{correlation:+.2f}"
+    )
 
 
 def recording_scales(rec: Recording, g: float | None) -> Scales:

@@ -2,9 +2,10 @@
 
 The file holds the sensor models (K counts per m/s², S counts per rad/s, G, biases, tilt in
 degrees); the device holds their inverses M = K⁻¹ and N = S⁻¹ (m/s² and rad/s per count),
-biases, G and the tilt in radians. ``null`` in the file means "not estimated: nominal"
-(zero bias, the nominal LSB's diagonal, G = 0, zero tilt). A backup carries an ``objects``
-map of the raw device values, written back verbatim for a bit-exact restore.
+biases, G, the tilt and the mounting trim in radians. ``null`` in the file means "not
+estimated: nominal" (zero bias, the nominal LSB's diagonal, G = 0, zero tilt, zero trim). A
+backup carries an ``objects`` map of the raw device values, written back verbatim for a
+bit-exact restore.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from canimucal.io.calibration import (
     Fit,
     GyroBlock,
     Matrix,
+    MountingTrim,
     Readback,
     Tool,
     Vector,
@@ -72,6 +74,7 @@ def block_from_record(
         plan_code=PLANS.lookup(record.plan).device_code if record.plan is not None else 0,
         temp_c=_or_zero(record.conditions.temp_c if record.conditions else None),
         rms_ms2=_or_zero(record.fit.rms if record.fit else None),
+        mounting_trim_rad=(record.mounting_trim_deg or MountingTrim()).radians(),
     )
 
 
@@ -82,19 +85,21 @@ def _or_zero(value: float | None) -> float:
 def backup_objects(record: Calibration) -> dict[tuple[int, int], float | int] | None:
     """Return a backup's ``objects`` map keyed ``(index, sub)``, or None when it has none.
 
-    Every calibration object (valid flag and CRC included) must be present.
+    Every calibration object (valid flag and CRC included) must be present; the mounting
+    trim's three only in a backup of a node that has them (the 42-object layout).
     """
     if record.objects is None:
         return None
     objects = {od.parse_key(key): value for key, value in record.objects.items()}
     for key, value in backup_raw(record).items():
         objects[key] = od.decode(od.OBJECT_CODES[key], value)
-    missing = [od.format_key(i, s) for i, s, _ in od.CALIBRATION_OBJECTS if (i, s) not in objects]
+    expected = od.calibration_objects(od.has_trim(objects))
+    missing = [od.format_key(i, s) for i, s, _ in expected if (i, s) not in objects]
     if missing:
         raise InputError(f"backup objects missing: {', '.join(missing)}")
     return {
         (index, sub): float(objects[(index, sub)]) if code == "f32" else int(objects[(index, sub)])
-        for index, sub, code in od.CALIBRATION_OBJECTS
+        for index, sub, code in expected
     }
 
 
@@ -170,10 +175,19 @@ def record_from_block(
             G=_matrix(block.gyro_g),
         ),
         base_tilt_deg=BaseTilt(alpha0=_finite(alpha0), beta0=_finite(beta0)),
+        mounting_trim_deg=_trim_of(block),
         fit=Fit(rms=_finite(block.rms_ms2)),
         objects=None if objects is None else objects_json(objects, raw),
         objects_raw=None if objects is None else (objects_raw_json(objects, raw) or None),
     )
+
+
+def _trim_of(block: od.CalibrationBlock) -> MountingTrim | None:
+    """Return the block's mounting trim in degrees; None on a node without 0x2122."""
+    if block.mounting_trim_rad is None:
+        return None
+    alpha, beta, psi = (_finite(v) for v in np.rad2deg(np.asarray(block.mounting_trim_rad, float)))
+    return MountingTrim(alpha=alpha, beta=beta, psi=psi)
 
 
 def objects_json(
@@ -227,6 +241,9 @@ def readback_of(block: od.CalibrationBlock, valid: int, crc_ok: bool) -> Readbac
         gyro_correction=_matrix(block.gyro_correction),
         gyro_g=_matrix(block.gyro_g),
         base_tilt_rad=_vector(block.base_tilt_rad),
+        mounting_trim_rad=(
+            None if block.mounting_trim_rad is None else _vector(block.mounting_trim_rad)
+        ),
         valid=int(valid),
         crc_ok=bool(crc_ok),
     )

@@ -85,9 +85,10 @@ class Identity(NamedTuple):
 class CalibrationReadout(NamedTuple):
     """The calibration block as read: values, valid flag, stored CRC and whether it matches.
 
-    ``objects`` holds every :data:`od.CALIBRATION_OBJECTS` value (valid and CRC included);
-    ``raw`` their bytes: as the node returned them when read (``read_bytes``), else
-    re-encoded (exact for every finite value; a NaN keeps its payload only when read).
+    ``objects`` holds every :data:`od.CALIBRATION_OBJECTS` value the node has (valid and
+    CRC included; a node without 0x2122 has no mounting trim); ``raw`` their bytes: as the
+    node returned them when read (``read_bytes``), else re-encoded (exact for every finite
+    value; a NaN keeps its payload only when read).
     """
 
     block: od.CalibrationBlock
@@ -96,6 +97,11 @@ class CalibrationReadout(NamedTuple):
     crc_ok: bool
     objects: dict[tuple[int, int], float | int]
     read_bytes: dict[tuple[int, int], bytes] | None = None
+
+    @property
+    def trim(self) -> bool:
+        """Whether the node has the mounting-trim object (the 42-object CRC layout)."""
+        return od.has_trim(self.objects)
 
     @property
     def raw(self) -> dict[tuple[int, int], bytes]:
@@ -314,12 +320,41 @@ class ImuClient:
             read_layout(read)
         return seen
 
+    def has_trim_object(self) -> bool:
+        """Tell whether the node has the mounting-trim object 0x2122 (docs/design.md §4).
+
+        A firmware before it answers the upload of 0x2122:01 with abort 0x06020000 ("object
+        does not exist"; 0x06090011 is taken the same way): False, and its calibration CRC
+        covers the 39 objects of 0x2100–0x2121:04. Any other abort, or silence, raises.
+        """
+        try:
+            self.read_raw(*od.TRIM_KEYS[0], "f32")
+        except SdoAbort as exc:
+            if exc.code in (od.ABORT_NO_OBJECT, od.ABORT_NO_SUBINDEX):
+                return False
+            raise
+        return True
+
     def read_calibration_block(self) -> CalibrationReadout:
-        """Read every calibration object (docs/design.md §4), the valid flag and the stored CRC."""
+        """Read every calibration object (docs/design.md §4), the valid flag and the stored CRC.
+
+        A node without the mounting-trim object (its upload of 0x2122:01 aborts, as in
+        :meth:`has_trim_object`) is read in the 39-object layout.
+        """
         objects: dict[tuple[int, int], float | int] = {}
         read: dict[tuple[int, int], bytes] = {}
+        legacy = False
         for index, sub, code in od.CALIBRATION_OBJECTS:
-            read[(index, sub)] = self.read_raw(index, sub, code)
+            if legacy and (index, sub) in od.TRIM_KEYS:
+                continue
+            try:
+                read[(index, sub)] = self.read_raw(index, sub, code)
+            except SdoAbort as exc:
+                first_trim = (index, sub) == od.TRIM_KEYS[0]
+                if not (first_trim and exc.code in (od.ABORT_NO_OBJECT, od.ABORT_NO_SUBINDEX)):
+                    raise
+                legacy = True  # a firmware before 0x2122: the 39-object layout
+                continue
             objects[(index, sub)] = od.decode(code, read[(index, sub)])
         crc_stored = int(objects[(od.CAL_INFO, od.CAL_CRC_SUB)])
         valid = int(objects[(od.CAL_INFO, od.CAL_VALID_SUB)])

@@ -67,6 +67,7 @@ GYRO_CORRECTION = 0x2111
 GYRO_G = 0x2112
 BASE_TILT = 0x2120
 CAL_INFO = 0x2121  # subs: 1 time, 2 plan code, 3 temp °C, 4 rms, 5 valid, 6 crc
+MOUNTING_TRIM = 0x2122  # subs 1–3: alpha, beta, psi (rad); absent on a 39-object firmware
 
 CAL_TIME_SUB = 1
 CAL_PLAN_SUB = 2
@@ -291,6 +292,8 @@ G_LIMIT = 1000.0
 """|G| a calibration may hold, counts per m/s²."""
 TILT_LIMIT_RAD = 0.2
 """|base tilt| a calibration may hold."""
+TRIM_LIMIT_RAD = 0.2
+"""|mounting trim| angle a calibration may hold (11.5°: more is a wrong mounting map)."""
 G_RULE = Magnitude(G_LIMIT, "counts per m/s²")
 
 
@@ -411,11 +414,20 @@ def _application() -> list[DeviceObject]:
         DeviceObject(CAL_INFO, CAL_CRC_SUB, "CRC-32 of the calibration block", "u32", "rw",
                      lambda n: _factory_crc(n), TYPE_RANGE),
     ]  # fmt: skip
+    out += _calibration_vector(MOUNTING_TRIM, "Mounting trim", ("alpha", "beta", "psi"), "rad",
+                               "mounting_trim_rad", Magnitude(TRIM_LIMIT_RAD, "rad"))  # fmt: skip
     return out
 
 
 def _factory_crc(nominal: Nominal) -> int:
     return block_crc({o.key: o.default_value(nominal) for o in OBJECTS if o.crc})  # type: ignore[misc]
+
+
+def _legacy_factory_crc(nominal: Nominal) -> int:
+    """Return the factory CRC of a node without 0x2122 (the 39-object layout)."""
+    return block_crc(
+        {o.key: o.default_value(nominal) for o in LEGACY_CRC_OBJECTS}  # type: ignore[misc]
+    )
 
 
 OBJECTS: tuple[DeviceObject, ...] = tuple(_communication() + _application())
@@ -442,6 +454,7 @@ GROUPS: tuple[ObjectGroup, ...] = (
     ObjectGroup(GYRO_G, "Gyro g-sensitivity G (counts per m/s2), row-major", "array"),
     ObjectGroup(BASE_TILT, "Base tilt (rad)", "array"),
     ObjectGroup(CAL_INFO, "Calibration info", "record"),
+    ObjectGroup(MOUNTING_TRIM, "Mounting trim (rad)", "array"),
 )  # fmt: skip
 """The EDS's ARRAY and RECORD objects; every other index is a plain variable (sub 0)."""
 
@@ -450,7 +463,36 @@ BY_KEY: Mapping[tuple[int, int], DeviceObject] = {o.key: o for o in OBJECTS}
 
 
 CRC_OBJECTS: tuple[DeviceObject, ...] = tuple(o for o in OBJECTS if o.crc)
-"""The objects the calibration CRC covers, in CRC order (the table's)."""
+"""The objects the calibration CRC covers, in CRC order (the table's): 42 objects, 165 bytes."""
+
+TRIM_KEYS: tuple[tuple[int, int], ...] = tuple(
+    o.key for o in CRC_OBJECTS if o.index == MOUNTING_TRIM
+)
+"""The mounting trim's objects (0x2122:01–03), the last three the CRC covers."""
+
+LEGACY_CRC_OBJECTS: tuple[DeviceObject, ...] = tuple(
+    o for o in CRC_OBJECTS if o.key not in TRIM_KEYS
+)
+"""What the CRC covers on a node without 0x2122 (a firmware before it): 39 objects, 153
+bytes, 0x2100:01 … 0x2121:04. The 42-object layout continues that CRC over the trim's 12
+bytes, so its first 39 objects are these in the same order (docs/design.md §4)."""
+
+
+def crc_objects(trim: bool) -> tuple[DeviceObject, ...]:
+    """Return the CRC layout of a node with the mounting-trim object (``trim``) or without."""
+    return CRC_OBJECTS if trim else LEGACY_CRC_OBJECTS
+
+
+def has_trim(values: Collection[tuple[int, int]]) -> bool:
+    """Tell whether ``values`` (keys of calibration objects) are of the 42-object layout.
+
+    All three trim keys, or none (the 39-object layout); InputError for one or two of them.
+    """
+    present = [key in values for key in TRIM_KEYS]
+    if any(present) and not all(present):
+        missing = [format_key(*k) for k, p in zip(TRIM_KEYS, present, strict=True) if not p]
+        raise InputError(f"mounting trim incomplete: {', '.join(missing)} missing")
+    return all(present)
 
 
 def object_at(index: int, sub: int) -> DeviceObject | None:
@@ -513,10 +555,14 @@ def _format_of(code: str) -> str:
         raise InputError(f"unknown encoding code {code!r}") from None
 
 
-def block_crc(values: Mapping[tuple[int, int], float | int]) -> int:
-    """CRC-32/ISO-HDLC (``zlib.crc32``, start 0) over the encodings of the CRC objects (§4)."""
+def block_crc(values: Mapping[tuple[int, int], float | int], trim: bool | None = None) -> int:
+    """CRC-32/ISO-HDLC (``zlib.crc32``, start 0) over the encodings of the CRC objects (§4).
+
+    ``trim``: the 42-object layout (with 0x2122) or the 39-object one; None reads it from
+    the keys of ``values`` (:func:`has_trim`).
+    """
     crc = 0
-    for obj in CRC_OBJECTS:
+    for obj in crc_objects(has_trim(values) if trim is None else trim):
         if obj.key not in values:
             raise InputError(f"object {format_key(*obj.key)} missing for the CRC")
         crc = zlib.crc32(encode(obj.data_type, values[obj.key]), crc)

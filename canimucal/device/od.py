@@ -5,14 +5,16 @@ rule, unit, default and CRC order are defined there). Pure data and numerics: no
 talks to a bus, so the client, the simulated node and the tests share one definition of what
 each object holds and how it is checked: the simulated node refuses an out-of-range SDO
 write with it, the client checks a whole block with it before writing. Units: biases in
-counts, M in m/s² per count, N in rad/s per count, G in counts per m/s², base tilt in
-radians, calibration temperature in °C, fit rms in m/s².
+counts, M in m/s² per count, N in rad/s per count, G in counts per m/s², base tilt and
+mounting trim in radians, calibration temperature in °C, fit rms in m/s². A node without the
+mounting-trim object 0x2122 (a firmware before it) has the 39-object CRC layout; its block
+holds no trim (``mounting_trim_rad`` None).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +47,8 @@ from canimucal.device.objects import (  # noqa: F401  (the indices, as od.X for 
     HARDWARE_VERSION,
     HEARTBEAT,
     IDENTITY,
+    LEGACY_CRC_OBJECTS,
+    MOUNTING_TRIM,
     NOMINAL,
     OBJECTS,
     RESTORE,
@@ -53,17 +57,21 @@ from canimucal.device.objects import (  # noqa: F401  (the indices, as od.X for 
     STORE,
     TPDO_COMM,
     TPDO_MAP,
+    TRIM_KEYS,
     Nominal,
     RangeContext,
     block_crc,
+    crc_objects,
     decode,
     encode,
     format_key,
+    has_trim,
     object_at,
     row_diagonal_key,
     row_diagonal_sub,
 )
 from canimucal.errors import InputError
+from canimucal.model.frames import trim_dcm
 
 STORE_ALL_SUB = 1
 STORE_COMM_SUB = 2
@@ -85,7 +93,19 @@ CRC_ORDER: tuple[tuple[int, int, str], ...] = tuple(
 CALIBRATION_OBJECTS: tuple[tuple[int, int, str], ...] = CRC_ORDER + tuple(
     (o.index, o.sub, o.data_type) for o in OBJECTS if o.key in BACKUP_EXTRAS
 )
-"""Everything a backup holds: the CRC set plus the valid flag and the CRC itself."""
+"""Everything a backup holds: the CRC set plus the valid flag and the CRC itself (a node
+without 0x2122 holds all but the trim's three)."""
+
+
+def crc_order(trim: bool) -> tuple[tuple[int, int, str], ...]:
+    """:data:`CRC_ORDER` of the 42-object layout (``trim``) or of the 39-object one."""
+    return tuple((o.index, o.sub, o.data_type) for o in crc_objects(trim))
+
+
+def calibration_objects(trim: bool) -> tuple[tuple[int, int, str], ...]:
+    """:data:`CALIBRATION_OBJECTS` of a node with the mounting trim (``trim``) or without."""
+    return tuple(entry for entry in CALIBRATION_OBJECTS if trim or entry[:2] not in TRIM_KEYS)
+
 
 OBJECT_CODES: dict[tuple[int, int], str] = {(i, s): c for i, s, c in CALIBRATION_OBJECTS}
 """Encoding code of each calibration object, keyed by ``(index, sub)``."""
@@ -121,10 +141,12 @@ def to_float32(value: float) -> float:
 
 @dataclass(frozen=True)
 class CalibrationBlock:
-    """Everything 0x2100–0x2121:04 holds, in device units (see the module docstring).
+    """Everything 0x2100–0x2122 holds, in device units (see the module docstring).
 
     ``accel_correction`` is M = K⁻¹ and ``gyro_correction`` N = S⁻¹ (both row-major on the
-    device); ``plan_code`` is a plan's device code in the plan registry (0 = none, factory).
+    device); ``plan_code`` is a plan's device code in the plan registry (0 = none, factory);
+    ``mounting_trim_rad`` the alignment rotation's ``(alpha, beta, psi)``, None on a node
+    without 0x2122 (the 39-object CRC layout).
     """
 
     accel_bias: NDArray[np.float64]
@@ -137,16 +159,23 @@ class CalibrationBlock:
     plan_code: int = 0
     temp_c: float = 0.0
     rms_ms2: float = 0.0
+    mounting_trim_rad: NDArray[np.float64] | None = field(default_factory=lambda: np.zeros(3))
+
+    @property
+    def trim(self) -> bool:
+        """Whether the block is of the 42-object layout (it holds the mounting trim)."""
+        return self.mounting_trim_rad is not None
 
     def to_objects(self) -> dict[tuple[int, int], float | int]:
         """Return the CRC objects' values in CRC order, REAL32 values rounded to float32."""
+        objects = crc_objects(self.trim)
         flat = {
             name: np.asarray(getattr(self, name), dtype=float).reshape(-1)
-            for name in dict.fromkeys(o.block_field for o in CRC_OBJECTS if o.block_field)
+            for name in dict.fromkeys(o.block_field for o in objects if o.block_field)
         }
         used = dict.fromkeys(flat, 0)
         out: dict[tuple[int, int], float | int] = {}
-        for obj in CRC_OBJECTS:
+        for obj in objects:
             name = str(obj.block_field)
             value = float(flat[name][used[name]])
             used[name] += 1
@@ -155,17 +184,22 @@ class CalibrationBlock:
 
     @classmethod
     def from_objects(cls, objects: Mapping[tuple[int, int], float | int]) -> CalibrationBlock:
-        """Build a block from ``(index, sub) -> value`` (at least the CRC objects)."""
-        missing = [format_key(*o.key) for o in CRC_OBJECTS if o.key not in objects]
+        """Build a block from ``(index, sub) -> value`` (at least the CRC objects).
+
+        Without the trim's three objects: a block of the 39-object layout.
+        """
+        layout = crc_objects(has_trim(objects))
+        missing = [format_key(*o.key) for o in layout if o.key not in objects]
         if missing:
             raise InputError(f"calibration objects missing: {', '.join(missing)}")
         fields: dict[str, list[float | int]] = {}
-        for obj in CRC_OBJECTS:
+        for obj in layout:
             value = objects[obj.key]
             fields.setdefault(str(obj.block_field), []).append(
                 float(value) if obj.data_type == "f32" else int(value)
             )
-        return cls(**{name: _shaped(values) for name, values in fields.items()})
+        shaped = {name: _shaped(values) for name, values in fields.items()}
+        return cls(**shaped) if layout is CRC_OBJECTS else cls(**shaped, mounting_trim_rad=None)
 
 
 def _shaped(values: list[float | int]) -> Any:
@@ -176,10 +210,13 @@ def _shaped(values: list[float | int]) -> Any:
     return array.reshape(3, 3) if array.size == 9 else array
 
 
-def factory_block(accel_lsb: float, gyro_lsb: float) -> CalibrationBlock:
-    """Return the factory defaults (§4): the objects' defaults for these nominal LSBs."""
+def factory_block(accel_lsb: float, gyro_lsb: float, trim: bool = True) -> CalibrationBlock:
+    """Return the factory defaults (§4): the objects' defaults for these nominal LSBs.
+
+    ``trim`` False: the block of a node without 0x2122 (the 39-object layout).
+    """
     nominal = Nominal(accel_lsb, gyro_lsb)
-    defaults = {o.key: o.default_value(nominal) for o in CRC_OBJECTS}
+    defaults = {o.key: o.default_value(nominal) for o in crc_objects(trim)}
     return CalibrationBlock.from_objects(defaults)  # type: ignore[arg-type]
 
 
@@ -194,8 +231,11 @@ def apply_firmware(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Corrected outputs (m/s², rad/s) as the firmware computes them (docs/design.md §4).
 
-    With valid = 1 and a matching CRC: ``a = M (U − b)``, ``w = N (V − B − G a)``;
-    otherwise the nominal values ``lsb · counts``. Accepts ``(3,)`` or ``(n, 3)`` counts.
+    With valid = 1 and a matching CRC: ``a = M (U − b)``, ``w = N (V − B − G a)``, then,
+    on a node with the mounting trim, both turned into the vehicle frame by the alignment
+    rotation, ``a_v = R_mᵀ a`` and ``w_v = R_mᵀ w`` (``R_m`` unit ← vehicle, docs/method.md
+    §3 eq. T1); otherwise the nominal values ``lsb · counts``. Accepts ``(3,)`` or ``(n, 3)``
+    counts.
     """
     u = np.asarray(accel_counts, dtype=float)
     v = np.asarray(gyro_counts, dtype=float)
@@ -206,6 +246,9 @@ def apply_firmware(
     g = np.asarray(block.gyro_g, float)
     accel = (u - block.accel_bias) @ m.T
     gyro = (v - block.gyro_bias - accel @ g.T) @ n.T
+    if block.mounting_trim_rad is not None:  # R_mᵀ x as rows: x @ R_m
+        align = trim_dcm(block.mounting_trim_rad)
+        return accel @ align, gyro @ align
     return accel, gyro
 
 
@@ -242,7 +285,7 @@ def block_range_problems(block: CalibrationBlock, accel_lsb: float, gyro_lsb: fl
     """Every range problem of a whole block (off-diagonals against the block's diagonals)."""
     objects = block.to_objects()
     problems = []
-    for obj in CRC_OBJECTS:
+    for obj in crc_objects(block.trim):
         diagonal_key = row_diagonal_key(obj)
         row_diagonal = None if diagonal_key is None else float(objects[diagonal_key])
         problem = range_problems(*obj.key, objects[obj.key], accel_lsb, gyro_lsb, row_diagonal)

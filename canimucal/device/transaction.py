@@ -116,6 +116,14 @@ class WriteReport:
     store_sub: int | None = None
     valid: int = 1
     """The valid flag written last: 0 for a backup that was invalid or whose CRC mismatched."""
+    trim_object: bool = True
+    """Whether the node has the mounting-trim object 0x2122 (the 42-object CRC layout); a
+    node without it was written without the trim (docs/design.md §4)."""
+
+    @property
+    def trim_written(self) -> bool:
+        """Whether a mounting trim was written (the node has 0x2122)."""
+        return self.trim_object and self.block.trim
 
 
 def default_backup_dir() -> Path:
@@ -149,7 +157,7 @@ def plan_writes(
         PlannedWrite(i, s, c, target[(i, s)], raw[(i, s)])
         if (i, s) in raw
         else _planned(i, s, c, target[(i, s)])
-        for i, s, c in od.CRC_ORDER
+        for i, s, c in od.crc_order(od.has_trim(target))
     ]
     writes += [_planned(*CRC_KEY, "u32", crc), _planned(*VALID_KEY, "u8", final_valid)]
     if store:
@@ -158,22 +166,68 @@ def plan_writes(
 
 
 def _target(
-    record: Calibration, accel_lsb: float, gyro_lsb: float
+    record: Calibration, accel_lsb: float, gyro_lsb: float, trim: bool
 ) -> tuple[od.CalibrationBlock, dict[ObjectKey, float | int], int, int, bool]:
-    """Block, CRC-set values, CRC, final valid flag; a backup's ``objects`` taken verbatim."""
+    """Block, CRC-set values, CRC, final valid flag; a backup's ``objects`` taken verbatim.
+
+    ``trim``: the node has the mounting-trim object. A node without it (a firmware before
+    0x2122) gets the 39-object layout: the calibration's trim is not written (a warning says
+    so) and a backup is translated to that layout (:func:`_backup_target`).
+    """
     objects = backup_objects(record)
     if objects is None:
         block = block_from_record(record, accel_lsb, gyro_lsb)
+        if not trim:
+            if record.mounting_trim_deg is not None:
+                logger.warning(
+                    "the node has no mounting-trim object 0x2122 (a firmware before it, "
+                    "39-object CRC): the mounting trim was not written"
+                )
+            block = replace(block, mounting_trim_rad=None)
         values = block.to_objects()
         return block, values, od.block_crc(values), 1, False
-    values = {(i, s): objects[(i, s)] for i, s, _ in od.CRC_ORDER}
+    return _backup_target(objects, trim)
+
+
+def _backup_target(
+    objects: Mapping[ObjectKey, float | int], trim: bool
+) -> tuple[od.CalibrationBlock, dict[ObjectKey, float | int], int, int, bool]:
+    """Write a backup back verbatim, or translated to the node's CRC layout.
+
+    Taken from a node of the other layout, a backup whose CRC matched its values is written
+    with the node's layout and that layout's CRC: a 39-object backup with a zero trim onto a
+    node with 0x2122; a 42-object backup onto a node without it only when its trim is zero
+    (InputError otherwise: nothing written). A CRC that did not match stays as it was (the
+    caller then restores with valid = 0).
+    """
+    own = od.has_trim(objects)
+    values = {(i, s): objects[(i, s)] for i, s, _ in od.crc_order(own)}
+    crc, valid = int(objects[CRC_KEY]), int(objects[VALID_KEY])
+    if own != trim:
+        if own and any(values[k] != 0.0 for k in od.TRIM_KEYS):
+            raise InputError(
+                "the backup holds a mounting trim (0x2122) this node does not have (a "
+                "firmware before it): nothing written"
+            )
+        consistent = od.block_crc(values) == crc
+        if trim:
+            values.update(dict.fromkeys(od.TRIM_KEYS, 0.0))
+        else:
+            values = {k: v for k, v in values.items() if k not in od.TRIM_KEYS}
+        if consistent:
+            crc = od.block_crc(values)
+        logger.warning(
+            "backup of a node %s the mounting-trim object written to one %s it: %s",
+            "with" if own else "without",
+            "without" if own else "with",
+            "the trim dropped" if own else "a zero trim added",
+        )
     block = od.CalibrationBlock.from_objects(values)
-    valid = int(objects[VALID_KEY])
     bad = _non_finite(values)
     if bad and valid == 1:
         logger.warning("backup holds non-finite values in %s: restored with valid = 0", bad)
         valid = 0
-    return block, values, int(objects[CRC_KEY]), valid, True
+    return block, values, crc, valid, True
 
 
 def _non_finite(values: Mapping[ObjectKey, float | int]) -> str:
@@ -225,7 +279,8 @@ def write_calibration_transaction(
     identity = client.identity()  # step 1
     forced = _check_serial(identity, record, force)
     accel_lsb, gyro_lsb = client.nominal_lsb()  # step 2
-    block, values, crc, final_valid, restore = _target(record, accel_lsb, gyro_lsb)
+    trim = client.has_trim_object()  # the node's CRC layout (docs/design.md §4)
+    block, values, crc, final_valid, restore = _target(record, accel_lsb, gyro_lsb, trim)
     # a backup of what the device held is written back as it was, non-finite values too
     problems = (
         []
@@ -267,6 +322,7 @@ def write_calibration_transaction(
         restore,
         sub,
         final_valid,
+        trim,
     )
     if dry_run:
         return report
@@ -497,7 +553,7 @@ def _holds(client: ImuClient, before: CalibrationReadout) -> bool:
 
 def _steps(writes: tuple[PlannedWrite, ...]) -> list[tuple[str, list[PlannedWrite]]]:
     """Group the plan into named steps; ``verify`` steps read back what precedes them."""
-    n_block = len(od.CRC_ORDER)
+    n_block = next(k for k, w in enumerate(writes) if (w.index, w.sub) == CRC_KEY) - 1
     block = list(writes[1 : 1 + n_block])
     crc, valid = writes[1 + n_block], writes[2 + n_block]
     steps = [
@@ -555,7 +611,7 @@ def restore_readout(client: ImuClient, before: CalibrationReadout) -> None:
     raw = before.raw
     boots = client.boots
     writes = [_planned(*VALID_KEY, "u8", 0)]
-    for index, sub, code in od.CRC_ORDER:
+    for index, sub, code in od.crc_order(before.trim):
         data = raw[(index, sub)]
         writes.append(PlannedWrite(index, sub, code, od.decode(code, data), data))
     crc_raw, valid_raw = raw[CRC_KEY], raw[VALID_KEY]

@@ -6,9 +6,9 @@ may be ``None`` (a ``null``: "not estimated: nominal"). A key that is absent and
 is ``null`` mean the same and both read as ``None``; the writer omits ``None`` fields.
 
 Units as in the file: counts, counts per m/s² (K, G), counts per rad/s (S), degrees for the
-base tilt, m/s² for ``fit.rms``. The ``covariance`` block keeps the order of the solver's
-parameter vector; its rows and columns of ``base_tilt.*`` are in **degrees** (the vector the
-solver works with is in radians):
+base tilt and the mounting trim, m/s² for ``fit.rms``. The ``covariance`` block keeps the
+order of the solver's parameter vector; its rows and columns of ``base_tilt.*`` and
+``mounting_trim.*`` are in **degrees** (the vector the solver works with is in radians):
 :func:`~canimucal.io.calibration.covariance_si` converts back.
 """
 
@@ -150,6 +150,25 @@ class BaseTilt:
 
 
 @dataclass(frozen=True, kw_only=True)
+class MountingTrim:
+    """``mounting_trim_deg``: the unit's small rotation in the vehicle, degrees, with 1σ.
+
+    ``R_m = Ay(psi) A2(beta) A1(alpha)`` (unit ← vehicle), the angle convention of a position
+    (docs/design.md §2): ``alpha`` about the unit's z, then ``beta`` about the new x, then
+    ``psi`` about y. Absent (or ``null``): not determined by the plan (written as zero).
+    """
+
+    alpha: float | None = field(default=None, metadata=cs.number())
+    beta: float | None = field(default=None, metadata=cs.number())
+    psi: float | None = field(default=None, metadata=cs.number())
+    sigma: Vector | None = field(default=None, metadata=cs.array((3,)))
+
+    def radians(self) -> NDArray[np.float64]:
+        """``(alpha, beta, psi)`` in radians, ``null`` entries 0."""
+        return np.deg2rad([self.alpha or 0.0, self.beta or 0.0, self.psi or 0.0])
+
+
+@dataclass(frozen=True, kw_only=True)
 class Covariance:
     """``covariance``: parameter order and matrix (tilt rows/columns in degrees)."""
 
@@ -200,6 +219,7 @@ class Readback:
     gyro_correction: Matrix | None = field(default=None, metadata=cs.array((3, 3)))
     gyro_g: Matrix | None = field(default=None, metadata=cs.array((3, 3)))
     base_tilt_rad: Vector | None = field(default=None, metadata=cs.array((2,)))
+    mounting_trim_rad: Vector | None = field(default=None, metadata=cs.array((3,)))
     valid: int | None = field(default=None, metadata=cs.integer(0, 1))
     crc_ok: bool | None = field(default=None, metadata=cs.boolean())
 
@@ -258,6 +278,7 @@ class Calibration:
     accel: AccelBlock = field(metadata=cs.block(AccelBlock))
     gyro: GyroBlock | None = field(default=None, metadata=cs.block(GyroBlock))
     base_tilt_deg: BaseTilt | None = field(default=None, metadata=cs.block(BaseTilt))
+    mounting_trim_deg: MountingTrim | None = field(default=None, metadata=cs.block(MountingTrim))
     covariance: Covariance | None = field(default=None, metadata=cs.block(Covariance))
     positions: tuple[PositionSummary, ...] | None = field(
         default=None, metadata=cs.block_list(PositionSummary)
@@ -422,11 +443,12 @@ def record_from_estimates(
     """Build a record from a solver's named parameter vector and its covariance.
 
     ``names`` follow ``accel.bias[i]``, ``accel.K[i][j]``, ``gyro.bias[i]``, ``gyro.S[i][j]``,
-    ``gyro.G[i][j]``, ``base_tilt.alpha0``/``beta0``; tilt values are **radians** in
-    ``values`` and ``covariance`` and come out in degrees (``base_tilt_deg`` and the tilt
-    rows/columns of ``covariance.matrix``). A parameter not in ``names`` is ``null`` (value
-    and sigma), except the off-diagonal of K or S when some of its diagonal was solved:
-    those were held at zero by the model and read ``0.0`` with a ``null`` sigma.
+    ``gyro.G[i][j]``, ``base_tilt.alpha0``/``beta0``, ``mounting_trim.alpha/beta/psi``; tilt
+    and trim values are **radians** in ``values`` and ``covariance`` and come out in degrees
+    (``base_tilt_deg``, ``mounting_trim_deg`` and their rows/columns of ``covariance.matrix``).
+    A parameter not in ``names`` is ``null`` (value and sigma), except the off-diagonal of K
+    or S when some of its diagonal was solved: those were held at zero by the model and read
+    ``0.0`` with a ``null`` sigma.
     ``held_fixed`` maps names the solver could not identify to the reason; they are ``null``
     and the reasons are logged (warnings travel beside the record, not in it).
     """
@@ -447,6 +469,7 @@ def record_from_estimates(
         accel=accel,
         gyro=gyro,
         base_tilt_deg=_base_tilt(table, everything),
+        mounting_trim_deg=_mounting_trim(table, everything),
         covariance=_covariance_deg(list(names), cov) if len(names) else None,
         positions=tuple(positions) if positions is not None else None,
         fit=fit,
@@ -564,8 +587,30 @@ def _base_tilt(table: Mapping[str, tuple[float, float]], everything: list[str]) 
     )
 
 
+def _mounting_trim(
+    table: Mapping[str, tuple[float, float]], everything: list[str]
+) -> MountingTrim | None:
+    if not any(n.startswith("mounting_trim.") for n in everything):
+        return None
+
+    def degrees(name: str, k: int) -> float | None:
+        return table[name][k] * _RAD_TO_DEG if name in table else None
+
+    axes = ("alpha", "beta", "psi")
+    return MountingTrim(
+        alpha=degrees("mounting_trim.alpha", 0),
+        beta=degrees("mounting_trim.beta", 0),
+        psi=degrees("mounting_trim.psi", 0),
+        sigma=tuple(degrees(f"mounting_trim.{a}", 1) for a in axes),
+    )
+
+
+_ANGLE_FAMILIES = ("base_tilt.", "mounting_trim.")
+"""Parameters held in radians by the solver and in degrees by the file."""
+
+
 def _tilt_scale(names: Sequence[str]) -> NDArray[np.float64]:
-    return np.array([_RAD_TO_DEG if n.startswith("base_tilt.") else 1.0 for n in names])
+    return np.array([_RAD_TO_DEG if n.startswith(_ANGLE_FAMILIES) else 1.0 for n in names])
 
 
 def _covariance_deg(names: list[str], cov: NDArray[np.float64]) -> Covariance:
@@ -581,6 +626,23 @@ def covariance_si(record: Calibration) -> tuple[list[str], NDArray[np.float64]]:
     names = list(record.covariance.order)
     scale = _tilt_scale(names)
     return names, np.array(record.covariance.matrix, dtype=float) / np.outer(scale, scale)
+
+
+def slope_trim_correlation(record: Calibration) -> float | None:
+    """Return the largest correlation (by magnitude) between floor slope and mounting trim.
+
+    From the record's covariance; None when it holds no tilt or no trim. Turning the vehicle
+    on the spot is what keeps it small (docs/method.md §3).
+    """
+    names, cov = covariance_si(record)
+    tilt = [k for k, n in enumerate(names) if n.startswith("base_tilt.")]
+    trim = [k for k, n in enumerate(names) if n.startswith("mounting_trim.")]
+    if not tilt or not trim:
+        return None
+    sd = np.sqrt(np.abs(np.diag(cov)))
+    corr = cov[np.ix_(tilt, trim)] / np.outer(sd[tilt], sd[trim])
+    k = int(np.argmax(np.abs(corr)))
+    return float(corr.flat[k])
 
 
 def summarize_position(average: PositionAverage) -> PositionSummary:

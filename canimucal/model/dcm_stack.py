@@ -89,6 +89,34 @@ def dcm_stack(
     return c, d_angles, d_tilt
 
 
+def trim_rotation(trim: Array) -> tuple[Array, Array]:
+    """Return the mounting trim ``R_m`` (unit ← vehicle) and ``dR_m/d(alpha_m, beta_m, psi_m)``.
+
+    ``R_m = Ay(psi_m) A2(beta_m) A1(alpha_m)``: the unit's pose in the vehicle in the angle
+    convention of a position (docs/design.md §2, docs/method.md §3 "Floor slope and mounting
+    trim"); returns ``(3, 3)`` and ``(3, 3, 3)`` (angle on axis 0).
+    """
+    alpha, beta, psi = (np.atleast_1d(float(t)) for t in np.asarray(trim, dtype=float)[:3])
+    parts = [_rotations("y", psi), _rotations("x", beta), _rotations("z", alpha)]
+    r, replaced = _partials([m for m, _ in parts], [d for _, d in parts])
+    return r[0], np.stack([replaced[2][0], replaced[1][0], replaced[0][0]])
+
+
+def trimmed_stack(
+    angles: Array, alpha0: float, beta0: float, tilt_model: TiltModel, trim: Array
+) -> tuple[Array, Array, Array, Array]:
+    """:func:`dcm_stack` with the mounting trim on the left: ``C = R_m · C_pose · T0``.
+
+    docs/method.md §3 eq. (T1). Returns ``C`` ``(n, 3, 3)``, ``dC/d(alpha, beta, psi)``
+    ``(n, 3, 3, 3)``, ``dC/d(alpha0, beta0)`` ``(n, 2, 3, 3)`` and
+    ``dC/d(alpha_m, beta_m, psi_m)`` ``(n, 3, 3, 3)``.
+    """
+    c, d_angles, d_tilt = dcm_stack(angles, alpha0, beta0, tilt_model)
+    r, d_r = trim_rotation(trim)
+    d_trim = np.einsum("kij,njl->nkil", d_r, c)
+    return r @ c, r @ d_angles, r @ d_tilt, d_trim
+
+
 def dcm_derivatives(
     angles: Array, alpha0: float, beta0: float, tilt_model: TiltModel
 ) -> tuple[Array, Array, Array]:

@@ -46,17 +46,33 @@ def position_dcm(
     alpha0: float = 0.0,
     beta0: float = 0.0,
     tilt_model: TiltModel = "rigid",
+    trim: ArrayLike | None = None,
 ) -> Matrix:
     """Direction cosine matrix body <- L of one position (docs/design.md §2).
 
     rigid:    ``C = Ay(psi) A2(beta) A1(alpha) A2(beta0) A1(alpha0)``
     additive: ``C = Ay(psi) A2(beta + beta0) A1(alpha + alpha0)`` (the paper's eq. 15)
+
+    ``trim`` ``(alpha_m, beta_m, psi_m)``: the unit's mounting trim in the vehicle, applied
+    last (on the left), ``C = R_m · C`` with :func:`trim_dcm` (docs/method.md §3, eq. T1).
     """
     if tilt_model == "rigid":
-        return ay(psi) @ a2(beta) @ a1(alpha) @ a2(beta0) @ a1(alpha0)
-    if tilt_model == "additive":
-        return ay(psi) @ a2(beta + beta0) @ a1(alpha + alpha0)
-    raise ValueError(f"tilt_model must be 'rigid' or 'additive', not {tilt_model!r}")
+        c = ay(psi) @ a2(beta) @ a1(alpha) @ a2(beta0) @ a1(alpha0)
+    elif tilt_model == "additive":
+        c = ay(psi) @ a2(beta + beta0) @ a1(alpha + alpha0)
+    else:
+        raise ValueError(f"tilt_model must be 'rigid' or 'additive', not {tilt_model!r}")
+    return c if trim is None else trim_dcm(trim) @ c
+
+
+def trim_dcm(trim: ArrayLike) -> Matrix:
+    """``R_m = Ay(psi_m) A2(beta_m) A1(alpha_m)`` (unit ← vehicle): the mounting trim.
+
+    The unit's small rotation in the vehicle frame, in the angle convention of a position
+    (tilt about z, then about the new x, then turn about y; docs/design.md §2).
+    """
+    alpha_m, beta_m, psi_m = (float(t) for t in np.asarray(trim, dtype=float)[:3])
+    return ay(psi_m) @ a2(beta_m) @ a1(alpha_m)
 
 
 def specific_force_level(g: float) -> Vector:

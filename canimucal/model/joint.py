@@ -122,6 +122,11 @@ class JointResult:
         p = self._params()
         return p.alpha0, p.beta0
 
+    @property
+    def trim(self) -> NDArray[np.float64]:
+        """Mounting trim ``(alpha_m, beta_m, psi_m)`` in radians (zeros when not estimated)."""
+        return np.asarray(self._params().trim, dtype=float)
+
 
 @dataclass(frozen=True)
 class _Data:

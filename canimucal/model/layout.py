@@ -6,20 +6,22 @@ parameters and with respect to the position's own angles (for the angle-setting 
 
 Sensor models (docs/design.md §2, counts): accelerometer ``U = b + K C f_L`` (eq. 6, 15 with a rigid
 or additive base tilt), gyro ``V = B + S C w_L + G C f_L`` (eq. 35 with g-sensitivity).
-Angles are radians; the base tilt parameters ``base_tilt.alpha0/beta0`` too. The DCMs of
-all positions and their derivatives come from :mod:`canimucal.model.dcm_stack`.
+Angles are radians; the base tilt parameters ``base_tilt.alpha0/beta0`` too, and the mounting
+trim ``mounting_trim.alpha/beta/psi`` of plans that determine it: ``C = R_m · C_pose · T0``
+(docs/method.md §3, eq. T1). The DCMs of all positions and their derivatives come from
+:mod:`canimucal.model.dcm_stack`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.errors import ModelError
-from canimucal.model.dcm_stack import dcm_stack
+from canimucal.model.dcm_stack import dcm_stack, trimmed_stack
 from canimucal.model.frames import (
     TiltModel,
     earth_rate_level,
@@ -46,7 +48,9 @@ class JointSpec:
     tilt, a rigid tilted base (docs/design.md §2) or the paper's added angles (eq. 15). ``gyro``:
     none; ``mems`` (bias only, S fixed at nominal, Earth rate with nominal S when a latitude is
     given); ``nav`` (bias and S from Earth rate; needs a latitude). ``gyro_s`` the shape of S
-    for ``nav``; ``gyro_g`` estimates the g-sensitivity G.
+    for ``nav``; ``gyro_g`` estimates the g-sensitivity G. ``trim`` estimates the unit's
+    mounting trim in the vehicle (docs/method.md §3: only with K held at a prior does a
+    plan determine it; a free full K absorbs any rotation of the unit's axes).
     """
 
     accel_k: AccelKSpec = "diag"
@@ -54,6 +58,7 @@ class JointSpec:
     gyro: GyroSpec = "none"
     gyro_s: MatrixSpec = "diag"
     gyro_g: bool = False
+    trim: bool = False
 
     def __post_init__(self) -> None:
         """Check each field against its allowed values."""
@@ -85,8 +90,9 @@ class ParameterLayout:
     """Names and positions of the parameters of a :class:`JointSpec` in the vector theta.
 
     Names follow the calibration JSON's covariance ``order``: ``accel.bias[i]``,
-    ``accel.K[i][j]``, ``base_tilt.alpha0``, ``base_tilt.beta0``, ``gyro.bias[i]``,
-    ``gyro.S[i][j]``, ``gyro.G[i][j]``.
+    ``accel.K[i][j]``, ``base_tilt.alpha0``, ``base_tilt.beta0``, ``mounting_trim.alpha``,
+    ``mounting_trim.beta``, ``mounting_trim.psi``, ``gyro.bias[i]``, ``gyro.S[i][j]``,
+    ``gyro.G[i][j]``.
     """
 
     spec: JointSpec
@@ -105,6 +111,8 @@ class ParameterLayout:
         names += [f"accel.K[{i}][{j}]" for i, j in k]
         if spec.tilt != "none":
             names += ["base_tilt.alpha0", "base_tilt.beta0"]
+        if spec.trim:
+            names += list(TRIM_NAMES)
         if spec.gyro != "none":
             names += [f"gyro.bias[{i}]" for i in range(3)]
         names += [f"gyro.S[{i}][{j}]" for i, j in s]
@@ -133,6 +141,7 @@ class ParameterLayout:
         alpha0 = beta0 = 0.0
         if self.spec.tilt != "none":
             alpha0, beta0 = next(it), next(it)
+        trim = np.array([next(it) for _ in range(3)]) if self.spec.trim else np.zeros(3)
         gbias, s, gg = np.zeros(3), np.eye(3) / gyro_lsb, np.zeros((3, 3))
         if self.spec.gyro != "none":
             gbias = np.array([next(it) for _ in range(3)])
@@ -142,7 +151,7 @@ class ParameterLayout:
             s[i, j] = next(it)
         for i, j in self.g_entries:
             gg[i, j] = next(it)
-        return ModelParams(bias, k, float(alpha0), float(beta0), gbias, s, gg)
+        return ModelParams(bias, k, float(alpha0), float(beta0), gbias, s, gg, trim)
 
     def effect_scales(self, g: float, k_counts_per_ms2: float) -> Array:
         """Effect of a unit change of each parameter at 1 g, in counts (docs/design.md §3).
@@ -158,6 +167,8 @@ class ParameterLayout:
         values = list(params.accel_bias) + [params.K[i, j] for i, j in self.k_entries]
         if self.spec.tilt != "none":
             values += [params.alpha0, params.beta0]
+        if self.spec.trim:
+            values += list(params.trim)
         if self.spec.gyro != "none":
             values += list(params.gyro_bias)
         values += [params.S[i, j] for i, j in self.s_entries]
@@ -167,7 +178,10 @@ class ParameterLayout:
 
 @dataclass(frozen=True)
 class ModelParams:
-    """The parameters of one evaluation of the model, as matrices (counts, radians)."""
+    """The parameters of one evaluation of the model, as matrices (counts, radians).
+
+    ``trim`` is the mounting trim ``(alpha_m, beta_m, psi_m)`` (zero when not estimated).
+    """
 
     accel_bias: Array
     K: Array
@@ -176,6 +190,7 @@ class ModelParams:
     gyro_bias: Array
     S: Array
     G: Array
+    trim: Array = field(default_factory=lambda: np.zeros(3))
 
 
 @dataclass(frozen=True)
@@ -224,45 +239,66 @@ def predict(layout: ParameterLayout, theta: Array, angles: Array, ctx: ModelCont
     """
     spec = layout.spec
     par = layout.unpack(theta, ctx.gyro_lsb)
-    c, dc_ang, dc_tilt = dcm_stack(angles, par.alpha0, par.beta0, spec.tilt_model)
+    if spec.trim:
+        c, dc_ang, dc_tilt, dc_trim = trimmed_stack(
+            angles, par.alpha0, par.beta0, spec.tilt_model, par.trim
+        )  # eq. (T1): C = R_m C_pose T0
+        dc_geo = np.concatenate([dc_tilt, dc_trim], axis=1)
+    else:
+        c, dc_ang, dc_geo = dcm_stack(angles, par.alpha0, par.beta0, spec.tilt_model)
     n, m, p = c.shape[0], spec.channels, layout.size
     mean, d_theta, d_angles = np.zeros((n, m)), np.zeros((n, m, p)), np.zeros((n, m, 3))
     f = c @ ctx.f_level
     df_ang = np.einsum("nkij,j->nik", dc_ang, ctx.f_level)  # d f / d angle k
-    df_tilt = np.einsum("nkij,j->nik", dc_tilt, ctx.f_level)
+    df_geo = np.einsum("nkij,j->nik", dc_geo, ctx.f_level)
     mean[:, :3] = par.accel_bias + f @ par.K.T  # eq. (6)
     d_angles[:, :3] = par.K @ df_ang
-    col = _accel_columns(layout, f, par.K @ df_tilt, d_theta)
+    geometry = _geometry_columns(layout)
+    _accel_columns(layout, f, d_theta)
+    d_theta[:, :3, geometry.columns] = (par.K @ df_geo)[:, :, geometry.rows]
     if m == 6:
         w = c @ ctx.w_level
         dw_ang = np.einsum("nkij,j->nik", dc_ang, ctx.w_level)
-        dw_tilt = np.einsum("nkij,j->nik", dc_tilt, ctx.w_level)
+        dw_geo = np.einsum("nkij,j->nik", dc_geo, ctx.w_level)
         mean[:, 3:] = par.gyro_bias + w @ par.S.T + f @ par.G.T  # eq. (35) + g-sensitivity
         d_angles[:, 3:] = par.S @ dw_ang + par.G @ df_ang
-        _gyro_columns(layout, col, (f, w), par.S @ dw_tilt + par.G @ df_tilt, d_theta)
+        gyro_geo = par.S @ dw_geo + par.G @ df_geo
+        d_theta[:, 3:, geometry.columns] = gyro_geo[:, :, geometry.rows]
+        _gyro_columns(layout, (f, w), d_theta)
     return Prediction(mean, d_theta, d_angles)
 
 
-def _accel_columns(layout: ParameterLayout, f: Array, d_tilt: Array, out: Array) -> int:
-    """Fill the accelerometer rows of d/dtheta ``(n, m, p)``; return the next column."""
+TRIM_NAMES = ("mounting_trim.alpha", "mounting_trim.beta", "mounting_trim.psi")
+"""The mounting trim's parameters: ``R_m = Ay(psi) A2(beta) A1(alpha)`` (docs/method.md §3)."""
+
+
+@dataclass(frozen=True)
+class _Geometry:
+    """Which of the five geometric derivatives (alpha0, beta0, trim ×3) a layout fits, where."""
+
+    rows: list[int]
+    columns: list[int]
+
+
+def _geometry_columns(layout: ParameterLayout) -> _Geometry:
+    names = ("base_tilt.alpha0", "base_tilt.beta0", *TRIM_NAMES)
+    rows = [k for k, name in enumerate(names) if name in layout.names]
+    return _Geometry(rows, [layout.index(names[k]) for k in rows])
+
+
+def _accel_columns(layout: ParameterLayout, f: Array, out: Array) -> None:
+    """Fill the bias and K columns of the accelerometer rows of d/dtheta ``(n, m, p)``."""
     out[:, 0:3, 0:3] = np.eye(3)
     col = 3
     for i, j in layout.k_entries:
         out[:, i, col] = f[:, j]
         col += 1
-    if layout.spec.tilt != "none":
-        out[:, 0:3, col : col + 2] = d_tilt
-        col += 2
-    return col
 
 
-def _gyro_columns(
-    layout: ParameterLayout, col: int, fw: tuple[Array, Array], d_tilt: Array, out: Array
-) -> None:
-    """Fill the gyro rows of d/dtheta (columns from ``col`` on); ``fw`` = (f, w) per position."""
+def _gyro_columns(layout: ParameterLayout, fw: tuple[Array, Array], out: Array) -> None:
+    """Fill the bias, S and G columns of the gyro rows of d/dtheta; ``fw`` = (f, w)."""
     f, w = fw
-    if layout.spec.tilt != "none":
-        out[:, 3:6, col - 2 : col] = d_tilt
+    col = layout.index("gyro.bias[0]")
     out[:, 3:6, col : col + 3] = np.eye(3)
     col += 3
     for i, j in layout.s_entries:

@@ -77,11 +77,13 @@ def build_moves(
     site: SiteConditions,
     sample_rate_hz: float,
     g_sensitivity: GSensitivity | None = None,
+    trim: Array | None = None,
 ) -> tuple[list[Move], list[Array], list[str], Shared | None]:
     """Turn confirmed moves into fit moves with their biases; notes say which were dropped.
 
     With ``g_sensitivity`` a move whose accelerometer rows are complete enough carries its
-    specific force, and ``G f`` is removed from it (:func:`move_between`). The last item
+    specific force, and ``G f`` is removed from it (:func:`move_between`); ``trim`` (rad) is
+    the mounting trim of the accelerometer fit, so the moves are the unit's. The last item
     holds the errors the moves share through their positions (None when none is keyed).
     """
     s0 = np.eye(3) / site.gyro_lsb
@@ -124,6 +126,7 @@ def build_moves(
             g_sensitivity,
             force,
             keys,
+            trim,
         )
         moves.append(move)
         biases.append(bias)
@@ -145,7 +148,8 @@ def fit_confirmed_moves(
     if not confirmed or not stds or solution.joint is None:
         return solution
     gs = g_sensitivity_of(solution, site)
-    moves, biases, notes, shared = build_moves(confirmed, site, sample_rate_hz, gs)
+    trim = solution.joint.trim  # the mounting trim: the moves as the unit turned them
+    moves, biases, notes, shared = build_moves(confirmed, site, sample_rate_hz, gs, trim)
     rate_sigma = np.median(np.asarray(stds, dtype=float), axis=0)
     found = RecordingMoves(tuple(moves), tuple(biases), rate_sigma, tuple(notes), shared)
     try:

@@ -1,12 +1,14 @@
 """The pose check before averaging, and a target pose in words (docs/design.md §2 directions).
 
 The measured specific force ``f = lsb · U`` (nominal K) is compared with the target's
-``C(alpha, beta, psi) T0 f_L + b``: ``T0`` the floor slope (a tilt fixed in the level frame,
-docs/design.md §2, so it turns with the pose) and ``b`` a bias in the unit's frame, both
-estimated by :class:`FloorFit` from the positions accepted so far. The angle between the two
-directions must be within the tolerance, so a tilt of the wrong sign (twice the tilt off) or
-the wrong size is refused. Where the accepted positions cannot tell slope from bias (after
-the first position only), every split between them is tried and the closest one counts.
+``R_m C(alpha, beta, psi) T0 f_L + b``: ``T0`` the floor slope (a tilt fixed in the level
+frame, docs/design.md §2, so it turns with the pose), ``R_m`` the unit's mounting trim (a
+small rotation fixed in the vehicle frame, docs/method.md §3 eq. T1) and ``b`` a bias in the
+unit's frame, all fitted by :class:`FloorFit` to the positions accepted so far and the one
+checked. The angle between the two directions must be within the tolerance, so a tilt of
+the wrong sign (twice the tilt off) or the wrong size is refused. What the accepted
+positions cannot tell apart (slope, trim and bias after the first position) is settled by
+the one checked, within bounds no floor or mounting exceeds.
 For display the measurement is referred to a level floor, turned back by the target's psi and
 read as (alpha, beta) with :func:`~canimucal.model.frames.gravity_direction_angles`.
 
@@ -73,99 +75,148 @@ def measured_force(mean_counts: Array, accel_lsb: float) -> Array:
     return accel_lsb * np.asarray(mean_counts, dtype=float)
 
 
-_SLOPE_JACOBIAN = np.array([[-1.0, 0.0], [0.0, 0.0], [0.0, 1.0]])
-"""``d(T0 f_L)/d(alpha0, beta0)`` at a level floor, per unit of g (docs/design.md §2)."""
-_SEPARABLE = 0.05
-"""Singular values below this share of the largest are directions the positions leave open."""
-_SPLITS = np.linspace(0.0, 1.0, 21)
-"""Splits tried between all-slope and all-bias along the directions left open."""
+SLOPE_BOUND_DEG = 5.0
+"""Largest floor slope about each axis the pose check will assume (a yard, a garage)."""
+TRIM_BOUND_DEG = 3.0
+"""Largest mounting trim about each axis it will assume (a unit bolted in by eye)."""
+BIAS_BOUND_G = 0.1
+"""Largest accelerometer bias on each axis it will assume, in g (a MEMS zero-g offset)."""
+SEEN_WEIGHT = 10.0
+"""How much more each accepted position weighs in the check's fit than the one checked."""
+_ITERATIONS = 3
+"""Gauss–Newton steps of the check's fit (exact rotations, linear steps)."""
 
 
 @dataclass
 class FloorFit:
-    """What the accepted positions showed beyond their prediction: floor slope and bias.
+    """What the accepted positions showed beyond their prediction: slope, trim and bias.
 
-    The model of a nominal specific force at pose ``C``: ``C T0(alpha0, beta0) f_L + b``;
+    The model of a nominal specific force at pose ``C``: ``R_m C T0(alpha0, beta0) f_L + b``;
     ``T0`` is the rigid base tilt of docs/design.md §2 (the floor's slope, fixed in the level
-    frame: it turns with the vehicle or the unit), ``b`` a bias in the unit frame (m/s²).
-    Linear least squares in the small slope; measured vectors are scaled to ``|f| = g`` first
-    (a scale error of the nominal K does not tilt anything). Directions of the parameters the
-    accepted positions do not determine are kept open: the readings run from the
-    all-slope to the all-bias one (after a level first position: the horizontal residual as
-    slope, or as bias). The readings of the first position, of the first two, … are all
-    kept (:meth:`candidates`): a scale or cross-axis error of the nominal K, not modelled
-    here, can pull a later fit off by a degree at a 45° pose, and the first position's
-    all-bias reading is the unit-frame offset the check used before the floor was modelled.
-    :meth:`check` takes the reading closest to the measurement: none of them is more than a
-    few degrees, so a tilt of the wrong sign or size is still refused.
+    frame: it turns with the vehicle or the unit), ``R_m = exp(−[m]×)`` the mounting trim (a
+    rotation fixed in the vehicle frame; docs/method.md §3 eq. T1), ``b`` a bias in the unit
+    frame (m/s²); measured vectors are scaled to ``|f| = g`` first (a scale error of the
+    nominal K does not tilt anything). :meth:`check` fits the eight unknowns to the accepted
+    positions and the one checked together, the accepted ones weighing
+    :data:`SEEN_WEIGHT` times more, each unknown within what a floor, a mounting and a bias
+    can be (:data:`SLOPE_BOUND_DEG`, :data:`TRIM_BOUND_DEG`, :data:`BIAS_BOUND_G`): what the
+    accepted positions leave open (after a level first position: whether its offset is
+    slope, trim or bias; at any level pose a trim's roll and pitch look like a bias) is
+    settled by the position checked, within those bounds, and what the fit cannot explain is
+    the pose error. A tilt of the wrong sign or size needs a slope or trim far beyond the
+    bounds, so it is still refused.
     """
 
     g: float
     seen: list[tuple[Pose, Array]] = field(default_factory=list)
-    _candidates: list[tuple[float, float, Array]] = field(default_factory=list, repr=False)
-    _slopes: Array = field(default_factory=lambda: np.zeros((0, 3, 3)), repr=False)
-    _biases: Array = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
+    _alone: FloorReading | None = field(default=None, repr=False)
 
     def add(self, pose: Pose, f_nominal: Array) -> None:
         """Take an accepted position's nominal specific force (m/s²) at its target ``pose``."""
         self.seen.append((pose, np.asarray(f_nominal, dtype=float)))
-        self._candidates += self._fit(self.seen)
-        self._slopes = np.stack([position_dcm(0.0, 0.0, 0.0, a, b) for a, b, _ in self._candidates])
-        self._biases = np.stack([bias for _, _, bias in self._candidates])
+        self._alone = None
 
     @property
     def empty(self) -> bool:
         """Whether no position has been accepted yet."""
         return not self.seen
 
-    def candidates(self) -> list[tuple[float, float, Array]]:
-        """``(alpha0, beta0, b)`` readings of what was seen (radians, m/s²); none when empty."""
-        return list(self._candidates)
+    def fit(self, extra: tuple[Pose, Array] | None = None) -> FloorReading:
+        """Fit slope, trim and bias to the accepted positions (and ``extra``, weighing 1)."""
+        points = [(pose, f, SEEN_WEIGHT) for pose, f in self.seen]
+        if extra is not None:
+            points.append((extra[0], np.asarray(extra[1], dtype=float), 1.0))
+        from scipy.optimize import lsq_linear  # lazy (issue 23)
 
-    def _fit(self, seen: list[tuple[Pose, Array]]) -> list[tuple[float, float, Array]]:
-        rows, residuals = [], []
-        for pose, f in seen:
-            norm = float(np.linalg.norm(f))
-            scaled = f * (self.g / norm) if norm > 0 else f
-            c = position_dcm(pose.alpha, pose.beta, pose.psi)
-            rows.append(np.hstack([c @ _SLOPE_JACOBIAN, np.eye(3)]))
-            residuals.append((scaled - c @ specific_force_level(self.g)) / self.g)
-        a, r = np.vstack(rows), np.concatenate(residuals)
-        u, s, vt = np.linalg.svd(a, full_matrices=True)
-        rank = int(np.sum(s > _SEPARABLE * s[0]))
-        q0 = vt[:rank].T @ ((u[:, :rank].T @ r) / s[:rank])
-        open_dirs = vt[rank:].T
-        if open_dirs.shape[1] == 0:
-            ends = [q0]
-        else:
-            ends = [
-                q0 - open_dirs @ (np.linalg.pinv(part @ open_dirs) @ (part @ q0))
-                for part in (np.eye(5)[2:], np.eye(5)[:2])  # no bias; no slope
+        q, bound = np.zeros(8), _bounds()
+        for _ in range(_ITERATIONS):
+            rows, residuals = [], []
+            for pose, f, weight in points:
+                jac, res = self._linearised(pose, f, q)
+                rows.append(np.sqrt(weight) * jac)
+                residuals.append(np.sqrt(weight) * res)
+            step = lsq_linear(
+                np.vstack(rows), np.concatenate(residuals), bounds=(-bound - q, bound - q)
+            )
+            q = np.clip(q + step.x, -bound, bound)
+        return FloorReading(float(q[0]), float(q[1]), q[2:5].copy(), self.g * q[5:])
+
+    def _linearised(self, pose: Pose, f: Array, q: Array) -> tuple[Array, Array]:
+        """d(prediction)/dq at ``q`` and the residual (scaled measurement − prediction), in g."""
+        norm = float(np.linalg.norm(f))
+        scaled = f / norm if norm > 0 else f
+        c = position_dcm(pose.alpha, pose.beta, pose.psi)
+        rotation = _frame_rotation(q[2:5])
+        slope = position_dcm(0.0, 0.0, 0.0, q[0], q[1])
+        unit_g = specific_force_level(1.0)
+        predicted = rotation @ c @ slope @ unit_g
+        d_slope = np.column_stack(
+            [
+                (position_dcm(0.0, 0.0, 0.0, q[0] + h[0], q[1] + h[1]) - slope) @ unit_g / 1e-7
+                for h in (np.array([1e-7, 0.0]), np.array([0.0, 1e-7]))
             ]
-        out = []
-        for lam in _SPLITS if len(ends) == 2 else (0.0,):
-            q = (1.0 - lam) * ends[0] + lam * ends[-1]
-            out.append((float(q[0]), float(q[1]), self.g * q[2:]))
-        return out
+        )
+        jac = np.hstack([rotation @ c @ d_slope, _cross(predicted), np.eye(3)])
+        return jac, scaled - (predicted + q[5:])
 
     def check(self, pose: Pose, f_nominal: Array, tolerance_deg: float) -> PoseCheck:
-        """Check ``f_nominal`` (m/s²) against ``pose`` with the reading that fits it best.
+        """Check ``f_nominal`` (m/s²) against ``pose`` with the fit that explains it best.
 
-        Before any position was accepted: the plain :func:`check_pose`.
+        It passes when the fit of the accepted positions with this one leaves it within
+        ``tolerance_deg``. Otherwise (and for a live readout, ``tolerance_deg`` 0) the
+        measurement is shown as the accepted positions alone predict it, so the message
+        gives the whole error, not what the bounds left of it. Before any position was
+        accepted: the plain :func:`check_pose`.
         """
         f = np.asarray(f_nominal, dtype=float)
-        if not self._candidates:
+        if not self.seen:
             return check_pose(pose, f, self.g, tolerance_deg)
+        if self._alone is None:
+            self._alone = self.fit()
+        alone = check_pose(pose, self._alone.on_level_floor(pose, f), self.g, tolerance_deg)
+        if tolerance_deg <= 0.0:  # a live readout: what the accepted positions predict
+            return alone
+        joint = check_pose(pose, self.fit((pose, f)).on_level_floor(pose, f), self.g, tolerance_deg)
+        return joint if joint.passed else alone
+
+
+@dataclass(frozen=True)
+class FloorReading:
+    """One fit of :class:`FloorFit`: slope (rad), trim (rotation vector, rad) and bias (m/s²)."""
+
+    alpha0: float
+    beta0: float
+    trim: Array
+    bias: Array
+
+    def on_level_floor(self, pose: Pose, f: Array) -> Array:
+        """Refer the measurement to a level floor and an exact mounting.
+
+        ``m = C T0ᵀ Cᵀ R_mᵀ (f − b)``: what the unit would have shown at ``pose`` (m/s²).
+        """
         c = position_dcm(pose.alpha, pose.beta, pose.psi)
-        # every reading at once: the measurement referred to a level floor, m = C T0ᵀ Cᵀ (f − b)
-        turned = np.einsum("ij,njk,lk->nil", c, self._slopes.transpose(0, 2, 1), c)
-        on_level_floor = np.einsum("nij,nj->ni", turned, f[None, :] - self._biases)
-        target = predicted_force(pose, self.g)
-        cos = (on_level_floor @ target) / np.maximum(
-            np.linalg.norm(on_level_floor, axis=1) * np.linalg.norm(target), 1e-300
-        )
-        best = int(np.argmax(cos))
-        return check_pose(pose, on_level_floor[best], self.g, tolerance_deg)
+        slope = position_dcm(0.0, 0.0, 0.0, self.alpha0, self.beta0)
+        untrimmed = _frame_rotation(self.trim).T @ (np.asarray(f, dtype=float) - self.bias)
+        return np.asarray(c @ slope.T @ c.T @ untrimmed)
+
+
+def _bounds() -> Array:
+    slope, trim = np.deg2rad(SLOPE_BOUND_DEG), np.deg2rad(TRIM_BOUND_DEG)
+    return np.array([slope, slope, trim, trim, trim, BIAS_BOUND_G, BIAS_BOUND_G, BIAS_BOUND_G])
+
+
+def _cross(v: Array) -> Array:
+    """``[v]×``: the matrix of ``v × ·``; ``R_m v ≈ v + [v]× m`` for a small frame rotation."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _frame_rotation(m: Array) -> Array:
+    """``R_m = exp(−[m]×)``: the frame rotation by the rotation vector ``m`` (Rodrigues)."""
+    angle = float(np.linalg.norm(m))
+    if angle < 1e-15:
+        return np.eye(3)
+    k = _cross(np.asarray(m, dtype=float) / angle)
+    return np.asarray(np.eye(3) - np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k))
 
 
 def check_pose(pose: Pose, f_measured: Array, g: float, tolerance_deg: float) -> PoseCheck:

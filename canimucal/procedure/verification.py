@@ -60,11 +60,23 @@ def verification_poses(plan: Plan) -> tuple[PlannedPosition, PlannedPosition]:
 
 
 def predicted_direction(position: PlannedPosition, record: Calibration) -> Array:
-    """Return the unit vector of ``C(alpha, beta, psi) T0 f_L`` with the record's base tilt."""
-    tilt = record.base_tilt_deg
+    """Return the unit vector of ``R_m C(alpha, beta, psi) T0 f_L`` in the unit's axes.
+
+    With the record's base tilt (floor slope) and mounting trim (docs/method.md §3): the
+    calibrated reading ``M (U − b)`` is in the unit's axes, which the trim turns from the
+    vehicle's.
+    """
+    tilt, trim = record.base_tilt_deg, record.mounting_trim_deg
     alpha0 = 0.0 if tilt is None or tilt.alpha0 is None else float(np.deg2rad(tilt.alpha0))
     beta0 = 0.0 if tilt is None or tilt.beta0 is None else float(np.deg2rad(tilt.beta0))
-    c = position_dcm(position.alpha, position.beta, position.psi, alpha0, beta0)
+    c = position_dcm(
+        position.alpha,
+        position.beta,
+        position.psi,
+        alpha0,
+        beta0,
+        trim=None if trim is None else trim.radians(),
+    )
     f = c @ specific_force_level(1.0)
     return f / np.linalg.norm(f)
 

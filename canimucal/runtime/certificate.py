@@ -65,6 +65,9 @@ class SessionFacts:
     (:func:`~canimucal.runtime.plan_forecast.forecast`; empty: not known)."""
     verified: tuple[PoseVerified, ...] = ()
     """The verification poses re-read after the write, in order (empty: none)."""
+    trim_object: bool | None = None
+    """Whether the node has the mounting-trim object 0x2122 (None: not known, nothing was
+    written); a node without it was written without the trim."""
 
 
 def mounting_text(mounting: MountingMap | None, note: str = "") -> str:
@@ -190,6 +193,12 @@ def value_rows(d: dict[str, Any], scales: Scales | None) -> list[tuple[str, str,
             rows.append(
                 (f"base tilt {key}", *_cells("base_tilt", tilt.get(key), sig[k], scales, False))
             )
+    trim = d.get("mounting_trim_deg")
+    if trim:
+        sig = trim.get("sigma") or [None, None, None]
+        for k, key in enumerate(("alpha", "beta", "psi")):
+            cells = _cells("mounting_trim", trim.get(key), sig[k], scales, False)
+            rows.append((f"mounting trim {key}", *cells))
     return rows
 
 
@@ -201,6 +210,29 @@ def _values_table(d: dict[str, Any], scales: Scales | None) -> list[str]:
     return lines + [
         f"| {name} | {device} | {shown} |" for name, device, shown in value_rows(d, scales)
     ]
+
+
+def trim_text(record: Calibration, facts: SessionFacts) -> str:
+    """Say what became of the mounting trim: written (the alignment it applies), or not."""
+    trim = record.mounting_trim_deg
+    if trim is None:
+        return "not determined by this plan (its K holds any rotation of the unit's axes); " + (
+            "zero written to 0x2122" if facts.written and facts.trim_object else "none"
+        )
+    sigma = trim.sigma or (None, None, None)
+    values = (trim.alpha, trim.beta, trim.psi)
+    parts = ", ".join(
+        f"{axis} {with_unit(v, s, '°', digits=3)}" if v is not None else f"{axis} not determined"
+        for axis, v, s in zip(("alpha", "beta", "psi"), values, sigma, strict=True)
+    )
+    if not facts.written:
+        return f"{parts}: not written"
+    if facts.trim_object is False:
+        return (
+            f"{parts}: NOT written: the node has no mounting-trim object 0x2122 (a firmware "
+            "before it, 39-object CRC); its output is not aligned"
+        )
+    return f"{parts}: written to 0x2122, the node's output is aligned to the vehicle"
 
 
 def _or_not_given(value: Any, unit: str) -> str:
@@ -297,6 +329,7 @@ def certificate_markdown(
         "",
         f"- Acceptance: {verdict}",
         f"- Written to the device: {'yes' if facts.written else 'no'}",
+        f"- Mounting trim: {trim_text(record, facts)}",
         f"- Verification: {verification_verdict(facts.verification, acceptance.passed)}",
         f"- Warm-up: {facts.warmup}",
         "",
@@ -442,6 +475,7 @@ def certificate_html(
     verdict_rows = [
         ("Acceptance", _mark(verdict, acceptance.passed)),
         ("Written to the device", "yes" if facts.written else "no"),
+        ("Mounting trim", e(trim_text(record, facts))),
         (
             "Verification",
             _mark(

@@ -18,9 +18,9 @@ From any log python-can reads (:mod:`canimucal.device.bus_log`), one IMU node's 
    (:func:`~canimucal.io.grouping.position_rows`: quiet accelerometer and gyro, so a turn
    about the vertical splits two poses too). Without a plan they are positions 0, 1, …
    without angles (scalar fits only). With ``plan`` they are matched to its positions in
-   order, each checked as ``record`` checks a pose (5° for the first, then 3° against the
-   floor slope and bias the matched ones showed): a stretch that does not fit the next
-   position stays unlabelled, and a position no stretch fits is an error.
+   order, each checked as ``record`` checks a pose (8° for the first, then 3° against the
+   floor slope, mounting trim and bias the matched ones showed): a stretch that does not fit
+   the next position stays unlabelled, and a position no stretch fits is an error.
    ``pose_check=False`` takes the stretches in order and needs exactly one per position. A
    log of a unit that followed the plan by itself from its NMT start (``sim --poses``, the
    in-process simulated node, a motorised rig) is labelled by that schedule instead

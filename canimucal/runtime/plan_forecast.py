@@ -18,12 +18,12 @@ session's averaging rule.
 from __future__ import annotations
 
 import textwrap
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from canimucal.analysis.acceptance import AcceptanceConfig, AcceptanceLimits
-from canimucal.model.layout import GyroSpec, JointSpec
+from canimucal.model.layout import TRIM_NAMES, GyroSpec, JointSpec
 from canimucal.model.plan import BoundTable, cramer_rao, plan_prior
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, STANDARD_GRAVITY
@@ -84,7 +84,7 @@ def session_spec(plan_name: str, gyro: GyroSpec = "none") -> JointSpec:
     A name the registry does not hold is fitted as ``custom`` is (full K and base tilt).
     """
     entry = PLANS.get(plan_name) or PLANS[CUSTOM]
-    return JointSpec(accel_k=entry.accel_k, tilt=entry.tilt, gyro=gyro)
+    return JointSpec(accel_k=entry.accel_k, tilt=entry.tilt, gyro=gyro, trim=entry.trim)
 
 
 def plan_bounds(
@@ -197,7 +197,7 @@ def session_forecast(config: ProcedureConfig, node_id: int) -> list[LimitForecas
     return forecast(
         config.plan,
         config.limits,
-        JointSpec(accel_k=config.spec.accel_k, tilt=config.spec.tilt),
+        JointSpec(accel_k=config.spec.accel_k, tilt=config.spec.tilt, trim=config.spec.trim),
         policy=config.averaging,
         accel_lsb=config.site.accel_lsb,
         g=config.site.g,
@@ -221,13 +221,62 @@ def _predicted(
     return (max(bias) if bias else None), (max(scale) if scale else None)
 
 
-def forecast_lines(rows: list[LimitForecast], plan_name: str, width: int = 78) -> list[str]:
-    """Word the forecast for the plan screen and ``plan``: head, one line a limit, summary."""
+def trim_forecast(
+    plan: Plan,
+    spec: JointSpec,
+    *,
+    policy: AveragingPolicy | None = None,
+    accel_lsb: float = DEFAULT_ACCEL_LSB,
+    g: float = STANDARD_GRAVITY,
+    prior_k_sigma: float | None = None,
+) -> tuple[float, float, float] | None:
+    """Return the mounting trim's predicted σ (alpha, beta, psi; degrees); None: not fitted.
+
+    The same bound as :func:`forecast` (the session's seconds, angle tolerances, the built-in
+    node's noise, the plan's prior on K): only a plan that fits the trim (``spec.trim``)
+    determines it.
+    """
+    if not spec.trim:
+        return None
+    k = 1.0 / abs(accel_lsb)
+    table = plan_bounds(
+        plan,
+        replace(spec, gyro="none", gyro_g=False),
+        policy=policy,
+        accel_lsb=accel_lsb,
+        g=g,
+        noise_density_counts=NOISE_DENSITY_MS2 * k,
+        include_tolerance=True,
+        prior_k_sigma=prior_k_sigma,
+    )
+    sigmas = [table.bound(name).sigma for name in TRIM_NAMES]
+    if any(s is None for s in sigmas):
+        return None
+    alpha, beta, psi = (float(np.rad2deg(s)) for s in sigmas if s is not None)
+    return alpha, beta, psi
+
+
+def forecast_lines(
+    rows: list[LimitForecast],
+    plan_name: str,
+    width: int = 78,
+    trim: tuple[float, float, float] | None = None,
+) -> list[str]:
+    """Word the forecast for the plan screen and ``plan``: head, one line a limit, summary.
+
+    ``trim``: the mounting trim's predicted σ (:func:`trim_forecast`), said after the limits
+    (no acceptance limit holds it).
+    """
     lines = [
         "acceptance limits in force, and the σ this plan predicts (each position's angle "
         f"tolerance, noise {NOISE_DENSITY_MS2:g} m/s²/√Hz):",
         *[f"  {r.line()}" for r in rows],
     ]
+    if trim is not None:
+        lines.append(
+            f"  mounting trim (no limit): plan predicts σ {trim[0]:.2g}° alpha, "
+            f"{trim[1]:.2g}° beta, {trim[2]:.2g}° psi"
+        )
     cannot = [r.key for r in rows if r.meets is False]
     if cannot:
         lines.append(

@@ -30,8 +30,9 @@ def readback_deviations(record: Mapping[str, Any], truth: Truth) -> list[Deviati
     """Compare a calibration JSON's ``readback`` with the truth, for every estimated value.
 
     Accel bias and K (K = M⁻¹ of the read-back correction), gyro bias, S (S = N⁻¹) and G,
-    and the base tilt (degrees), each with the σ of the record; values the record holds
-    ``null`` (held at nominal) are skipped.
+    the base tilt and the mounting trim (degrees), each with the σ of the record; values the
+    record holds ``null`` (held at nominal, or a trim the plan does not determine) are
+    skipped.
     """
     back = record.get("readback")
     if not back:
@@ -76,6 +77,14 @@ def readback_deviations(record: Mapping[str, Any], truth: Truth) -> list[Deviati
     for k, (name, true) in enumerate((("alpha0", truth.alpha0), ("beta0", truth.beta0))):
         value = float(np.rad2deg(back["base_tilt_rad"][k]))
         out += _dev(f"base_tilt.{name} (deg)", float(np.rad2deg(true)), value, sig[k])
+    trim = record.get("mounting_trim_deg") or {}
+    sig = trim.get("sigma") or [None, None, None]
+    for k, name in enumerate(("alpha", "beta", "psi")):
+        if back.get("mounting_trim_rad") is None or trim.get(name) is None:
+            break  # not determined by the plan, or a node without 0x2122
+        value = float(np.rad2deg(back["mounting_trim_rad"][k]))
+        true = float(np.rad2deg(truth.trim[k]))
+        out += _dev(f"mounting_trim.{name} (deg)", true, value, sig[k])
     return out
 
 

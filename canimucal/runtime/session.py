@@ -118,6 +118,8 @@ class NodeLink:
     record_path: Path | None = None
     certificate_path: Path | None = None
     record: Calibration | None = None
+    trim_object: bool | None = None
+    """Whether the node has the mounting-trim object 0x2122 (known once written)."""
 
 
 class Session:
@@ -417,6 +419,7 @@ class Session:
             plan_times=schedule(proc.config.plan, proc.config.averaging).words(),
             forecast=tuple(session_forecast(proc.config, node_id)),
             verified=tuple(verified),
+            trim_object=self.links[node_id].trim_object,
         )
 
     def verification_verdict(self, node_id: int) -> str:
@@ -453,9 +456,16 @@ class Session:
             except CanimucalError as exc:
                 events += self.procedure.write_finished(node_id, False, str(exc))
                 continue
+            link.trim_object = report.trim_object
             self._add_readback(node_id)
             backup = str(report.backup_path) if report.backup_path else None
-            events += self.procedure.write_finished(node_id, True, "written and verified", backup)
+            what = "written and verified"
+            if not report.trim_object and link.record.mounting_trim_deg is not None:
+                what += (
+                    "; the mounting trim was NOT written: the node has no 0x2122 (a firmware "
+                    "before it)"
+                )
+            events += self.procedure.write_finished(node_id, True, what, backup)
         return self._keep(events)
 
     def _add_readback(self, node_id: int) -> None:

@@ -106,15 +106,17 @@ def spec_for_plan(plan_name: str, gyro: str = "mems", gyro_g: bool = False) -> J
     """Return the model each plan can determine (``gyro``: ``mems`` or ``nav``, checked).
 
     The plan registry's ``accel_k`` and ``tilt`` (two: diagonal K, no tilt; five: diagonal
-    K and base tilt; the others full K and base tilt); a name it does not hold gets full K
-    and base tilt. ``gyro_g`` adds the gyro's g-sensitivity G (what the positions cannot
-    determine of it is held at zero and reported).
+    K and base tilt; the others full K and base tilt; the vehicle plan's mounting trim); a
+    name it does not hold gets full K and base tilt. ``gyro_g`` adds the gyro's g-sensitivity
+    G (what the positions cannot determine of it is held at zero and reported).
     """
     grade = cast(GyroSpec, gyro)  # JointSpec checks the value
     entry = PLANS.get(plan_name)
     if entry is None:
         return JointSpec(accel_k="full", tilt="rigid", gyro=grade, gyro_g=gyro_g)
-    return JointSpec(accel_k=entry.accel_k, tilt=entry.tilt, gyro=grade, gyro_g=gyro_g)
+    return JointSpec(
+        accel_k=entry.accel_k, tilt=entry.tilt, gyro=grade, gyro_g=gyro_g, trim=entry.trim
+    )
 
 
 def instruction_mounting(

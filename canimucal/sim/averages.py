@@ -35,6 +35,7 @@ def simulate_averages(
     alpha0: float = 0.0,
     beta0: float = 0.0,
     tilt_model: TiltModel = "rigid",
+    trim: ArrayLike | None = None,
     accel_noise_density: ArrayLike = 1.0,
     gyro_noise_density: ArrayLike = 1.0,
     sample_rate_hz: float = 200.0,
@@ -42,7 +43,9 @@ def simulate_averages(
 ) -> list[PositionAverage]:
     """Draw one :class:`PositionAverage` per planned position.
 
-    Noise densities are output-referred, counts/√Hz (scalar or per axis). Angles in radians.
+    Noise densities are output-referred, counts/√Hz (scalar or per axis). Angles in radians;
+    ``trim`` ``(alpha_m, beta_m, psi_m)`` the unit's mounting trim in the vehicle (docs/method.md
+    §3, eq. T1: ``C = R_m C_pose T0``).
     """
     f_level = specific_force_level(g)
     w_level = earth_rate_level(latitude, heading)
@@ -54,8 +57,9 @@ def simulate_averages(
         if angle_errors:
             angles = angles + rng.normal(0.0, p.tolerances)
         c = position_dcm(
-            angles[0], angles[1], angles[2], alpha0=alpha0, beta0=beta0, tilt_model=tilt_model
-        )
+            angles[0], angles[1], angles[2], alpha0=alpha0, beta0=beta0,
+            tilt_model=tilt_model, trim=trim,
+        )  # fmt: skip
         f = c @ f_level
         cov_a = np.diag(na**2 / p.seconds)
         mean_a = accel.output(f) + rng.multivariate_normal(np.zeros(3), cov_a)

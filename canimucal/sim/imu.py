@@ -1,9 +1,10 @@
 """The simulated IMU: truth parameters + effects + pose schedule -> raw count samples.
 
-Per sample (docs/design.md §2): ``C`` body <- L from the pose and the base tilt (``position_dcm``),
-``f = C f_L`` and ``w = C w_L + w_motion`` (the body rate of a move, exact from the angle
-rates). Specific force from the motion itself (lever arms) is not modelled: a tilt on a step
-ladder is slow. Outputs in counts:
+Per sample (docs/design.md §2): ``C`` body <- L from the pose, the base tilt and the mounting
+trim (``position_dcm``; ``C = R_m C_pose T0``, docs/method.md §3), ``f = C f_L`` and
+``w = C w_L + R_m w_motion`` (the body rate of a move, exact from the angle rates). Specific
+force from the motion itself (lever arms) is not modelled: a tilt on a step ladder is slow.
+Outputs in counts:
 
 - accelerometer ``U = b + K f + quadratic ⊙ f² + temp_coeff (T − T0) + r + m + n``
 - gyro ``V = B + S w + G f + temp_coeff (T − T0) + r + m + n``
@@ -29,7 +30,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.errors import InputError
-from canimucal.model.frames import earth_rate_level, position_dcm, specific_force_level
+from canimucal.model.frames import (
+    earth_rate_level,
+    position_dcm,
+    specific_force_level,
+    trim_dcm,
+)
 from canimucal.model.positions import Plan, Pose
 from canimucal.model.vocabulary.constants import INT16_MAX, INT16_MIN, OUTPUT_DATA_RATES_HZ
 from canimucal.model.vocabulary.effects import EFFECTS, PoseInputs
@@ -107,6 +113,7 @@ class ImuSimulator:
         self._t0_s = 0.0
         self._k = 0
         self._f_level = specific_force_level(truth.g)
+        self._trim = trim_dcm(truth.trim)  # R_m: unit ← vehicle
         self._w_level = earth_rate_level(truth.latitude, truth.heading)
         self._temp0_c = float(truth.temperature.at(0.0))
         acc, gyr = truth.accel, truth.gyro
@@ -228,9 +235,10 @@ class ImuSimulator:
         """Specific force and angular rate in body axes, (n, 3) each."""
         tr = self._truth
         additive = tr.tilt_model == "additive"
-        c = _dcm_batch(angles, tr.alpha0, tr.beta0, additive)
+        c = self._trim @ _dcm_batch(angles, tr.alpha0, tr.beta0, additive)  # eq. (T1)
         f = c @ self._f_level  # f = A f_L (eq. 5, z sign corrected: docs/method.md §2)
-        w = c @ self._w_level + body_rate(angles, rates, tr.beta0 if additive else 0.0)
+        motion = body_rate(angles, rates, tr.beta0 if additive else 0.0) @ self._trim.T
+        w = c @ self._w_level + motion
         return f, w
 
     def _counts(self, f: Array, w: Array) -> Array:

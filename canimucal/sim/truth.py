@@ -1,10 +1,10 @@
 """The simulator's truth: every parameter of the simulated unit (docs/design.md §5, truth JSON).
 
-Angles are radians inside (``alpha0``, ``beta0``, ``latitude``, ``heading``) and degrees in the
-JSON dict; every other value keeps the JSON's units: biases, quantization, random walk and bias
-instability in counts (output-referred), K counts per m/s², S counts per rad/s, G counts per
-m/s², quadratic counts per (m/s²)², temp_coeff counts/°C, noise densities input-referred
-(m/s²/√Hz and rad/s/√Hz).
+Angles are radians inside (``alpha0``, ``beta0``, ``trim``, ``latitude``, ``heading``) and
+degrees in the JSON dict; every other value keeps the JSON's units: biases, quantization,
+random walk and bias instability in counts (output-referred), K counts per m/s², S counts
+per rad/s, G counts per m/s², quadratic counts per (m/s²)², temp_coeff counts/°C, noise
+densities input-referred (m/s²/√Hz and rad/s/√Hz).
 
 Defaults when a key is absent: ``nominal_lsb`` ±16 g (9.80665/2048 m/s² per count) and
 ±2000 °/s (π/(180·16.4) rad/s per count), K and S their inverses on the diagonal, G zero,
@@ -53,10 +53,11 @@ DEFAULT_HARDWARE_VERSION = "sim 1"
 DEFAULT_SOFTWARE_VERSION = "sim 1"
 _TOP_KEYS = tuple(
     "schema sample_rate_hz g latitude_deg height_m heading_deg serial tilt_model base_tilt_deg"
-    " floor_slope_deg accel gyro temperature faults nmt_start heartbeat_ms store_delay_s"
+    " floor_slope_deg mounting_trim_deg accel gyro temperature faults nmt_start heartbeat_ms"
+    " store_delay_s"
     " store_pdo_mode"
     " storage_subs sync_pdos timer_skew_ppm calibration_store_sub documented_store_sub"
-    " second_send_ms refuses_start"
+    " second_send_ms refuses_start trim_object"
     " device_name hardware_version software_version effects".split()
 )
 NMT_STARTS = ("pre-operational", "operational")
@@ -127,6 +128,12 @@ class Truth:
     tilt_model: TiltModel = "rigid"
     alpha0: float = 0.0
     beta0: float = 0.0
+    trim: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """The unit's mounting trim in the vehicle ``(alpha_m, beta_m, psi_m)``, radians:
+    ``R_m = Ay(psi_m) A2(beta_m) A1(alpha_m)`` applied after the pose (docs/design.md §2)."""
+    trim_object: bool = True
+    """The node has the mounting-trim object 0x2122 (False: a firmware before it, whose
+    calibration CRC covers the 39 objects of 0x2100–0x2121:04 alone; docs/design.md §4)."""
     accel: AccelTruth = field(default_factory=lambda: AccelTruth.from_dict({}))
     gyro: GyroTruth = field(default_factory=lambda: GyroTruth.from_dict({}))
     temperature: TemperatureProfile = field(default_factory=TemperatureProfile)
@@ -217,6 +224,8 @@ class Truth:
             tilt_model=tilt_model,
             alpha0=float(np.deg2rad(_tilt_angle(tilt, "alpha0", slope_key))),
             beta0=float(np.deg2rad(_tilt_angle(tilt, "beta0", slope_key))),
+            trim=_mounting_trim(d.get("mounting_trim_deg", [0.0, 0.0, 0.0])),
+            trim_object=_flag(d.get("trim_object", True), "trim_object"),
             accel=AccelTruth.from_dict(d.get("accel", {})),
             gyro=GyroTruth.from_dict(d.get("gyro", {})),
             temperature=TemperatureProfile.from_dict(d.get("temperature", {})),
@@ -260,6 +269,7 @@ class Truth:
                 "alpha0": float(np.rad2deg(self.alpha0)),
                 "beta0": float(np.rad2deg(self.beta0)),
             },
+            **self._trim_dict(),
             "accel": self.accel.to_dict(),
             "gyro": self.gyro.to_dict(),
             "temperature": self.temperature.to_dict(),
@@ -268,6 +278,15 @@ class Truth:
             **identity,
             **({"effects": effects_document(self.effects)} if self.effects else {}),
         }
+
+    def _trim_dict(self) -> dict[str, Any]:
+        """``mounting_trim_deg`` and ``trim_object`` when they differ from their defaults."""
+        out: dict[str, Any] = {}
+        if any(self.trim):
+            out["mounting_trim_deg"] = [float(np.rad2deg(t)) for t in self.trim]
+        if not self.trim_object:
+            out["trim_object"] = False
+        return out
 
     def _behaviour_dict(self) -> dict[str, Any]:
         """Return the device-behaviour keys that differ from their defaults."""
@@ -308,13 +327,16 @@ class Truth:
         cross_axis_max: float = 0.01,
         tilt_max_deg: float = 1.0,
         gyro_g_max: float = 0.0,
+        trim_max_deg: float = 0.0,
         **overrides: Any,
     ) -> Truth:
         """Draw a plausible random unit for demos and end-to-end tests.
 
         Biases uniform in ±``bias_max_counts``; ``K = (I + E)/lsb`` with diagonal of E in
         ±``scale_error_max`` and off-diagonal in ±``cross_axis_max`` (same for S); base tilt
-        in ±``tilt_max_deg``; G entries in ±``gyro_g_max`` counts per m/s²; a random serial.
+        in ±``tilt_max_deg``; G entries in ±``gyro_g_max`` counts per m/s²; a random serial;
+        with ``trim_max_deg`` > 0 a mounting trim in ±``trim_max_deg`` about each axis (drawn
+        last, so the other draws of a seed do not change).
         ``overrides`` are top-level truth JSON keys applied on top (e.g. ``sample_rate_hz``).
         """
 
@@ -337,6 +359,8 @@ class Truth:
                 "G": rng.uniform(-gyro_g_max, gyro_g_max, (3, 3)).tolist(),
             },
         }
+        if trim_max_deg > 0.0:
+            d["mounting_trim_deg"] = rng.uniform(-trim_max_deg, trim_max_deg, 3).tolist()
         d.update(overrides)
         return cls.from_dict(d)
 
@@ -446,6 +470,29 @@ def _floor_slope(d: Mapping[str, Any], tilt_model: TiltModel) -> dict[str, Any]:
     if not isinstance(value, list) or len(value) != 2:
         fail("floor_slope_deg", "must be [about z, about x] in degrees")
     return {"alpha0": value[0], "beta0": value[1]}
+
+
+def _mounting_trim(value: Any) -> tuple[float, float, float]:
+    """``mounting_trim_deg: [alpha, beta, psi]``: about the unit's z, the new x, then y.
+
+    The unit's small rotation in the vehicle, in the angle convention of a position
+    (docs/design.md §2), applied after the pose: ``C = R_m · C_pose · T0``.
+    """
+    if not isinstance(value, list) or len(value) != 3:
+        fail("mounting_trim_deg", "must be [alpha, beta, psi] in degrees")
+    out = []
+    for k, item in enumerate(value):
+        angle = read_number(item, f"mounting_trim_deg[{k}]")
+        if abs(angle) >= 90.0:
+            fail(f"mounting_trim_deg[{k}]", "must be within (-90, 90) degrees")
+        out.append(float(np.deg2rad(angle)))
+    return out[0], out[1], out[2]
+
+
+def _flag(value: Any, key: str) -> bool:
+    if not isinstance(value, bool):
+        fail(key, "must be true or false")
+    return value
 
 
 def _tilt_angle(tilt: Mapping[str, Any], key: str, where: str = "base_tilt_deg") -> float:

@@ -85,7 +85,10 @@ class SimulatedImuNode:
         eds = od.eds_path()
         if not eds.is_file():
             raise InputError(f"object dictionary not found: {eds}")
-        self._node = ImuLocalNode(self.node_id, canopen.import_od(str(eds), self.node_id))
+        dictionary = canopen.import_od(str(eds), self.node_id)
+        if not self.truth.trim_object:  # a firmware before 0x2122: the 39-object CRC
+            del dictionary[od.MOUNTING_TRIM]
+        self._node = ImuLocalNode(self.node_id, dictionary)
         self._store = NonVolatileStore(state_file, self.truth.calibration_store_sub)
         self._simulator = ImuSimulator(self.truth, seed=seed)
         self._gate = TpdoGate(self.truth.store_pdo_mode, self._send_now)
@@ -293,7 +296,7 @@ class SimulatedImuNode:
         return self._store.values()
 
     def calibration_block(self) -> od.CalibrationBlock:
-        """Return the calibration block the node holds now (0x2100–0x2121:04)."""
+        """Return the calibration block the node holds now (0x2100–0x2122)."""
         with self._lock:
             return od.CalibrationBlock.from_objects(self._access.calibration_values())
 

@@ -71,8 +71,13 @@ class ObjectAccess:
         return var.decode_raw(self._node.get_data(index, sub))
 
     def calibration_values(self) -> dict[Key, float | int]:
-        """Return the CRC-covered calibration objects, decoded, in docs/design.md §4 order."""
-        return {(i, s): self.value(i, s) for i, s, _ in od.CRC_ORDER}
+        """Return the CRC-covered calibration objects, decoded, in docs/design.md §4 order.
+
+        A node without the mounting-trim object (truth ``trim_object`` false) has the
+        39-object layout.
+        """
+        order = od.crc_order(self._truth.trim_object)
+        return {(i, s): self.value(i, s) for i, s, _ in order}
 
     def calibration_active(self) -> bool:
         """Whether valid = 1 and the stored CRC matches (cached until a calibration write)."""

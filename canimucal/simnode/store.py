@@ -1,7 +1,7 @@
 """Non-volatile memory of the simulated node: what 0x1010 stores and 0x1011 restores.
 
 CiA 301 groups: sub 1 all parameters, sub 2 communication (0x1000–0x1FFF), sub 3
-application (0x2010:03, the output data rate), sub 4 calibration (0x2100–0x2121). Values are
+application (0x2010:03, the output data rate), sub 4 calibration (0x2100–0x2122). Values are
 kept as the raw little-endian bytes the object dictionary holds, so a reload is bit-exact.
 With a ``state_file`` the memory is a JSON file (written atomically) and survives a new
 instance; without one it lives as long as the :class:`NonVolatileStore` object.
@@ -62,8 +62,8 @@ def factory_values(truth: Truth, comm_odr_hz: int | None = None) -> dict[Key, by
     values[(od.NOMINAL, 1)] = od.encode("f32", accel_lsb)
     values[(od.NOMINAL, 2)] = od.encode("f32", gyro_lsb)
     values[(od.NOMINAL, 3)] = od.encode("u16", odr)
-    factory = od.factory_block(accel_lsb, gyro_lsb).to_objects()
-    for index, sub, code in od.CRC_ORDER:
+    factory = od.factory_block(accel_lsb, gyro_lsb, truth.trim_object).to_objects()
+    for index, sub, code in od.crc_order(truth.trim_object):
         values[(index, sub)] = od.encode(code, factory[(index, sub)])
     values[(od.CAL_INFO, od.CAL_VALID_SUB)] = od.encode("u8", 0)
     values[(od.CAL_INFO, od.CAL_CRC_SUB)] = od.encode("u32", od.block_crc(factory))

@@ -161,7 +161,7 @@ def findings_text(table: BoundTable) -> str:
 
 
 def device_values(readout: CalibrationReadout | None) -> dict[str, float]:
-    """Return the device's current values by name (accel bias, K = M⁻¹, gyro bias, tilt)."""
+    """Return the device's current values by name (accel bias, K = M⁻¹, gyro bias, tilt, trim)."""
     if readout is None:
         return {}
     block = readout.block
@@ -174,6 +174,9 @@ def device_values(readout: CalibrationReadout | None) -> dict[str, float]:
             out[f"accel.K[{i}][{j}]"] = float(k[i, j])
     out["base_tilt.alpha0"] = float(block.base_tilt_rad[0])
     out["base_tilt.beta0"] = float(block.base_tilt_rad[1])
+    if block.mounting_trim_rad is not None:  # a node with 0x2122
+        for name, value in zip(("alpha", "beta", "psi"), block.mounting_trim_rad, strict=True):
+            out[f"mounting_trim.{name}"] = float(value)
     return out
 
 

@@ -36,6 +36,7 @@ const imu_cal_object_t imu_cal_objects[IMU_CAL_N_OBJECTS] = {
     {IMU_CAL_INFO, 2u, IMU_CAL_U8, IMU_CAL_RANGE_PLAN},
     REAL(IMU_CAL_INFO, 3u, IMU_CAL_RANGE_ANY),
     REAL(IMU_CAL_INFO, 4u, IMU_CAL_RANGE_NONNEG),
+    VEC3(IMU_CAL_MOUNTING_TRIM, IMU_CAL_RANGE_TILT),
     {IMU_CAL_INFO, IMU_CAL_VALID_SUB, IMU_CAL_U8, IMU_CAL_RANGE_FLAG},
     {IMU_CAL_INFO, IMU_CAL_CRC_SUB, IMU_CAL_U32, IMU_CAL_RANGE_ANY},
 };
@@ -47,8 +48,9 @@ enum {
     OBJ_GYRO_BIAS = 12,
     OBJ_GYRO_N = 15,
     OBJ_GYRO_G = 24,
-    OBJ_VALID = 39,
-    OBJ_CRC = 40
+    OBJ_TRIM = 39,
+    OBJ_VALID = 42,
+    OBJ_CRC = 43
 };
 
 static size_t type_size(uint8_t type) {
@@ -101,6 +103,9 @@ void imu_cal_bind_block(imu_cal_t* cal, imu_cal_block_t* block) {
     cal->value[36] = &block->plan_code;
     cal->value[37] = &block->temp_c;
     cal->value[38] = &block->rms_ms2;
+    for (i = 0; i < 3u; i++) {
+        cal->value[OBJ_TRIM + (int)i] = &block->mounting_trim[i];
+    }
     cal->value[OBJ_VALID] = &block->valid;
     cal->value[OBJ_CRC] = &block->crc;
 }
@@ -255,8 +260,25 @@ uint8_t imu_cal_valid(const imu_cal_t* cal) {
     return *(const uint8_t*)cal->value[OBJ_VALID];
 }
 
+/* R = Ay(psi) A2(beta) A1(alpha) of the mounting trim, row-major (unit <- vehicle; the
+ * frame rotations of docs/design.md §2). */
+static void build_align(imu_cal_t* cal) {
+    float ca = cosf(real_at(cal, OBJ_TRIM)), sa = sinf(real_at(cal, OBJ_TRIM));
+    float cb = cosf(real_at(cal, OBJ_TRIM + 1)), sb = sinf(real_at(cal, OBJ_TRIM + 1));
+    float cp = cosf(real_at(cal, OBJ_TRIM + 2)), sp = sinf(real_at(cal, OBJ_TRIM + 2));
+    /* A2(beta) A1(alpha) */
+    float r[9] = {ca, sa, 0.0f, -cb * sa, cb * ca, sb, sb * sa, -sb * ca, cb};
+    int c;
+    for (c = 0; c < 3; c++) { /* Ay(psi) rows: [cp, 0, -sp], [0, 1, 0], [sp, 0, cp] */
+        cal->align[c] = cp * r[c] - sp * r[6 + c];
+        cal->align[3 + c] = r[3 + c];
+        cal->align[6 + c] = sp * r[c] + cp * r[6 + c];
+    }
+}
+
 uint8_t imu_cal_refresh(imu_cal_t* cal) {
     uint32_t stored;
+    build_align(cal);
     memcpy(&stored, cal->value[OBJ_CRC], sizeof stored);
     cal->active = (uint8_t)(*(const uint8_t*)cal->value[OBJ_VALID] == 1u && stored == imu_cal_block_crc(cal));
     return cal->active;
@@ -275,6 +297,7 @@ void imu_cal_factory(imu_cal_t* cal) {
     }
     crc = imu_cal_block_crc(cal);
     memcpy(cal->value[OBJ_CRC], &crc, sizeof crc);
+    build_align(cal);
     cal->active = 0;
 }
 
@@ -286,9 +309,17 @@ static void mat_vec(const imu_cal_t* cal, int first, const float in[3], float ou
     }
 }
 
+/* out = R' in: the unit-frame vector in the vehicle frame (R' = transpose of align). */
+static void align_out(const imu_cal_t* cal, const float in[3], float out[3]) {
+    int c;
+    for (c = 0; c < 3; c++) {
+        out[c] = cal->align[c] * in[0] + cal->align[3 + c] * in[1] + cal->align[6 + c] * in[2];
+    }
+}
+
 void imu_cal_correct(const imu_cal_t* cal, const int16_t accel_counts[3], const int16_t gyro_counts[3],
                      float accel_out[3], float gyro_out[3]) {
-    float du[3], dv[3], ga[3];
+    float du[3], dv[3], ga[3], a[3], w[3];
     int i;
     if (!cal->active) {
         for (i = 0; i < 3; i++) {
@@ -300,12 +331,14 @@ void imu_cal_correct(const imu_cal_t* cal, const int16_t accel_counts[3], const 
     for (i = 0; i < 3; i++) {
         du[i] = (float)accel_counts[i] - real_at(cal, OBJ_ACCEL_BIAS + i);
     }
-    mat_vec(cal, OBJ_ACCEL_M, du, accel_out); /* a = M (U - b) */
-    mat_vec(cal, OBJ_GYRO_G, accel_out, ga);
+    mat_vec(cal, OBJ_ACCEL_M, du, a); /* a = M (U - b) */
+    mat_vec(cal, OBJ_GYRO_G, a, ga);
     for (i = 0; i < 3; i++) {
         dv[i] = (float)gyro_counts[i] - real_at(cal, OBJ_GYRO_BIAS + i) - ga[i];
     }
-    mat_vec(cal, OBJ_GYRO_N, dv, gyro_out); /* w = N (V - B - G a) */
+    mat_vec(cal, OBJ_GYRO_N, dv, w); /* w = N (V - B - G a) */
+    align_out(cal, a, accel_out);     /* in the vehicle frame: R' a, R' w */
+    align_out(cal, w, gyro_out);
 }
 
 uint16_t imu_cal_next_sample(imu_cal_t* cal) {

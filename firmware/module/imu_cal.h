@@ -2,8 +2,8 @@
  * imu_cal: the calibration core of the canimucal reference IMU node (docs/design.md §4).
  *
  * Plain C99, no operating system, no CANopen stack types: the calibration block
- * 0x2100-0x2121, its value ranges, its CRC, the valid/CRC gate, the correction the device
- * applies and the sample counter. The CANopenNode v4 glue (imu_cal_co.h) is a thin layer on
+ * 0x2100-0x2122, its value ranges, its CRC, the valid/CRC gate, the correction and the
+ * alignment (mounting trim) the device applies and the sample counter. The CANopenNode v4 glue (imu_cal_co.h) is a thin layer on
  * top; an MCU project with another stack can use this file alone.
  *
  * Where the values live is up to the caller: imu_cal_t holds one pointer per object (into
@@ -31,11 +31,14 @@ extern "C" {
 #define IMU_CAL_BASE_TILT        0x2120u /* REAL32 x2, rad */
 #define IMU_CAL_INFO             0x2121u /* 1 time U32, 2 plan U8, 3 temp REAL32, 4 rms REAL32,
                                             5 valid U8, 6 CRC U32 */
+#define IMU_CAL_MOUNTING_TRIM    0x2122u /* REAL32 x3, rad: alpha, beta, psi of
+                                            R = Ay(psi) A2(beta) A1(alpha), unit <- vehicle */
 #define IMU_CAL_VALID_SUB 5u
 #define IMU_CAL_CRC_SUB   6u
 
-#define IMU_CAL_N_CRC     39u /* objects the CRC covers */
-#define IMU_CAL_N_OBJECTS 41u /* those plus valid and the CRC */
+#define IMU_CAL_N_CRC     42u /* objects the CRC covers: 165 bytes (0x2100:01 .. 0x2121:04, then
+                                 0x2122:01 .. 03); factory vector 0x36701FFB */
+#define IMU_CAL_N_OBJECTS 44u /* those plus valid and the CRC */
 
 #define IMU_CAL_STATUS_SATURATED 0x01u /* 0x2002:03 bit 0 */
 #define IMU_CAL_STATUS_MOVING    0x02u /* 0x2002:03 bit 1 */
@@ -56,7 +59,7 @@ typedef enum {
                                   |value| <= 0.2 |its row's diagonal| */
     IMU_CAL_RANGE_GYRO_N = 2,  /* the same against the nominal gyro LSB */
     IMU_CAL_RANGE_G = 3,       /* finite, |value| <= 1000 */
-    IMU_CAL_RANGE_TILT = 4,    /* finite, |value| <= 0.2 rad */
+    IMU_CAL_RANGE_TILT = 4,    /* finite, |value| <= 0.2 rad (base tilt and mounting trim) */
     IMU_CAL_RANGE_ANY = 5,     /* finite (REAL32) or any (integers) */
     IMU_CAL_RANGE_PLAN = 6,    /* 0 .. IMU_CAL_PLAN_MAX */
     IMU_CAL_RANGE_NONNEG = 7,  /* finite, not negative */
@@ -72,8 +75,8 @@ typedef struct {
 } imu_cal_object_t;
 
 /* The table of every calibration object: the first IMU_CAL_N_CRC in CRC order, then valid
- * and the CRC. A new object (e.g. a mounting trim) is one more row here, in the block
- * struct and in imu_cal_correct(). */
+ * and the CRC. A new object is one more row here, in the block struct and, if the device
+ * applies it, in imu_cal_correct(). */
 extern const imu_cal_object_t imu_cal_objects[IMU_CAL_N_OBJECTS];
 
 typedef enum {
@@ -95,6 +98,7 @@ typedef struct {
     uint8_t plan_code;
     float temp_c;
     float rms_ms2;
+    float mounting_trim[3]; /* 0x2122:01-03, rad */
     uint8_t valid;
     uint32_t crc;
 } imu_cal_block_t;
@@ -105,6 +109,7 @@ typedef struct {
     float gyro_lsb;
     uint8_t active;                 /* valid = 1 and the stored CRC matches the values */
     uint16_t counter;               /* 0x2002:02 of the latest sample */
+    float align[9];                 /* R of the mounting trim, row-major (imu_cal_refresh()) */
 } imu_cal_t;
 
 /* Point every object of cal at the fields of block. */
@@ -132,16 +137,19 @@ uint32_t imu_cal_block_crc(const imu_cal_t* cal);
 /* The valid flag (0x2121:05) as held now. */
 uint8_t imu_cal_valid(const imu_cal_t* cal);
 
-/* Re-check the gate: active = (valid == 1 and the stored CRC equals the values' CRC). Call at
- * boot, after the stored block was loaded; imu_cal_write() calls it after every change. */
+/* Re-check the gate: active = (valid == 1 and the stored CRC equals the values' CRC), and
+ * rebuild the alignment rotation from the mounting trim. Call at boot, after the stored block
+ * was loaded; imu_cal_write() calls it after every change. */
 uint8_t imu_cal_refresh(imu_cal_t* cal);
 
 /* Factory defaults for the nominal LSBs: zero biases, M and N = diag(LSB), G = 0, tilt 0,
- * info 0, valid 0 and the CRC of that set. */
+ * info 0, trim 0, valid 0 and the CRC of that set. */
 void imu_cal_factory(imu_cal_t* cal);
 
 /* The correction (docs/design.md §4): with the gate open a = M (U - b) and
- * w = N (V - B - G a), else a = LSB U and w = LSB V. Outputs in m/s^2 and rad/s. */
+ * w = N (V - B - G a), both turned into the vehicle frame by the mounting trim (a_v = R' a,
+ * w_v = R' w; docs/firmware.md section 3), else a = LSB U and w = LSB V. Outputs in m/s^2 and
+ * rad/s. */
 void imu_cal_correct(const imu_cal_t* cal, const int16_t accel_counts[3], const int16_t gyro_counts[3],
                      float accel_out[3], float gyro_out[3]);
 

@@ -7,7 +7,7 @@
 
 static const uint16_t block_indices[IMU_CAL_CO_N_BLOCKS] = {
     IMU_CAL_ACCEL_BIAS, IMU_CAL_ACCEL_CORRECTION, IMU_CAL_GYRO_BIAS, IMU_CAL_GYRO_CORRECTION,
-    IMU_CAL_GYRO_G,     IMU_CAL_BASE_TILT,        IMU_CAL_INFO};
+    IMU_CAL_GYRO_G,     IMU_CAL_BASE_TILT,        IMU_CAL_INFO,      IMU_CAL_MOUNTING_TRIM};
 
 /* Write check of every calibration object: the core checks, stores and re-checks the gate. */
 static ODR_t write_calibration(OD_stream_t* stream, const void* buf, OD_size_t count, OD_size_t* countWritten) {

@@ -9,7 +9,7 @@
  *                                              it wakes, once per sample
  *
  * imu_cal_co_init() finds the objects by index (any generated OD works), binds the core to
- * the calibration block's memory, installs the write checks on 0x2100-0x2121 (a value out of
+ * the calibration block's memory, installs the write checks on 0x2100-0x2122 (a value out of
  * range is refused with SDO abort 0x06090030 and left unchanged; the valid/CRC gate is
  * re-checked after every write) and on 0x2010:03 (output data rate), restarts the sample
  * counter and checks the gate once (boot). A stored block with valid = 1 and a CRC that does
@@ -17,8 +17,9 @@
  *
  * imu_cal_co_sample() advances the counter, writes the raw sample, the counter and the status
  * to 0x2000-0x2002, requests TPDO1 and TPDO2 (sent on data-ready: keep their event timers 0)
- * and returns the corrected values a = M (U - b), w = N (V - B - G a) for the application
- * (or the nominal ones while no valid calibration is active). Calibrated data never goes on
+ * and returns the corrected values a = R' M (U - b), w = R' N (V - B - G M (U - b)) for the
+ * application, in the vehicle frame of the mounting trim R (0x2122), or the nominal ones while
+ * no valid calibration is active. Calibrated data never goes on
  * the bus: the calibration tool needs the raw counts.
  */
 #ifndef IMU_CAL_CO_H
@@ -34,7 +35,7 @@ extern "C" {
 #define IMU_CAL_CO_NOMINAL    0x2010u /* 1 accel LSB, 2 gyro LSB (REAL32), 3 output data rate U16 */
 #define IMU_CAL_CO_STORE_SUB  0x2011u /* 0x1010/0x1011 sub-index that stores the calibration */
 #define IMU_CAL_CO_EM_CAL_CRC CO_EM_MANUFACTURER_START /* error status bit of a bad stored block */
-#define IMU_CAL_CO_N_BLOCKS   7u /* 0x2100, 0x2101, 0x2110, 0x2111, 0x2112, 0x2120, 0x2121 */
+#define IMU_CAL_CO_N_BLOCKS   8u /* 0x2100, 0x2101, 0x2110, 0x2111, 0x2112, 0x2120, 0x2121, 0x2122 */
 
 typedef struct {
     imu_cal_t cal;

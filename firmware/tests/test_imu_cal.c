@@ -64,8 +64,15 @@ static void test_crc(void) {
     CHECK(imu_cal_crc32(imu_cal_crc32(0, check, 4), check + 4, 5) == 0xCBF43926u);
     CHECK(imu_cal_crc32(0, check, 0) == 0u);
     fresh(&cal, &block);
-    CHECK(block.crc == 0x88E40123u); /* docs/design.md §4 test vector */
-    CHECK(imu_cal_block_crc(&cal) == 0x88E40123u);
+    CHECK(block.crc == 0x36701FFBu); /* docs/design.md §4 test vector: 42 objects, 165 bytes */
+    CHECK(imu_cal_block_crc(&cal) == 0x36701FFBu);
+    {
+        /* the 42-object CRC continues the 39-object one (0x88E40123) over the trim's bytes */
+        const uint8_t zeros[12] = {0};
+        CHECK(imu_cal_crc32(0x88E40123u, zeros, 12) == 0x36701FFBu);
+    }
+    block.mounting_trim[1] = 0.01f; /* the trim is covered */
+    CHECK(imu_cal_block_crc(&cal) != 0x36701FFBu);
 }
 
 static void test_objects(void) {
@@ -77,9 +84,11 @@ static void test_objects(void) {
     CHECK(imu_cal_find(0x2121, 6) == (int)IMU_CAL_N_OBJECTS - 1);
     CHECK(imu_cal_find(0x2100, 4) < 0);
     CHECK(imu_cal_find(0x2010, 1) < 0);
-    CHECK(imu_cal_read(&cal, 0x2121, 6, out) == 4 && out[0] == 0x23 && out[3] == 0x88);
+    CHECK(imu_cal_read(&cal, 0x2121, 6, out) == 4 && out[0] == 0xFB && out[3] == 0x36);
     CHECK(imu_cal_read(&cal, 0x2121, 2, out) == 1);
-    CHECK(imu_cal_read(&cal, 0x2122, 1, out) == 0);
+    CHECK(imu_cal_read(&cal, 0x2122, 1, out) == 4);
+    CHECK(imu_cal_find(0x2122, 3) == (int)IMU_CAL_N_CRC - 1);
+    CHECK(imu_cal_read(&cal, 0x2122, 4, out) == 0);
     CHECK(write_u8(&cal, 0x2100, 1, 0) == IMU_CAL_E_LENGTH); /* REAL32 needs 4 bytes */
     CHECK(write_u32(&cal, 0x2121, 2, 1) == IMU_CAL_E_LENGTH);
     CHECK(write_f(&cal, 0x2130, 1, 0.0f) == IMU_CAL_E_NO_OBJECT);
@@ -115,6 +124,9 @@ static void test_ranges(void) {
     CHECK(write_f(&cal, 0x2112, 5, -1000.1f) == IMU_CAL_E_RANGE);
     CHECK(write_f(&cal, 0x2120, 2, -0.2f) == IMU_CAL_E_RANGE); /* float 0.2 > double 0.2 */
     CHECK(write_f(&cal, 0x2120, 2, -0.19999999f) == IMU_CAL_OK);
+    CHECK(write_f(&cal, 0x2122, 3, 0.2f) == IMU_CAL_E_RANGE); /* trim: the tilt's bound */
+    CHECK(write_f(&cal, 0x2122, 3, 0.19999999f) == IMU_CAL_OK);
+    CHECK(write_f(&cal, 0x2122, 1, NAN) == IMU_CAL_E_RANGE);
     /* info: plan code, rms, valid */
     CHECK(write_u8(&cal, 0x2121, 2, 6) == IMU_CAL_OK);
     CHECK(write_u8(&cal, 0x2121, 2, 7) == IMU_CAL_E_RANGE);
@@ -181,6 +193,21 @@ static void test_correction(void) {
     CHECK(near(w[0], (double)GYRO_LSB * -3.0));
     CHECK(near(w[1], 1.1 * GYRO_LSB * (16.0 - ga1)));
     CHECK(near(w[2], (double)GYRO_LSB * (1000.0 - 10.0)));
+    {
+        /* a trim of 0.1 rad about z (alpha): the outputs in the vehicle frame, R' a */
+        float a0[3], w0[3];
+        double c = cos(0.1), s = sin(0.1);
+        imu_cal_correct(&cal, u, v, a0, w0);
+        block.mounting_trim[0] = 0.1f;
+        block.crc = imu_cal_block_crc(&cal);
+        CHECK(imu_cal_refresh(&cal));
+        imu_cal_correct(&cal, u, v, a, w);
+        /* A1(t) = [[c, s, 0], [-s, c, 0], [0, 0, 1]]: R' a = [c a0 - s a1, s a0 + c a1, a2] */
+        CHECK(fabs(a[0] - (c * a0[0] - s * a0[1])) < 1e-5);
+        CHECK(fabs(a[1] - (s * a0[0] + c * a0[1])) < 1e-5);
+        CHECK(a[2] == a0[2]);
+        CHECK(fabs(w[0] - (c * w0[0] - s * w0[1])) < 1e-7 && w[2] == w0[2]);
+    }
 }
 
 static void test_counter_and_odr(void) {

@@ -54,7 +54,7 @@ def test_a_plan_table_overrides_the_top_level_limits_for_that_plan_only(tmp_path
     assert config.limits("five").min_fit_p == 0.001
     assert limits_for(config, "vehicle") == vehicle and limits_for(vehicle, "five") == vehicle
     assert limits_for(None, "five") == default  # nothing given: the built-in limits
-    own = AcceptanceLimits(max_bias_sigma_mg=12.0, max_scale_sigma_ppm=10000.0)
+    own = AcceptanceLimits(max_bias_sigma_mg=15.0, max_scale_sigma_ppm=10000.0)
     assert limits_for(None, "vehicle") == own  # with the vehicle plan's own (design §3)
 
 

@@ -331,11 +331,12 @@ def test_plan_shows_each_limit_beside_the_sigma_the_session_will_get(
     assert forecast["min_fit_p"]["predicted"] is None  # the data decide
     # the vehicle plan's own limits state what it is for: it can meet them
     text = cli(["plan", "--plan", "vehicle"]).out
-    assert "worst bias σ ≤ 12 mg: plan predicts 10.1 mg, can meet it" in text
+    assert "worst bias σ ≤ 15 mg: plan predicts 13.9 mg, can meet it" in text  # trim fitted
+    assert "mounting trim (no limit): plan predicts σ 0.57° alpha, 0.57° beta, 1.5° psi" in text
     assert "worst scale σ ≤ 10000 ppm: plan predicts 8132 ppm, can meet it" in text
     assert "can meet the limits known before the data" in text
     # the limits in force are the user's: a stricter department is told before position 1
     own_user_dirs.write_acceptance("[plan.vehicle]\nmax_bias_sigma_mg = 5.0\n")
     text = cli(["plan", "--plan", "vehicle"]).out
-    assert "worst bias σ ≤ 5 mg: plan predicts 10.1 mg, CANNOT meet it" in text
+    assert "worst bias σ ≤ 5 mg: plan predicts 13.9 mg, CANNOT meet it" in text
     assert "this plan cannot meet max_bias_sigma_mg" in text

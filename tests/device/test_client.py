@@ -171,7 +171,9 @@ def test_factory_calibration_block(rig: Rig) -> None:
     factory = od.factory_block(accel_lsb, gyro_lsb)
     np.testing.assert_array_equal(readout.block.accel_correction, factory.accel_correction)
     np.testing.assert_array_equal(readout.block.gyro_bias, np.zeros(3))
-    assert set(readout.objects) == {(i, s) for i, s, _ in od.CALIBRATION_OBJECTS}
+    expected = od.calibration_objects(rig.node.trim)  # the independent node: no 0x2122
+    assert set(readout.objects) == {(i, s) for i, s, _ in expected}
+    assert readout.trim is rig.node.trim
     block, valid, crc_stored, crc_ok, objects, read = readout  # the bytes read come last
     assert read is not None and read == readout.raw
     assert crc_stored == od.block_crc(objects) and crc_ok and valid == 0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import struct
 import zlib
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -15,10 +16,12 @@ from hypothesis import strategies as st
 from canimucal.device import od
 from canimucal.device.bus import abort_text
 from canimucal.errors import InputError
+from canimucal.model.frames import trim_dcm
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
 
 A_LSB, G_LSB = DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
-FACTORY_CRC = 0x88E40123  # the EDS's test vector, computed independently below
+FACTORY_CRC = 0x36701FFB  # the EDS's test vector, computed independently below
+LEGACY_FACTORY_CRC = 0x88E40123  # a node without 0x2122: the 39-object layout
 
 
 def test_crc_order_is_design_order() -> None:
@@ -31,12 +34,17 @@ def test_crc_order_is_design_order() -> None:
         + [(0x2120, s) for s in range(1, 3)]
         + [(0x2121, s) for s in range(1, 5)]
     )
-    assert [(i, s) for i, s, _ in od.CRC_ORDER] == expected
+    trim = [(0x2122, s) for s in range(1, 4)]
+    assert [(i, s) for i, s, _ in od.CRC_ORDER] == expected + trim
+    assert [(i, s) for i, s, _ in od.crc_order(False)] == expected  # older firmware
     codes = {(i, s): c for i, s, c in od.CRC_ORDER}
     assert codes[(0x2121, 1)] == "u32" and codes[(0x2121, 2)] == "u8"
-    assert {codes[k] for k in expected if k[0] != 0x2121} == {"f32"}
+    assert {codes[k] for k in expected + trim if k[0] != 0x2121} == {"f32"}
     assert od.CALIBRATION_OBJECTS[-2:] == ((0x2121, 5, "u8"), (0x2121, 6, "u32"))
-    assert len(od.CALIBRATION_OBJECTS) == 41
+    assert len(od.CALIBRATION_OBJECTS) == 44 and len(od.calibration_objects(False)) == 41
+    sizes = [len(od.encode(c, 0)) for _, _, c in od.CRC_ORDER]
+    assert (len(sizes), sum(sizes)) == (42, 165)
+    assert sum(sizes[:39]) == 153
 
 
 def test_signatures_spell_save_and_load() -> None:
@@ -49,9 +57,15 @@ def test_factory_crc_test_vector_by_hand() -> None:
     floats = [0.0] * 3 + list(np.eye(3).ravel() * A_LSB) + [0.0] * 3
     floats += list(np.eye(3).ravel() * G_LSB) + [0.0] * 9 + [0.0] * 2
     data = struct.pack(f"<{len(floats)}f", *floats) + struct.pack("<IBff", 0, 0, 0.0, 0.0)
-    assert zlib.crc32(data) == FACTORY_CRC
+    assert zlib.crc32(data) == LEGACY_FACTORY_CRC
+    assert zlib.crc32(data + struct.pack("<3f", 0.0, 0.0, 0.0)) == FACTORY_CRC
     block = od.factory_block(A_LSB, G_LSB)
     assert od.block_crc(block.to_objects()) == FACTORY_CRC
+    legacy = od.factory_block(A_LSB, G_LSB, trim=False)
+    assert legacy.mounting_trim_rad is None
+    assert od.block_crc(legacy.to_objects()) == LEGACY_FACTORY_CRC
+    # the 42-object CRC continues the 39-object one over the trim's 12 bytes
+    assert zlib.crc32(struct.pack("<3f", 0.0, 0.0, 0.0), LEGACY_FACTORY_CRC) == FACTORY_CRC
 
 
 def test_crc_changes_with_any_object_and_ignores_valid_flag() -> None:
@@ -72,6 +86,24 @@ def test_crc_missing_object_is_input_error() -> None:
     del objects[(0x2112, 5)]
     with pytest.raises(InputError, match="0x2112:05"):
         od.block_crc(objects)
+    objects = od.factory_block(A_LSB, G_LSB).to_objects()
+    del objects[(0x2122, 2)]  # a trim is all three angles or none
+    with pytest.raises(InputError, match="0x2122:02"):
+        od.block_crc(objects)
+
+
+def test_a_flipped_trim_byte_breaks_the_crc() -> None:
+    objects = od.factory_block(A_LSB, G_LSB).to_objects()
+    objects[(0x2122, 3)] = 0.01
+    crc = od.block_crc(objects)
+    for key in od.TRIM_KEYS:
+        data = bytearray(od.encode("f32", objects[key]))
+        for byte in range(4):
+            flipped = bytearray(data)
+            flipped[byte] ^= 0x01
+            changed = dict(objects)
+            changed[key] = od.decode("f32", bytes(flipped))
+            assert od.block_crc(changed) != crc, (key, byte)
 
 
 @pytest.mark.parametrize(
@@ -103,8 +135,9 @@ def test_encode_refuses_bad_input() -> None:
     st.lists(st.floats(min_value=-1e3, max_value=1e3, allow_nan=False), min_size=37, max_size=37),
     st.integers(0, 2**32 - 1),
     st.integers(0, 5),
+    st.booleans(),
 )
-def test_block_objects_round_trip(values: list[float], time_s: int, plan: int) -> None:
+def test_block_objects_round_trip(values: list[float], time_s: int, plan: int, trim: bool) -> None:
     v = np.array(values)
     block = od.CalibrationBlock(
         accel_bias=v[0:3],
@@ -117,9 +150,10 @@ def test_block_objects_round_trip(values: list[float], time_s: int, plan: int) -
         plan_code=plan,
         temp_c=float(v[35]),
         rms_ms2=float(v[36]),
+        mounting_trim_rad=v[0:3] / 1e4 if trim else None,
     )
     objects = block.to_objects()
-    assert list(objects) == [(i, s) for i, s, _ in od.CRC_ORDER]
+    assert list(objects) == [(i, s) for i, s, _ in od.crc_order(trim)]
     # REAL32 values are already float32: encoding and decoding is exact
     for (i, s), value in objects.items():
         code = od.OBJECT_CODES[(i, s)]
@@ -222,6 +256,26 @@ def test_apply_firmware_valid_inverts_sensor_model() -> None:
         accel, gyro = od.apply_firmware(block, valid, crc_ok, u, v, A_LSB, G_LSB)
         np.testing.assert_allclose(accel, u * A_LSB)
         np.testing.assert_allclose(gyro, v * G_LSB)
+
+
+def test_apply_firmware_turns_the_output_into_the_vehicle_frame() -> None:
+    """With the mounting trim R_m: a_v = R_mᵀ M (U − b), w_v = R_mᵀ N (V − B − G a)."""
+    trim = np.array([0.02, -0.03, 0.05])
+    r_m = trim_dcm(trim)  # unit ← vehicle
+    f_vehicle, w_vehicle = np.array([0.4, -9.7, 1.0]), np.array([0.01, 0.0, -0.02])
+    k, s = np.eye(3) / A_LSB, np.eye(3) / G_LSB
+    u, v = (r_m @ f_vehicle) @ k.T, (r_m @ w_vehicle) @ s.T  # the unit sees R_m x
+    zero = np.zeros(3)
+    block = od.CalibrationBlock(
+        zero, np.linalg.inv(k), zero, np.linalg.inv(s), np.zeros((3, 3)), np.zeros(2),
+        mounting_trim_rad=trim,
+    )  # fmt: skip
+    accel, gyro = od.apply_firmware(block, True, True, u, v, A_LSB, G_LSB)
+    np.testing.assert_allclose(accel, f_vehicle, atol=1e-12)
+    np.testing.assert_allclose(gyro, w_vehicle, atol=1e-15)
+    legacy = replace(block, mounting_trim_rad=None)  # no 0x2122: the unit's own axes
+    accel, _ = od.apply_firmware(legacy, True, True, u, v, A_LSB, G_LSB)
+    np.testing.assert_allclose(accel, r_m @ f_vehicle, atol=1e-12)
 
 
 def test_keys() -> None:

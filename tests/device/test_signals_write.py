@@ -126,10 +126,11 @@ def test_second_interrupt_during_the_rollback_is_held_back(
     rig = either_loop_rig
     old, _, _ = _old_and_new(rig)
     rig.load(old)
-    # request 60 is inside "write block"; 62 is the rollback's first few downloads
-    raised, count = interrupted_write(rig, {60: signal.SIGTERM, 62: signal.SIGINT})
+    # request 64 is inside "write block" (after the 57–59 requests of identity, layout and
+    # backup); 66 is the rollback's first few downloads
+    raised, count = interrupted_write(rig, {64: signal.SIGTERM, 66: signal.SIGINT})
     assert isinstance(raised, Terminated)
-    assert rig.raw() == old and count > 62
+    assert rig.raw() == old and count > 66
     assert "previous calibration restored from" in raised.__notes__[0]
 
 

@@ -243,7 +243,9 @@ def test_dry_run_plans_and_writes_nothing(rig: Rig) -> None:
     assert rig.raw_objects() == before and not rig.backups.exists()
     keys = [w.key for w in report.writes]
     assert keys[0] == "0x2121:05" and report.writes[0].value == 0
-    assert keys[1 : 1 + len(od.CRC_ORDER)] == [od.format_key(i, s) for i, s, _ in od.CRC_ORDER]
+    order = od.crc_order(rig.node.trim)  # the independent node has no 0x2122
+    assert keys[1 : 1 + len(order)] == [od.format_key(i, s) for i, s, _ in order]
+    assert report.trim_object is rig.node.trim
     assert keys[-3:] == ["0x2121:06", "0x2121:05", "0x1010:04"]
     assert report.writes[-2].value == 1
 
@@ -373,7 +375,8 @@ def test_backup_record_round_trip(rig: Rig, tmp_path: Path) -> None:
     d = calibration_to_dict(record)
     assert (d["device"]["serial"], d["device"]["node_id"]) == (SERIAL, NODE_ID)
     assert d["plan"] == "five" and d["created"] == "2026-03-04T05:06:07Z"
-    assert d["objects"]["0x2121:05"] == 1 and len(d["objects"]) == len(od.CALIBRATION_OBJECTS)
+    assert d["objects"]["0x2121:05"] == 1
+    assert len(d["objects"]) == len(od.calibration_objects(rig.node.trim))
     # without its objects map the record still maps back to the same block (M = K⁻¹ again)
     d.pop("objects")
     again = block_from_record(Calibration.from_dict(d), *rig.client.nominal_lsb())

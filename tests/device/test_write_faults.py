@@ -306,7 +306,7 @@ def test_reboot_as_another_unit_mid_write_restores_nothing(loop_rig: LoopRig) ->
     rig = loop_rig
     old, _, _ = _old_and_new(rig)
     rig.load(old)
-    k = 60  # inside "write block": identity, LSBs and the 44-object read-out come first
+    k = 64  # inside "write block": identity, LSBs, the trim check and the read-out come first
     rig.node.faults.set(reboot_at_sdo_request=k, serial_after_reboot=SERIAL + 1)
     try:
         with pytest.raises(DeviceError, match="came back as serial 4243, not 4242") as info:

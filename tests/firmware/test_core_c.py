@@ -4,8 +4,9 @@ the same inputs through C and through the Python side (``canimucal.device.od``).
 Differential checks: the CRC (random byte strings chained as ``zlib.crc32`` does, and random
 blocks against :func:`od.block_crc`), every range decision (random values plus each limit's
 float32 neighbours, NaN and ±inf, against :func:`od.range_problems` with the same row
-diagonal and nominal LSBs) and the correction (against :func:`od.apply_firmware`, equal
-within float32 rounding). Inputs come from fixed seeds.
+diagonal and nominal LSBs) and the correction with the alignment of the mounting trim
+(against :func:`od.apply_firmware`, equal within float32 rounding). Inputs come from fixed
+seeds.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 import pytest
 
 from canimucal.device import objects, od
+from canimucal.model.frames import trim_dcm
 from tests.firmware.conftest import MODULE, Compile
 
 SEEDS = (1, 2, 3)
@@ -41,6 +43,7 @@ class Block(ctypes.Structure):
         ("plan_code", ctypes.c_uint8),
         ("temp_c", ctypes.c_float),
         ("rms_ms2", ctypes.c_float),
+        ("mounting_trim", ctypes.c_float * 3),
         ("valid", ctypes.c_uint8),
         ("crc", ctypes.c_uint32),
     ]
@@ -55,6 +58,7 @@ class Cal(ctypes.Structure):
         ("gyro_lsb", ctypes.c_float),
         ("active", ctypes.c_uint8),
         ("counter", ctypes.c_uint16),
+        ("align", ctypes.c_float * 9),
     ]
 
 
@@ -118,7 +122,8 @@ def test_object_table_matches_the_registry(lib: ctypes.CDLL) -> None:
     core = Core(lib, ACCEL_LSB, GYRO_LSB)
     for index, sub, code in od.CALIBRATION_OBJECTS:
         assert len(core.read(index, sub)) == sizes[code], (hex(index), sub)
-    assert core.read(0x2121, 7) == b"" and core.read(0x2122, 1) == b""
+    assert core.read(0x2121, 7) == b"" and core.read(0x2122, 4) == b""
+    assert core.read(0x2123, 1) == b""
 
 
 @pytest.mark.parametrize("seed", SEEDS)
@@ -155,6 +160,7 @@ def _random_block(
         plan_code=int(rng.integers(0, 7)),
         temp_c=float(rng.uniform(-40, 85)),
         rms_ms2=float(rng.uniform(0, 0.1)),
+        mounting_trim_rad=rng.uniform(-0.05, 0.05, 3),
     )
 
 
@@ -175,7 +181,7 @@ def test_block_crc_and_gate_equal_python(lib: ctypes.CDLL, seed: int) -> None:
     rng = np.random.default_rng(seed)
     core = Core(lib, ACCEL_LSB, GYRO_LSB)
     factory = od.factory_block(ACCEL_LSB, GYRO_LSB).to_objects()
-    assert lib.imu_cal_block_crc(ctypes.byref(core.cal)) == od.block_crc(factory) == 0x88E40123
+    assert lib.imu_cal_block_crc(ctypes.byref(core.cal)) == od.block_crc(factory) == 0x36701FFB
     for _ in range(20):
         objects = _load(core, _random_block(rng, ACCEL_LSB, GYRO_LSB), 1)
         assert lib.imu_cal_block_crc(ctypes.byref(core.cal)) == od.block_crc(objects)
@@ -193,6 +199,7 @@ def _candidates(rng: np.random.Generator, index: int, sub: int, lsb: float, diag
         od.GYRO_BIAS: [objects.BIAS_LIMIT_COUNTS],
         od.GYRO_G: [objects.G_LIMIT],
         od.BASE_TILT: [objects.TILT_LIMIT_RAD],
+        od.MOUNTING_TRIM: [objects.TRIM_LIMIT_RAD],
         od.CAL_INFO: [0.0],
     }.get(index, [])
     if index in (od.ACCEL_CORRECTION, od.GYRO_CORRECTION):
@@ -270,5 +277,9 @@ def test_correction_equals_python_within_float32(lib: ctypes.CDLL, seed: int) ->
             g_a = np.abs(stored.gyro_g) @ (np.abs(a_py) + a_scale)
             dv = np.abs(v) + np.abs(stored.gyro_bias) + g_a
             w_scale = np.abs(stored.gyro_correction) @ dv if valid else np.abs(v * GYRO_LSB)
+            if valid:  # turned into the vehicle frame by the trim: R' a, R' w (each in float)
+                turn = np.abs(trim_dcm(np.asarray(stored.mounting_trim_rad))).T
+                a_scale = turn @ a_scale + np.sum(a_scale)
+                w_scale = turn @ w_scale + np.sum(w_scale)
             assert np.all(np.abs(a_c - a_py) <= 8 * eps * a_scale + 1e-30), (a_c, a_py)
             assert np.all(np.abs(w_c - w_py) <= 8 * eps * w_scale + 1e-30), (w_c, w_py)

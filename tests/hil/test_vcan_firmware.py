@@ -210,7 +210,7 @@ def test_whole_job_against_the_reference_firmware(
     restored = cli("write-params", backup, *bus, "--backup-dir", tmp_path / "backups2")
     assert restored.code == 0, restored.err
     node.restart(READY_S)
-    assert _readout(vcan_channel) == (0, 0x88E40123, True)
+    assert _readout(vcan_channel) == (0, 0x36701FFB, True)  # 42 objects: with 0x2122
 
 
 def test_case1_calibration_stored_where_the_node_says(
@@ -378,6 +378,7 @@ def _check_refusals(remote: canopen.RemoteNode) -> None:
         (0x2101, 2, od.encode("f32", 0.3 * ACCEL_LSB), od.ABORT_VALUE_RANGE),
         (0x2112, 9, od.encode("f32", float("nan")), od.ABORT_VALUE_RANGE),
         (0x2121, 5, od.encode("u8", 2), od.ABORT_VALUE_RANGE),
+        (0x2122, 2, od.encode("f32", 0.25), od.ABORT_VALUE_RANGE),  # |trim| ≤ 0.2 rad
         (0x2010, 3, od.encode("u16", 300), od.ABORT_VALUE_RANGE),
         (0x2100, 4, od.encode("f32", 0.0), od.ABORT_NO_SUBINDEX),
         (0x2010, 1, od.encode("f32", 0.1), ABORT_READ_ONLY),

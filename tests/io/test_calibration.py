@@ -25,6 +25,7 @@ from canimucal.io.calibration import (
     read_calibration,
     record_from_estimates,
     sha256_of,
+    slope_trim_correlation,
     summarize_position,
     write_calibration,
 )
@@ -274,6 +275,37 @@ def test_tilt_is_degrees_in_the_file_and_radians_back() -> None:
     names, back = covariance_si(read_calibration(calibration_to_json(record)))
     assert names == NAMES_TILT
     np.testing.assert_allclose(back, cov, rtol=1e-12)
+
+
+def test_mounting_trim_is_degrees_in_the_file_with_its_correlation_to_the_slope() -> None:
+    names = [*NAMES_TILT, "mounting_trim.alpha", "mounting_trim.beta", "mounting_trim.psi"]
+    values, cov = _estimates(names, seed=2)
+    record = record_from_estimates(names, values, cov, device=Device(serial=1))
+    trim = record.mounting_trim_deg
+    assert trim is not None
+    assert (trim.alpha, trim.beta, trim.psi) == pytest.approx(tuple(np.rad2deg(values[8:])))
+    assert trim.sigma == pytest.approx(np.rad2deg(np.sqrt(np.diag(cov)[8:])))
+    np.testing.assert_allclose(trim.radians(), values[8:], rtol=1e-12)
+    again = read_calibration(calibration_to_json(record))
+    assert again.mounting_trim_deg == trim
+    back_names, back = covariance_si(again)
+    assert back_names == names
+    np.testing.assert_allclose(back, cov, rtol=1e-12)
+    sd = np.sqrt(np.diag(cov))
+    corr = cov[6:8, 8:] / np.outer(sd[6:8], sd[8:])
+    assert slope_trim_correlation(again) == pytest.approx(corr.flat[np.argmax(np.abs(corr))])
+    assert (
+        slope_trim_correlation(
+            record_from_estimates(NAMES_TILT, *_estimates(NAMES_TILT), device=Device(serial=1))
+        )
+        is None
+    )
+    assert (
+        record_from_estimates(
+            NAMES_TILT, *_estimates(NAMES_TILT), device=Device(serial=1)
+        ).mounting_trim_deg
+        is None
+    )
 
 
 def test_parameters_not_estimated_are_null_and_held_fixed_too() -> None:

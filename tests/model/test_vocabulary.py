@@ -108,9 +108,12 @@ def test_an_effect_names_where_the_simulator_holds_each_entry() -> None:
 
 
 def test_every_parameter_has_a_quantity_with_its_units() -> None:
-    spec = JointSpec(accel_k="full", tilt="rigid", gyro="nav", gyro_s="full", gyro_g=True)
+    spec = JointSpec(
+        accel_k="full", tilt="rigid", gyro="nav", gyro_s="full", gyro_g=True, trim=True
+    )
     families = {quantity_of(name).family for name in ParameterLayout.of(spec).names}
     assert families == set(QUANTITIES)
+    assert quantity_of("mounting_trim.psi").shown_unit == "deg"
     assert quantity_of("gyro.S[2][1]").unit == "counts/(rad/s)"
     assert quantity_of("base_tilt.alpha0").shown_unit == "deg"
     assert words("counts/(m/s²)") == "counts per m/s²" and words("rad") == "rad"

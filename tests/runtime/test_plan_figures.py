@@ -32,6 +32,7 @@ from canimucal.runtime.plan_forecast import (
     schedule,
     session_spec,
     table_cells,
+    trim_forecast,
 )
 from canimucal.sim.truth import Truth
 from canimucal.tui.app import make_app
@@ -71,7 +72,8 @@ def test_plan_prints_the_sources_times_bounds_and_forecast(
     text = _plan_command(capsys, "--plan", name)
     assert text.startswith(f"plan {name}: {times.totals_words()}\n")
     assert f"times: {times.times_words()}" in _words(text)
-    for line in forecast_lines(rows, name):
+    trim = trim_forecast(plan, session_spec(name))
+    for line in forecast_lines(rows, name, trim=trim):
         assert line in text
 
 
@@ -114,7 +116,9 @@ async def test_the_plan_screen_shows_the_sources_times_bounds_and_forecast(
             ]
             assert shown == table_cells(table)
             rows = forecast(plan, AcceptanceConfig().limits(name), session_spec(name))
-            assert str(screen.forecast.render()) == "\n".join(forecast_lines(rows, name))
+            trim = trim_forecast(plan, session_spec(name), accel_lsb=DEFAULT_ACCEL_LSB)
+            lines = forecast_lines(rows, name, trim=trim)
+            assert str(screen.forecast.render()) == "\n".join(lines)
 
 
 def test_the_session_averages_each_position_as_the_schedule_says() -> None:

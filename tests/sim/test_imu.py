@@ -60,7 +60,7 @@ def _unit_truth(**extra: Any) -> Truth:
 
 def _expected(truth: Truth, alpha: float, beta: float, psi: float) -> tuple[np.ndarray, ...]:
     """Noise-free outputs from the model types and the frames (independent of the sim)."""
-    c = position_dcm(alpha, beta, psi, truth.alpha0, truth.beta0, truth.tilt_model)
+    c = position_dcm(alpha, beta, psi, truth.alpha0, truth.beta0, truth.tilt_model, truth.trim)
     f = c @ specific_force_level(truth.g)
     w = c @ earth_rate_level(truth.latitude, truth.heading)
     accel = AccelParams(np.array(truth.accel.bias), np.array(truth.accel.K))
@@ -82,9 +82,12 @@ def _chi2_bounds(dof: int, p: float = 1e-6) -> tuple[float, float]:
 # --- static physics -------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("tilt_model", ["rigid", "additive"])
-def test_noise_free_static_output_is_the_model(tilt_model: str) -> None:
-    truth = _unit_truth(accel=QUIET, gyro=QUIET, tilt_model=tilt_model)
+@pytest.mark.parametrize(
+    ("tilt_model", "trim_deg"),
+    [("rigid", [0, 0, 0]), ("additive", [0, 0, 0]), ("rigid", [1.5, -2.0, 3.0])],
+)
+def test_noise_free_static_output_is_the_model(tilt_model: str, trim_deg: list[float]) -> None:
+    truth = _unit_truth(accel=QUIET, gyro=QUIET, tilt_model=tilt_model, mounting_trim_deg=trim_deg)
     pose = (30 * DEG, -10 * DEG, 40 * DEG)
     block = _static(truth, pose, 10)
     u, v, _ = _expected(truth, *pose)
@@ -405,8 +408,9 @@ def test_gyro_integral_over_a_transient_is_the_rotation_angle(
     assert block.moving.sum() == 800
 
 
-def test_gyro_during_a_combined_move_matches_dcm_finite_differences() -> None:
-    truth = _unit_truth(accel=QUIET, gyro=QUIET, sample_rate_hz=1000)
+@pytest.mark.parametrize("trim_deg", [[0, 0, 0], [2.0, -1.0, 3.0]])
+def test_gyro_during_a_combined_move_matches_dcm_finite_differences(trim_deg: list[float]) -> None:
+    truth = _unit_truth(accel=QUIET, gyro=QUIET, sample_rate_hz=1000, mounting_trim_deg=trim_deg)
     sim = ImuSimulator(truth, seed=0)
     sim.set_pose(30 * DEG, 10 * DEG, -20 * DEG, transient_s=0.0)
     sim.set_pose(-10 * DEG, 25 * DEG, 40 * DEG, transient_s=1.0)
@@ -433,7 +437,7 @@ def block_f(truth: Truth, block: SimBlock) -> np.ndarray:
 def _dcm_at(truth: Truth, start: np.ndarray, end: np.ndarray, t: float) -> np.ndarray:
     s, _ = min_jerk(t / 1.0)
     a = start + (end - start) * float(s)
-    return position_dcm(a[0], a[1], a[2], truth.alpha0, truth.beta0, truth.tilt_model)
+    return position_dcm(a[0], a[1], a[2], truth.alpha0, truth.beta0, truth.tilt_model, truth.trim)
 
 
 @settings(derandomize=True, deadline=None, max_examples=40)

@@ -139,6 +139,25 @@ def test_round_trip_through_json() -> None:
     assert _close(Truth.from_dict(out).to_dict(), out)
 
 
+def test_mounting_trim_is_radians_inside_and_round_trips() -> None:
+    t = Truth.from_dict({"floor_slope_deg": [1.0, -2.0], "mounting_trim_deg": [1.5, -0.5, 2.0]})
+    assert t.trim == pytest.approx(tuple(np.deg2rad([1.5, -0.5, 2.0])), rel=1e-15)
+    assert t.trim_object and Truth.from_dict({}).trim == (0.0, 0.0, 0.0)
+    out = t.to_dict()
+    assert out["mounting_trim_deg"] == pytest.approx([1.5, -0.5, 2.0], rel=1e-14)
+    assert Truth.from_dict(out).trim == pytest.approx(t.trim, rel=1e-15)
+    assert "mounting_trim_deg" not in Truth.from_dict({}).to_dict()  # no trim, no key
+    old = Truth.from_dict({"trim_object": False})
+    assert not old.trim_object and Truth.from_dict(old.to_dict()).trim_object is False
+    # drawn last: a seed's other draws are those it gave before the trim existed
+    a, b = (
+        Truth.random(np.random.default_rng(5)),
+        Truth.random(np.random.default_rng(5), trim_max_deg=2.0),
+    )
+    assert a.to_dict() | {"mounting_trim_deg": b.to_dict()["mounting_trim_deg"]} == b.to_dict()
+    assert np.all(np.abs(np.rad2deg(b.trim)) <= 2.0) and any(b.trim)
+
+
 def test_faults_are_kept_opaque_and_copied() -> None:
     d = _full_dict()
     t = Truth.from_dict(d)
@@ -216,6 +235,11 @@ BAD_CASES: list[tuple[Any, str]] = [
     ({"timer_skew_ppm": "5000"}, "truth: timer_skew_ppm: must be a finite number"),
     ({"timer_skew_ppm": NAN}, "truth: timer_skew_ppm: must be a finite number"),
     ({"timer_skew_ppm": 2e5}, "truth: timer_skew_ppm: must be within ±100000 ppm"),
+    ({"mounting_trim_deg": [1, 2]}, "truth: mounting_trim_deg: must be [alpha, beta, psi]"),
+    ({"mounting_trim_deg": {"alpha": 1}}, "truth: mounting_trim_deg: must be [alpha, beta, psi]"),
+    ({"mounting_trim_deg": [0, "1", 0]}, "truth: mounting_trim_deg[1]: must be a finite number"),
+    ({"mounting_trim_deg": [0, 0, 95]}, "truth: mounting_trim_deg[2]: must be within (-90, 90)"),
+    ({"trim_object": 0}, "truth: trim_object: must be true or false"),
 ]
 
 

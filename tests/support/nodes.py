@@ -41,6 +41,7 @@ SIM_TRUTH_KEYS = (
     "documented_store_sub",
     "second_send_ms",
     "refuses_start",
+    "trim_object",
 )
 """Behaviours the simulated node takes from its truth JSON."""
 
@@ -104,12 +105,21 @@ class DeviceUnderTest:
         else:
             self.node.emcy(code, register)
 
+    @property
+    def trim(self) -> bool:
+        """Whether the node has the mounting-trim object 0x2122 (the 42-object CRC layout).
+
+        The independent node is a firmware before it: the 39-object layout.
+        """
+        return isinstance(self.node, SimulatedImuNode) and self.node.truth.trim_object
+
     def raw_objects(self) -> dict[tuple[int, int], bytes]:
-        """The calibration objects (0x2100–0x2121) as their SDO bytes (docs/design.md §4 codes)."""
+        """The calibration objects (0x2100–0x2122) as their SDO bytes (docs/design.md §4 codes)."""
+        objects = od.calibration_objects(self.trim)
         if isinstance(self.node, SimulatedImuNode):  # the bytes it holds, NaN payloads too
             get = self.node.local_node.get_data
-            return {(i, s): bytes(get(i, s)) for i, s, _ in od.CALIBRATION_OBJECTS}
-        return {(i, s): od.encode(code, self.value(i, s)) for i, s, code in od.CALIBRATION_OBJECTS}
+            return {(i, s): bytes(get(i, s)) for i, s, _ in objects}
+        return {(i, s): od.encode(code, self.value(i, s)) for i, s, code in objects}
 
     def calibration_active(self) -> bool:
         """The node's own verdict: valid = 1 and its stored CRC-32 matches (§4)."""

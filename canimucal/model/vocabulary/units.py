@@ -1,11 +1,13 @@
 """The calibration's parameters and their units (docs/design.md §2), defined once.
 
 Every parameter of the solver's vector (``accel.bias[i]``, ``accel.K[i][j]``,
-``base_tilt.alpha0``, ``gyro.bias[i]``, ``gyro.S[i][j]``, ``gyro.G[i][j]``) belongs to one
+``base_tilt.alpha0``, ``mounting_trim.alpha``, ``gyro.bias[i]``, ``gyro.S[i][j]``,
+``gyro.G[i][j]``) belongs to one
 :class:`Quantity`, which says in which unit the solver, the bound table and the files hold
 it, how it converts to SI and to the unit an operator reads (mg, ppm, °, °/s), and in which
-unit the calibration file holds it (the base tilt in degrees). The results screen, the
-certificate, the CLI's text and the JSON outputs take their units from :data:`QUANTITIES`.
+unit the calibration file holds it (the base tilt and the mounting trim in degrees). The
+results screen, the certificate, the CLI's text and the JSON outputs take their units from
+:data:`QUANTITIES`.
 
 The conversions are factors (a σ converts as its value does): SI and operator values of a
 scale factor are relative to the nominal scale (``K·|LSB|``: 1 at nominal, in ppm an
@@ -117,6 +119,13 @@ QUANTITIES.register(
 QUANTITIES.register(
     Quantity(
         "base_tilt", "tilt of the base the poses are set on", "rad",
+        "rad", lambda s: 1.0, "°", lambda s: _DEG, effect_counts=lambda g, k: k * g,
+        file_unit="deg", file_per_unit=_DEG,
+    )
+)  # fmt: skip
+QUANTITIES.register(
+    Quantity(
+        "mounting_trim", "mounting trim of the unit in the vehicle", "rad",
         "rad", lambda s: 1.0, "°", lambda s: _DEG, effect_counts=lambda g, k: k * g,
         file_unit="deg", file_per_unit=_DEG,
     )

@@ -35,6 +35,7 @@ from canimucal.runtime.plan_forecast import (
     plan_bounds,
     schedule,
     session_spec,
+    trim_forecast,
 )
 from canimucal.tui.messages import StartWanted
 from canimucal.tui.modals import MountModal
@@ -180,7 +181,8 @@ class PlanScreen(Screen[None]):
         for row in bound_rows(table):
             self.table.add_row(*row)
         self.findings.update(findings_text(table))
-        self.forecast.update("\n".join(forecast_lines(rows, self.plan_name)))
+        trim = trim_forecast(plan, spec, policy=policy, accel_lsb=lsb, prior_k_sigma=prior)
+        self.forecast.update("\n".join(forecast_lines(rows, self.plan_name, trim=trim)))
 
     @property
     def serial(self) -> int | None:
