@@ -45,6 +45,7 @@ TAU_MAX_RAD = float(np.deg2rad(10.0))
 _DECADES = np.concatenate([[0.0], np.geomspace(1e-5, 1.0, 31)])
 """The search grid as fractions of ``τ_max`` (1e-4° to 10° for a pose scatter)."""
 _CHI2_95_1 = 3.841458820694124  # χ²₁ 95 % point, scipy.stats.chi2.ppf(0.95, 1)
+_CHI2_90_1 = 2.705543454095404  # χ²₁ 90 % point: the one-sided 95 % bound's cut
 _RANK_TOL = 1e-9
 
 
@@ -108,6 +109,8 @@ class ScatterEstimate:
     ci95: tuple[float, float]
     source: str
     loglik: float
+    upper95: float = float("nan")
+    """One-sided 95 % upper bound (profile likelihood); NaN where not computed."""
 
     @property
     def value_deg(self) -> float:
@@ -295,22 +298,28 @@ def _orthonormal(x: Array) -> Array:
 def estimate_scatter(model: ScatterModel, residual: Array, design: Array) -> ScatterEstimate:
     """REML estimate of τ with its profile-likelihood 95 % interval (module doc).
 
+    ``upper95`` is the one-sided 95 % upper bound (``2 Δℓ_R ≤ χ²₁(0.90) = 2.71``), the
+    value a fit with few residuals prices its σ at (:mod:`canimucal.analysis.pose_scatter`).
     A fixed τ (header or flag) is returned as given, its interval a single point.
     """
     rot = _rotate(model, residual, design)
     if model.fixed is not None:
         ll = _loglik(rot, model.fixed)
-        return ScatterEstimate(model.fixed, (model.fixed, model.fixed), model.source, ll)
+        fixed = model.fixed
+        return ScatterEstimate(fixed, (fixed, fixed), model.source, ll, upper95=fixed)
     from scipy import optimize
 
     tau, best = _maximise(rot, model.tau_max)
-    cut = best - 0.5 * _CHI2_95_1
 
-    def g(t: float) -> float:
-        return _loglik(rot, t) - cut
+    def g(t: float, chi2: float = _CHI2_95_1) -> float:
+        return _loglik(rot, t) - (best - 0.5 * chi2)
+
+    def above(chi2: float) -> float:
+        if g(model.tau_max, chi2) >= 0.0:
+            return model.tau_max
+        return float(optimize.brentq(g, tau, model.tau_max, (chi2,), xtol=1e-9 * model.tau_max))
 
     low = 0.0 if g(0.0) >= 0.0 else float(optimize.brentq(g, 0.0, tau, xtol=1e-9 * model.tau_max))
-    high = model.tau_max
-    if g(model.tau_max) < 0.0:
-        high = float(optimize.brentq(g, tau, model.tau_max, xtol=1e-9 * model.tau_max))
-    return ScatterEstimate(tau, (low, high), model.source, best)
+    return ScatterEstimate(
+        tau, (low, above(_CHI2_95_1)), model.source, best, upper95=above(_CHI2_90_1)
+    )

@@ -94,14 +94,19 @@ class SessionModel:
     """Where ``tolerance_deg`` came from: ``flag``, ``header``, else ``default`` (then the
     solve estimates the scatter from the data)."""
 
+    def matches(self, averages: Sequence[PositionAverage]) -> bool:
+        """Whether the averages are the header's plan's poses (its tolerances then apply)."""
+        plan = self.plan
+        if not self.plan_tolerances or plan is None or len(plan.positions) != len(averages):
+            return False
+        planned = np.array([p.angles for p in plan.positions])
+        recorded = np.array([a.pose.angles for a in averages])
+        return bool(np.allclose(planned, recorded, atol=np.deg2rad(_MATCH_DEG)))
+
     def tolerances(self, averages: Sequence[PositionAverage]) -> list[PositionAverage]:
         """Give each average its plan position's tolerances when the poses are the plan's."""
         plan = self.plan
-        if not self.plan_tolerances or plan is None or len(plan.positions) != len(averages):
-            return list(averages)
-        planned = np.array([p.angles for p in plan.positions])
-        recorded = np.array([a.pose.angles for a in averages])
-        if not np.allclose(planned, recorded, atol=np.deg2rad(_MATCH_DEG)):
+        if plan is None or not self.matches(averages):
             return list(averages)
         return [
             replace(a, pose=replace(a.pose, tolerance=p.tolerance, psi_tolerance=p.psi_tolerance))

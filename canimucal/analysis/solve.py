@@ -23,7 +23,7 @@ from canimucal.analysis.calibrate import SiteConditions, Solution, solve_positio
 from canimucal.analysis.conditions import recording_conditions
 from canimucal.analysis.gravity_moves import solve_gravity_moves_recording
 from canimucal.analysis.gyro_moves import solve_gyro_moves
-from canimucal.analysis.pose_scatter import fit_scatter
+from canimucal.analysis.pose_scatter import PoseScatter, fit_scatter
 from canimucal.analysis.repeats import unique_samples
 from canimucal.analysis.session_model import (
     GyroChoice,
@@ -33,7 +33,7 @@ from canimucal.analysis.session_model import (
     session_model,
 )
 from canimucal.errors import InputError, ModelError
-from canimucal.io.calibration import Calibration, Device, RecordingRef
+from canimucal.io.calibration import Calibration, Device, Fit, RecordingRef
 from canimucal.io.grouping import (
     average_rows,
     has_angles,
@@ -105,9 +105,11 @@ def solve_recording(
     if has_angles(rec):
         averages = session.tolerances(position_averages(rec, tolerance_deg=session.tolerance_deg))
         spec = choice.spec(has_gyro=all(a.mean_gyro is not None for a in averages))
+        scatter = None
         if session.tolerance_source == "default":  # no flag, no header: the data say
-            averages, scatter = _estimated_scatter(averages, spec, site)
-            notes += scatter
+            planned = [a.pose.tolerance for a in averages] if session.matches(averages) else None
+            averages, scatter = _estimated_scatter(averages, spec, site, planned)
+            notes += () if scatter is None else (scatter.note(),)
         solution = solve_positions(
             averages,
             spec,
@@ -118,6 +120,7 @@ def solve_recording(
             prior=session.prior(spec, site.accel_lsb),
             prior_source=session.prior_source,
         )
+        solution = _with_scatter(solution, scatter)
         if choice.gyro == "moves":  # imucal's turns are known; its poses leave psi free
             sigmas = _pose_sigmas(rec, averages) if session.tolerance_source != "default" else None
             solution, _ = solve_gyro_moves(
@@ -175,22 +178,32 @@ def _few_dof(solution: Solution) -> tuple[str, ...]:
 
 
 def _estimated_scatter(
-    averages: list[PositionAverage], spec: JointSpec, site: SiteConditions
-) -> tuple[list[PositionAverage], tuple[str, ...]]:
-    """Give the poses the scatter the data show (REML, :mod:`canimucal.analysis.pose_scatter`)."""
+    averages: list[PositionAverage],
+    spec: JointSpec,
+    site: SiteConditions,
+    planned: Sequence[float] | None,
+) -> tuple[list[PositionAverage], PoseScatter | None]:
+    """Give the poses the scatter the data show (REML, :mod:`canimucal.analysis.pose_scatter`).
+
+    ``planned``: each position's tolerance from the header's plan (its poses matched), the
+    floor of the σ's scatter when the residuals are few.
+    """
     try:
-        out, est = fit_scatter(
+        return fit_scatter(
             averages, spec, g=site.g, latitude=site.latitude, heading=site.heading,
-            accel_lsb=site.accel_lsb, gyro_lsb=site.gyro_lsb,
+            accel_lsb=site.accel_lsb, gyro_lsb=site.gyro_lsb, planned=planned,
         )  # fmt: skip
     except ModelError:
-        return averages, ()  # the solve itself says what is wrong with these positions
-    low, high = est.ci95_deg
-    if est.source == "assumed":
-        how = "assumed: too few residuals to estimate it"
-    else:
-        how = f"estimated from the data (REML, 95 % {low:.3g}–{high:.3g}°)"
-    return out, (f"pose-setting scatter {est.value_deg:.3g}° {how}; no tolerance_deg header",)
+        return averages, None  # the solve itself says what is wrong with these positions
+
+
+def _with_scatter(solution: Solution, scatter: PoseScatter | None) -> Solution:
+    """Write the scatter the σ rest on, and its basis, into the record's ``fit`` block."""
+    if scatter is None:
+        return solution
+    fit = solution.record.fit or Fit()
+    fit = replace(fit, pose_scatter_deg=scatter.used_deg, pose_scatter_basis=scatter.basis)
+    return replace(solution, record=replace(solution.record, fit=fit))
 
 
 def _unchecked_gyro(solution: Solution) -> tuple[str, ...]:
