@@ -683,13 +683,15 @@ def _findings(
     for t in tests:
         key = f"{t.sensor}.{t.effect}"
         if t.effect == "bias_drift" and t.chosen and t.p_adjusted < alpha:
-            q = drifts[t.sensor].random_walk
+            q, q_sigma = drifts[t.sensor].random_walk, drifts[t.sensor].random_walk_sigma
             evidence = (
                 f"within-position slopes χ² = {t.statistic:.1f} on {t.df} dof; random walk "
-                f"q = {np.array2string(q, precision=3)} counts/√s"
+                f"q = {np.array2string(q, precision=3)} ± "
+                f"{np.array2string(q_sigma, precision=2)} counts/√s"
             )
-            out.append(Finding("bias_drift", t.sensor, float(np.max(q)), units["bias_drift"],
-                               t.p_adjusted, evidence))  # fmt: skip
+            top = int(np.argmax(q))
+            out.append(Finding("bias_drift", t.sensor, float(q[top]), units["bias_drift"],
+                               t.p_adjusted, evidence, float(q_sigma[top])))  # fmt: skip
         elif t.effect == "axis_sign" and t.chosen:
             values, _ = named_values(prepared)
             diag = [values[f"accel.K[{i}][{i}]"] for i in range(3)]

@@ -201,6 +201,7 @@ def analysis_document(a: Analysis) -> dict[str, Any]:
             "effect": f.effect,
             "sensor": f.sensor,
             "size": f.size,
+            **({} if f.sigma is None else {"sigma": f.sigma}),
             "units": f.units,
             "p_value": f.p_value,
             "evidence": f.evidence,
