@@ -13,8 +13,9 @@ verdict travels in the record (never an exception: a failed check is a result).
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -105,22 +106,20 @@ def solve_recording(
     if has_angles(rec):
         averages = session.tolerances(position_averages(rec, tolerance_deg=session.tolerance_deg))
         spec = choice.spec(has_gyro=all(a.mean_gyro is not None for a in averages))
-        scatter = None
-        if session.tolerance_source == "default":  # no flag, no header: the data say
-            planned = [a.pose.tolerance for a in averages] if session.matches(averages) else None
-            averages, scatter = _estimated_scatter(averages, spec, site, planned)
-            notes += () if scatter is None else (scatter.note(),)
-        solution = solve_positions(
-            averages,
-            spec,
-            site,
-            device,
+        context = SolveContext(
             recording=recording,
             plan_name=session.plan_name,
             prior=session.prior(spec, site.accel_lsb),
             prior_source=session.prior_source,
         )
-        solution = _with_scatter(solution, scatter)
+        if session.tolerance_source == "default":  # no flag, no header: the data say
+            planned = [a.pose.tolerance for a in averages] if session.matches(averages) else None
+            solution, scatter = solve_estimating_scatter(
+                averages, spec, site, device, planned=planned, context=context
+            )
+            notes += () if scatter is None else (scatter.note(),)
+        else:
+            solution = solve_positions(averages, spec, site, device, **context.keywords())
         if choice.gyro == "moves":  # imucal's turns are known; its poses leave psi free
             sigmas = _pose_sigmas(rec, averages) if session.tolerance_source != "default" else None
             solution, _ = solve_gyro_moves(
@@ -177,33 +176,54 @@ def _few_dof(solution: Solution) -> tuple[str, ...]:
     )
 
 
-def _estimated_scatter(
-    averages: list[PositionAverage],
+@dataclass(frozen=True)
+class SolveContext:
+    """What :func:`~canimucal.analysis.calibrate.solve_positions` takes beside the positions."""
+
+    recording: RecordingRef | None = None
+    plan_name: str | None = None
+    prior: Mapping[str, tuple[float, float]] | None = None
+    prior_source: str = "factory K"
+
+    def keywords(self) -> dict[str, Any]:
+        """Return the keyword arguments of ``solve_positions``."""
+        return {
+            "recording": self.recording,
+            "plan_name": self.plan_name,
+            "prior": self.prior,
+            "prior_source": self.prior_source,
+        }
+
+
+def solve_estimating_scatter(
+    averages: Sequence[PositionAverage],
     spec: JointSpec,
     site: SiteConditions,
-    planned: Sequence[float] | None,
-) -> tuple[list[PositionAverage], PoseScatter | None]:
-    """Give the poses the scatter the data show (REML, :mod:`canimucal.analysis.pose_scatter`).
+    device: Device,
+    *,
+    planned: Sequence[float] | None = None,
+    context: SolveContext | None = None,
+) -> tuple[Solution, PoseScatter | None]:
+    """Solve positions whose pose scatter no header gives: the data say (docs/design.md §10).
 
-    ``planned``: each position's tolerance from the header's plan (its poses matched), the
-    floor of the σ's scatter when the residuals are few.
+    The scatter is estimated from the fit's residuals (REML; with few residuals its one-sided
+    95 % upper bound, or ``planned``, each position's tolerance from the header's plan, where
+    larger: :func:`~canimucal.analysis.pose_scatter.fit_scatter`), the poses carry it, and
+    the record's ``fit`` block says what the σ rest on. What ``solve`` does without a
+    ``tolerance_deg``, for averages from anywhere (the departures suite's offline sessions).
     """
+    keywords = (context or SolveContext()).keywords()
     try:
-        return fit_scatter(
+        averages, scatter = fit_scatter(
             averages, spec, g=site.g, latitude=site.latitude, heading=site.heading,
             accel_lsb=site.accel_lsb, gyro_lsb=site.gyro_lsb, planned=planned,
         )  # fmt: skip
-    except ModelError:
-        return averages, None  # the solve itself says what is wrong with these positions
-
-
-def _with_scatter(solution: Solution, scatter: PoseScatter | None) -> Solution:
-    """Write the scatter the σ rest on, and its basis, into the record's ``fit`` block."""
-    if scatter is None:
-        return solution
+    except ModelError:  # the solve itself says what is wrong with these positions
+        return solve_positions(averages, spec, site, device, **keywords), None
+    solution = solve_positions(averages, spec, site, device, **keywords)
     fit = solution.record.fit or Fit()
     fit = replace(fit, pose_scatter_deg=scatter.used_deg, pose_scatter_basis=scatter.basis)
-    return replace(solution, record=replace(solution.record, fit=fit))
+    return replace(solution, record=replace(solution.record, fit=fit)), scatter
 
 
 def _unchecked_gyro(solution: Solution) -> tuple[str, ...]:
