@@ -19,8 +19,14 @@ columns ``X_t`` evaluated at the tilted specific force ``f_i = C_i f_L``), and e
     r = U − U(p) + Σ_{t chosen} X_t γ_t ≈ J δθ + Σ_t X_t γ_t,                               (2)
 
 exact at ``γ = γ(p)``, so a term left out of a model is held at zero, not at its value in
-``p``. Iterations stop when no parameter moves by more than :data:`STEP_SIGMAS` of its σ
-(two or three at a 3° tilt).
+``p``. The noise model follows: the covariance an angle-setting error adds to each mean is
+re-derived at the tilted poses too,
+
+    A_i(p) = J_i(p) J_i(p)ᵀ,   J_i = ∂U_i/∂(α, β, ψ) at p                                   (3)
+
+(:mod:`.noise_model` eq. 1), so the directions along gravity stay free of pose scatter.
+Iterations stop when no parameter moves by more than :data:`STEP_SIGMAS` of its σ (two or
+three at a 3° tilt).
 """
 
 from __future__ import annotations
@@ -31,12 +37,24 @@ from collections.abc import Callable, Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from canimucal.analysis.base_fit import EARTH_RATE_NAMES, PreparedBase, temperature_status
+from canimucal.analysis.base_fit import (
+    EARTH_RATE_NAMES,
+    PreparedBase,
+    block_covariance,
+    temperature_status,
+    unit_angle_covariance,
+)
 from canimucal.analysis.candidates import candidates_at_inputs
 from canimucal.analysis.data import SessionData
 from canimucal.analysis.significance import LinearProblem, fit_terms
 from canimucal.model.dcm_stack import dcm_stack
-from canimucal.model.layout import JointSpec, ModelContext, ParameterLayout, predict
+from canimucal.model.layout import (
+    JointSpec,
+    ModelContext,
+    ParameterLayout,
+    angle_error_moments,
+    predict,
+)
 from canimucal.model.positions import PositionAverage
 from canimucal.model.vocabulary.effects import OFF_DIAGONAL, PoseInputs
 
@@ -56,7 +74,8 @@ def relinearised(
     """Return ``base`` linearised at the extended estimate (eq. 2).
 
     ``values`` the base parameters (``base.names``), ``coefs`` the chosen terms' entries.
-    The covariance, blocks and residual table of ``base`` are kept.
+    The angle errors' covariances are re-derived there (eq. 3); the within-position
+    covariance, blocks and residual table of ``base`` are kept.
     """
     n, m = base.residual_table.shape
     angles = np.array([a.pose.angles for a in data.averages])
@@ -112,10 +131,19 @@ def relinearised(
         else:
             jac[:, k] = pred.d_theta[:, :, layout.index(name)].ravel()
     keep = {cand.key for cand in base.candidates}
+    # the angle errors' covariance at the tilted poses (eq. 3): at the level base's, a 2° tilt
+    # leaks 0.1° of pose scatter into the direction along gravity (0.12 counts, twice a 30 s
+    # mean's σ) and phantom terms (cross_axis) took it up on 4 of 12 seeds at 0.1° poses
+    tol = np.array([a.pose.tolerance for a in data.averages])
+    moments = angle_error_moments(layout, theta, angles, ctx, tol)
     return dataclasses.replace(
         base,
         residual=shifted,
         jacobian=jac,
+        covariance=block_covariance(data, moments.covariance),
+        angle_unit_covariance=block_covariance(
+            data, unit_angle_covariance(layout, theta, angles, ctx), False
+        ),
         candidates=tuple(cand for cand in cands if cand.key in keep),
         values=np.asarray(values, dtype=float),
     )

@@ -24,6 +24,7 @@ from canimucal.analysis.calibrate import SiteConditions, Solution, solve_positio
 from canimucal.analysis.conditions import recording_conditions
 from canimucal.analysis.gravity_moves import solve_gravity_moves_recording
 from canimucal.analysis.gyro_moves import solve_gyro_moves
+from canimucal.analysis.gyro_only import has_accel, solve_gyro_only
 from canimucal.analysis.pose_scatter import PoseScatter, fit_scatter
 from canimucal.analysis.repeats import unique_samples
 from canimucal.analysis.session_model import (
@@ -103,7 +104,11 @@ def solve_recording(
     site, g_source = site_of(rec, choice)
     serial, node_id = _header_int(rec, "device_serial"), _header_int(rec, "node_id")
     device = Device(serial=serial or 0, node_id=node_id)
-    if has_angles(rec):
+    if not has_accel(rec):  # gyro only: its bias (and S from the Earth rate), nothing else
+        solution = solve_gyro_only(
+            rec, site, device, gyro=choice.gyro, plan_name=session.plan_name, recording=recording
+        )
+    elif has_angles(rec):
         averages = session.tolerances(position_averages(rec, tolerance_deg=session.tolerance_deg))
         spec = choice.spec(has_gyro=all(a.mean_gyro is not None for a in averages))
         context = SolveContext(
@@ -139,7 +144,8 @@ def solve_recording(
         )
         if choice.gyro == "moves":  # imu_tk: the moves' rotations known through gravity only
             solution, _ = solve_gravity_moves_recording(rec, solution, site)
-    warnings = solution.warnings + _unchecked_gyro(solution) + _few_dof(solution)
+    unchecked = _unchecked_gyro(solution) if has_accel(rec) else ()
+    warnings = solution.warnings + unchecked + _few_dof(solution)
     verdict = judge(solution, site, accept)
     record = replace(solution.record, acceptance=verdict.block)
     return RecordingSolution(

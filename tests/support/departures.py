@@ -213,7 +213,10 @@ def true_values(truth: Truth) -> dict[str, float]:
 
 @dataclass(frozen=True)
 class Spread:
-    """The z of one case over its seeds: their rms and each parameter's Σz²/n."""
+    """The z of one case over its seeds: their rms and each parameter's Σz²/n.
+
+    ``seeds`` the fewest seeds any parameter's Σz²/n rests on (the χ² band's dof).
+    """
 
     rms: float
     per_parameter: Mapping[str, float]
@@ -238,11 +241,34 @@ class Spread:
 
 def spread(case: Case) -> Spread:
     """:func:`solve_errors` over the case's seeds."""
-    rows = [solve_errors(case, s) for s in case.seeds]
-    names = sorted(set.intersection(*(set(r) for r in rows)))
-    z = np.array([[r[n] for n in names] for r in rows])
-    per = {n: float(np.mean(z[:, k] ** 2)) for k, n in enumerate(names)}
-    return Spread(float(np.sqrt(np.mean(z**2))), per, float(np.max(np.abs(z))), len(rows))
+    return pooled_spread([(case, s) for s in case.seeds])
+
+
+def rotation(departure: Departure, seeds: Sequence[int]) -> list[tuple[Case, int]]:
+    """Seeds dealt round the four cases of :func:`grid` (seed k to case k mod 4).
+
+    Where twenty seeds of every case cost too much for the suite, twenty seeds in all still
+    try the departure on every plan and pose setting; ``benchmarks/departures.py`` runs each
+    case on forty.
+    """
+    cases = [c for c in grid(departure, ()) if c.plan in departure.solvable] or grid(departure, ())
+    return [(cases[k % len(cases)], int(seed)) for k, seed in enumerate(seeds)]
+
+
+def rotation_all(departure: Departure, seeds: Sequence[int]) -> list[tuple[Case, int]]:
+    """Seeds dealt round all four cases of :func:`grid`, whether ``solve`` holds it or not."""
+    cases = grid(departure, ())
+    return [(cases[k % len(cases)], int(seed)) for k, seed in enumerate(seeds)]
+
+
+def pooled_spread(pairs: Sequence[tuple[Case, int]]) -> Spread:
+    """:func:`solve_errors` over ``(case, seed)`` pairs, each parameter pooled by its name."""
+    rows = [solve_errors(case, seed) for case, seed in pairs]
+    names = sorted(set().union(*rows))
+    per = {n: float(np.mean([r[n] ** 2 for r in rows if n in r])) for n in names}
+    z = np.concatenate([list(r.values()) for r in rows])
+    seeds = min(sum(n in r for r in rows) for n in names)
+    return Spread(float(np.sqrt(np.mean(z**2))), per, float(np.max(np.abs(z))), seeds)
 
 
 def named(case: Case, seed: int) -> tuple[frozenset[str], bool]:
@@ -288,9 +314,14 @@ def quadratic(doc: Doc, rng: np.random.Generator, plan: str) -> Doc:
 
 @cache
 def effect_scale(plan: str) -> dict[str, Any]:
-    """σ of every candidate entry under ``plan`` with 0.1° poses (the sizes' yardstick)."""
-    reference = Case(Departure("clean"), plan, 0.1)
-    return effect_sigmas(session(reference, REFERENCE_SEED))
+    """σ of every candidate entry under ``plan`` at 0.1° poses, that scatter in the noise.
+
+    The sizes' yardstick: the reference session's poses carry their 0.1° (not estimated), so
+    the σ are those a 0.1° session has, not the noise-only ones of exact poses.
+    """
+    truth = Truth.from_dict(clean_truth(REFERENCE_SEED))
+    reference = simulate_session(truth, plan_of(plan, 0.1), seed=REFERENCE_SEED)
+    return effect_sigmas(reference)
 
 
 TILTED_BASE = Departure("tilted_base", tilted_base, causes=frozenset({"base_tilt"}))
