@@ -35,16 +35,19 @@ import numpy as np
 from canimucal.analysis.calibrate import SiteConditions
 from canimucal.analysis.data import SessionData
 from canimucal.analysis.discrepancy import analyse_discrepancy, effect_sigmas
+from canimucal.analysis.session import session_from_recording
+from canimucal.analysis.session_model import ModelChoice
 from canimucal.analysis.simulated import simulate_plan_recording
-from canimucal.analysis.solve import solve_estimating_scatter
+from canimucal.analysis.solve import solve_estimating_scatter, solve_recording
 from canimucal.io.calibration import Device
-from canimucal.io.recording import Recording
+from canimucal.io.recording import Recording, recording_from_columns
 from canimucal.model.layout import JointSpec
 from canimucal.model.positions import Plan, PlannedPosition, PositionAverage
+from canimucal.model.vocabulary.constants import COUNTER_MODULUS
 from canimucal.model.vocabulary.effects import OFF_DIAGONAL
 from canimucal.model.vocabulary.plans import FIVE, RECOMMENDED
 from canimucal.sim.averages import simulate_averages
-from canimucal.sim.effects import hide_effect
+from canimucal.sim.effects import hide_effect, slope_random_walk
 from canimucal.sim.truth import Truth
 from tests.support.chi2_band import chi2_ratio_band
 from tests.support.plans import TWELVE_DEG
@@ -263,12 +266,7 @@ def rotation_all(departure: Departure, seeds: Sequence[int]) -> list[tuple[Case,
 
 def pooled_spread(pairs: Sequence[tuple[Case, int]]) -> Spread:
     """:func:`solve_errors` over ``(case, seed)`` pairs, each parameter pooled by its name."""
-    rows = [solve_errors(case, seed) for case, seed in pairs]
-    names = sorted(set().union(*rows))
-    per = {n: float(np.mean([r[n] ** 2 for r in rows if n in r])) for n in names}
-    z = np.concatenate([list(r.values()) for r in rows])
-    seeds = min(sum(n in r for r in rows) for n in names)
-    return Spread(float(np.sqrt(np.mean(z**2))), per, float(np.max(np.abs(z))), seeds)
+    return spread_of([solve_errors(case, seed) for case, seed in pairs])
 
 
 def named(case: Case, seed: int) -> tuple[frozenset[str], bool]:
@@ -332,3 +330,155 @@ CROSS_AXIS = Departure(
 QUADRATIC = Departure(
     "quadratic", quadratic, causes=frozenset({"scale_nonlinearity"}), solvable=frozenset()
 )
+
+
+# -------------------------------------------------------------------------- bias random walk
+
+
+def bias_walk(sensor: str, k_sigma: tuple[float, float] = (5.0, 8.0)) -> Departure:
+    """A bias random walk on one axis of ``sensor``, sized by the slopes it causes.
+
+    ``k_sigma``: its within-position slopes' rms is drawn within this many white-noise
+    standard errors of a slope (:func:`canimucal.sim.effects.slope_random_walk`, 30 s
+    positions at the truth's rate).
+    """
+
+    def edit(doc: Doc, rng: np.random.Generator, _plan: str) -> Doc:
+        truth = Truth.from_dict(doc)
+        block = getattr(truth, sensor)
+        axis = int(rng.integers(3))
+        scale = np.abs(np.diag(block.K if sensor == "accel" else block.S))
+        white = float(np.asarray(block.noise_density)[axis] * scale[axis])
+        fs = float(truth.sample_rate_hz)
+        white = float(np.sqrt(white**2 * fs + block.quantization**2 / 12.0))  # per sample
+        q = slope_random_walk(float(rng.uniform(*k_sigma)), white, fs, 30.0)
+        doc[sensor]["random_walk"] = [q if i == axis else 0.0 for i in range(3)]
+        return doc
+
+    return Departure(f"{sensor}_walk", edit, causes=frozenset({"bias_drift"}))
+
+
+def walk_of(truth: Truth, sensor: str) -> tuple[int, float]:
+    """The axis and q (counts/√s) of the walk :func:`bias_walk` put on ``sensor``."""
+    walk = np.asarray(getattr(truth, sensor).random_walk, dtype=float)
+    axis = int(np.argmax(walk))
+    return axis, float(walk[axis])
+
+
+def recording_session(case: Case, seed: int) -> SessionData:
+    """The case's recording grouped as ``analyze`` groups it (settling fitted and trimmed)."""
+    truth = case_truth(case, seed)
+    return session_from_recording(
+        recording(case, seed), g=truth.g, latitude=truth.latitude, heading=truth.heading
+    )
+
+
+# ------------------------------------------------------------------- departures of the log
+
+
+def held(times: int) -> Callable[[Recording, np.random.Generator], Recording]:
+    """A logger polling ``times`` faster than the sensor samples, each sample held until the
+    next: the rows between two samples repeat the last one while ``t`` and the counter run."""
+
+    def edit(rec: Recording, _rng: np.random.Generator) -> Recording:
+        def rep(x: np.ndarray) -> np.ndarray:
+            return np.repeat(x, times, axis=0)
+
+        rate = rec.sample_rate_hz * times
+        n = rec.n_rows * times
+        return recording_from_columns(
+            {**rec.header, "sample_rate_hz": rate}, t=rec.t[0] + np.arange(n) / rate,
+            accel=rep(rec.accel), gyro=rep(rec.gyro), counter=np.arange(n) % COUNTER_MODULUS,
+            position=rep(rec.position), alpha_deg=rep(rec.alpha_deg), beta_deg=rep(rec.beta_deg),
+            psi_deg=rep(rec.psi_deg), temp_c=rep(rec.temp_c),
+        )  # fmt: skip
+
+    return edit
+
+
+def without(sensor: str) -> Callable[[Recording, np.random.Generator], Recording]:
+    """The recording with ``sensor``'s three columns left empty (a file of the other only)."""
+
+    def edit(rec: Recording, _rng: np.random.Generator) -> Recording:
+        return recording_from_columns(
+            rec.header, t=rec.t, counter=rec.counter, position=rec.position,
+            alpha_deg=rec.alpha_deg, beta_deg=rec.beta_deg, psi_deg=rec.psi_deg,
+            temp_c=rec.temp_c, accel=None if sensor == "accel" else rec.accel,
+            gyro=None if sensor == "gyro" else rec.gyro,
+        )  # fmt: skip
+
+    return edit
+
+
+REPEATED = Departure("repeated_samples", log=held(4))
+ACCEL_ONLY = Departure("accel_only", log=without("gyro"))
+GYRO_ONLY = Departure("gyro_only", log=without("accel"))
+SHORT_POSITIONS_S = 10.0
+"""Seconds a position of the recording-level cases (their σ do not depend on it)."""
+SHORT_RATE_HZ = 100.0
+"""The simulated sensor's rate in the recording-level cases."""
+
+
+def short_recording(case: Case, seed: int) -> Recording:
+    """The case's recording at :data:`SHORT_POSITIONS_S` a position and the sensor at
+    :data:`SHORT_RATE_HZ`, the departure's log edit applied (recording-level cases)."""
+    truth = case_truth(case, seed)
+    plan = plan_of(case.plan, case.tolerance_deg)
+    plan = plan.with_total_seconds(SHORT_POSITIONS_S * len(plan.positions))
+    rec = simulate_plan_recording(
+        truth, plan, seed=seed, angle_errors=case.tolerance_deg > 0,
+        sample_rate_hz=SHORT_RATE_HZ,
+    )  # fmt: skip
+    if case.departure.log is not None:
+        rec = case.departure.log(rec, np.random.default_rng(seed + DRAW_OFFSET))
+    return rec
+
+
+def recording_errors(case: Case, seed: int) -> dict[str, float]:
+    """(estimate − truth)/σ of what ``solve`` determines from the case's short recording.
+
+    ``solve``'s own path (:func:`~canimucal.analysis.solve.solve_recording`), the plan's
+    model (:func:`solve_spec`), no tolerance in the header: the scatter estimated.
+    """
+    truth = case_truth(case, seed)
+    spec = solve_spec(case.plan)
+    choice = ModelChoice(model=spec.accel_k, tilt=True)  # type: ignore[arg-type]
+    joint = solve_recording(short_recording(case, seed), choice).solution.joint
+    assert joint is not None
+    true = true_values(truth)
+    sigma = np.sqrt(np.diag(joint.covariance))
+    return {
+        n: float((joint.values[k] - true[n]) / sigma[k])
+        for k, n in enumerate(joint.names)
+        if n not in joint.undetermined and n in true
+    }
+
+
+def spread_of(rows: Sequence[Mapping[str, float]]) -> Spread:
+    """The :class:`Spread` of z rows (one mapping per seed), each parameter by its name."""
+    names = sorted(set().union(*rows))
+    per = {n: float(np.mean([r[n] ** 2 for r in rows if n in r])) for n in names}
+    z = np.concatenate([list(r.values()) for r in rows])
+    seeds = min(sum(n in r for r in rows) for n in names)
+    return Spread(float(np.sqrt(np.mean(z**2))), per, float(np.max(np.abs(z))), seeds)
+
+
+# ---------------------------------------------------------------------------- long positions
+
+
+def quieter(factor: float) -> Callable[[Doc, np.random.Generator, str], Doc]:
+    """The unit's white noise ``factor`` times lower: each mean as precise as a position
+    ``factor²`` times longer (a long position's averaging, at a short position's cost)."""
+
+    def edit(doc: Doc, _rng: np.random.Generator, _plan: str) -> Doc:
+        for sensor in ("accel", "gyro"):
+            doc[sensor]["noise_density"] = (
+                np.asarray(doc[sensor]["noise_density"]) / factor
+            ).tolist()
+        return doc
+
+    return edit
+
+
+LONG_POSITIONS = Departure("long_positions", quieter(4.0))
+"""Means as precise as 480 s positions at the default noise (30 s each, noise ÷ 4)."""
