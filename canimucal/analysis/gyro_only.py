@@ -253,7 +253,7 @@ def solve_gyro_only(
         fit.names, fit.values, covariance, device=device, plan=plan_name,
         conditions=site.as_record_conditions(), fit=Fit(dof=fit.dof), recording=recording,
     )  # fmt: skip
-    warnings = (
+    warnings: tuple[str, ...] = (
         f"{NO_ACCEL}: the accelerometer's bias and K and the base tilt are not estimated "
         f"(null); the gyro's bias comes from {pos.means.shape[0]} positions, and acceptance "
         "cannot pass: nothing of the accelerometer may be written from this file",
@@ -320,7 +320,8 @@ def analyse_gyro_only(rec: Recording, site: SiteConditions) -> GyroAnalysis:
 
     problem = LinearProblem(
         residual_w=whiten(base.residuals), base_w=whiten(base_x),
-        block=np.repeat(np.arange(n), 3), unwhiten=chol, si_scale=np.full(3 * n, site.gyro_lsb),
+        block=np.repeat(np.arange(n), 3), unwhiten=np.asarray(chol, dtype=np.float64),
+        si_scale=np.full(3 * n, site.gyro_lsb),
         sensor=np.full(3 * n, "gyro").astype(np.str_),
     )  # fmt: skip
     white = {k: whiten(c) for k, c in columns.items()}
@@ -396,6 +397,9 @@ def _candidate_columns(
             channels=6, temperatures=temps,
         )  # fmt: skip
         cols = effect.known(inputs, "gyro")
+        if cols is None:
+            untestable[effect.name] = "no columns at these poses"
+            continue
         out[f"gyro.{effect.name}"] = np.asarray(cols[:, 3:, :], dtype=float).reshape(
             -1, cols.shape[2]
         )

@@ -6,7 +6,7 @@ No tolerance in the header: the scatter comes from the data (docs/design.md §10
 come from the sensor model (:func:`tests.support.departures.offline_averages`).
 
 - the issue's case, a clean unit on the five-position plan at 0.1° poses, seeds 0–19: rms
-  0.94 (before: 1.62 with τ̂ plugged in, |z| up to 6.1; the issue's 2.07 counted the gyro's
+  0.93 (before: 1.62 with τ̂ plugged in, |z| up to 6.1; the issue's 2.07 counted the gyro's
   dof too);
 - a clean unit, a base tilted 1–3° and a cross-axis entry of 1–2 % of scale (where
   `solve`'s model holds it: not the five plan's diagonal K), seeds 0–19 dealt round the
