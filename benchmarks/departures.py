@@ -20,7 +20,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.support
 
 from tests.support import departures as dep  # noqa: E402
 
-DEPARTURES = {d.name: d for d in (dep.TILTED_BASE, dep.CROSS_AXIS, dep.QUADRATIC)}
+DEPARTURES = {
+    d.name: d for d in (dep.Departure("clean"), dep.TILTED_BASE, dep.CROSS_AXIS, dep.QUADRATIC)
+}
 
 
 def main() -> None:
