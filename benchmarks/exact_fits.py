@@ -11,9 +11,13 @@ the seeds where it is not, and whether the share reaches 95 %.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
-from tests.analysis.test_exact_fits import MIN_SHARE, _share, crossed, tilted
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests.analysis, as run from anywhere
+
+from tests.analysis.test_exact_fits import MIN_SHARE, _share, crossed, tilted  # noqa: E402
 
 
 def main() -> None:

@@ -195,13 +195,14 @@ def check_acceptance(
 ) -> AcceptanceReport:
     """Check one node's solution against ``limits``.
 
-    A calibration that determined no accelerometer parameter (every one held at nominal)
-    fails; a fit whose χ² p-value is below ``min_fit_p`` fails with the reason ("model does
-    not fit: χ²/dof N"). The scalar ``|f| = g`` fit is checked as the joint one.
+    A calibration that determined no accelerometer parameter (every one held at nominal, or
+    no accelerometer fit at all: a gyro-only file) fails; a fit whose χ² p-value is below
+    ``min_fit_p`` fails with the reason ("model does not fit: χ²/dof N"). The scalar
+    ``|f| = g`` fit is checked as the joint one.
     """
     joint = solution.joint
-    if joint is None and solution.scalar is None:
-        return AcceptanceReport(())
+    if joint is None and solution.scalar is None:  # no accelerometer fit (a gyro-only file)
+        return AcceptanceReport((Check("accelerometer parameters determined", 0, 1, "", False),))
     bias_mg, scale_ppm = _relative_sigmas(solution, accel_lsb, g)
     checks = []
     if not bias_mg and not scale_ppm:

@@ -129,7 +129,7 @@ def fit_known(data: SessionData) -> tuple[PreparedBase, JointResult]:
     tol = np.array([a.pose.tolerance for a in data.averages])
     moments = angle_error_moments(layout, res.values, angles, ctx, tol)
     n, m = res.residuals.shape
-    cov = _block_covariance(data, moments.covariance)
+    cov = block_covariance(data, moments.covariance)
     jac = predict(layout, res.values, angles, ctx).d_theta.reshape(n * m, layout.size)
     params = res.accel_params()
     gyro_params = res.gyro_params()
@@ -150,8 +150,8 @@ def fit_known(data: SessionData) -> tuple[PreparedBase, JointResult]:
     prepared = PreparedBase(
         "joint", res.residuals.ravel(), jac, cov, block, scale, sensor, channel,
         tuple(cands), res.names, res.values, sig, res.residuals, labels, res.chi2, res.dof,
-        _block_covariance(data, np.zeros_like(moments.covariance)),
-        _block_covariance(data, _unit_angle_covariance(layout, res.values, angles, ctx), False),
+        block_covariance(data, np.zeros_like(moments.covariance)),
+        block_covariance(data, unit_angle_covariance(layout, res.values, angles, ctx), False),
         float(np.max(tol)),
     )  # fmt: skip
     if m == 6 and earth_rate_visible(data):
@@ -243,7 +243,7 @@ def _solve_lower(chol: Array, b: Array) -> Array:
     return np.asarray(solve_triangular(chol, b, lower=True), dtype=float)
 
 
-def _unit_angle_covariance(
+def unit_angle_covariance(
     layout: ParameterLayout, theta: Array, angles: Array, ctx: ModelContext
 ) -> Array:
     """``A_i = J_i J_iᵀ``: each mean's covariance per rad² of angle scatter (noise_model eq. 1)."""
@@ -252,7 +252,7 @@ def _unit_angle_covariance(
     return np.asarray(cov / UNIT_PROBE_RAD**2, dtype=float)
 
 
-def _block_covariance(data: SessionData, angle_cov: Array, within: bool = True) -> Array:
+def block_covariance(data: SessionData, angle_cov: Array, within: bool = True) -> Array:
     """Covariance of the stacked means: within-position scatter plus angle errors (eq. 15)."""
     n, m = angle_cov.shape[:2]
     blocks = angle_cov.copy()

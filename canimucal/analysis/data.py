@@ -78,6 +78,8 @@ class Finding:
     units: str
     p_value: float
     evidence: str
+    sigma: float | None = None
+    """σ of ``size`` where the loop estimates one (a bias random walk's q)."""
 
 
 @dataclass(frozen=True)

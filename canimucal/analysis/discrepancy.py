@@ -146,7 +146,7 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
             ),
         )  # fmt: skip
         raw_columns = {c.key: c.columns for c in prepared.candidates if c.key in raw_columns}
-        problem = _whitened(prepared, scatter, tau.value)
+        problem = _whitened(prepared, scatter_at(scatter, base_prepared, prepared), tau.value)
         columns = {k: problem.whiten @ col for k, col in raw_columns.items()}
     chosen = confirm_by_cv(problem.linear, columns, chosen)
     tangent = None
@@ -224,7 +224,7 @@ def _tangent(
     """Return the tangent of the exact fit of any set of terms under the noise model ``τ``."""
 
     def linearise(p: PreparedBase) -> tuple[LinearProblem, dict[str, Array]]:
-        w = _whitened(p, scatter, tau)
+        w = _whitened(p, scatter_at(scatter, base, p), tau)
         return w.linear, {c.key: w.whiten @ c.columns for c in p.candidates if c.key in keys}
 
     def at(terms: Sequence[str]) -> tuple[LinearProblem, dict[str, Array]]:
@@ -255,7 +255,7 @@ def _exact_selection(
     """
 
     def linearise(p: PreparedBase, t: float) -> tuple[LinearProblem, dict[str, Array]]:
-        w = _whitened(p, scatter, t)
+        w = _whitened(p, scatter_at(scatter, base, p), t)
         return w.linear, {c.key: w.whiten @ c.columns for c in p.candidates if c.key in keys}
 
     def fitted(terms: Sequence[str], t: float) -> PreparedBase:
@@ -267,7 +267,7 @@ def _exact_selection(
         exact = fitted(terms, tau.value)
         if scatter.fixed is None:
             raw = {c.key: c.columns for c in exact.candidates if c.key in keys}
-            tau = _scatter_in(scatter, exact, raw, terms)
+            tau = _scatter_in(scatter_at(scatter, base, exact), exact, raw, terms)
             exact = fitted(terms, tau.value)
         again = select(*linearise(exact, tau.value))
         if set(again) == set(terms):
@@ -280,6 +280,25 @@ def _exact_selection(
 
 EXACT_ROUNDS = 3
 """Rounds of selection at the exact fit (the chosen set settles in one or two)."""
+
+
+def scatter_at(scatter: ScatterModel, base: PreparedBase, exact: PreparedBase) -> ScatterModel:
+    """Move the noise family ``V(τ)``'s angle-error parts to those of ``exact`` (eq. 3).
+
+    ``scatter`` was built on the tilt-free ``base``: its ``unit`` (the covariance per rad² of
+    angle scatter) is replaced by ``exact``'s, and a held scatter's angle part in ``base``
+    (the poses' own tolerances) by ``exact``'s. The within-position part and a random walk's
+    stay. ``base`` itself (or a fit without angle covariances) returns ``scatter`` as it is.
+    """
+    if exact is base or exact.angle_unit_covariance is None or base.angle_unit_covariance is None:
+        return scatter
+    unit = exact.angle_unit_covariance
+    if scatter.source == "none":
+        return scatter
+    if scatter.fixed is None:  # estimated: V = within (+ walk) + τ² A
+        return dataclasses.replace(scatter, unit=unit)
+    held = scatter.base - base.covariance + exact.covariance  # the tolerances' part moves
+    return dataclasses.replace(scatter, base=held, unit=unit)
 
 
 def separated_noncentrality(level: float, power: float = 0.9) -> float:
@@ -683,13 +702,15 @@ def _findings(
     for t in tests:
         key = f"{t.sensor}.{t.effect}"
         if t.effect == "bias_drift" and t.chosen and t.p_adjusted < alpha:
-            q = drifts[t.sensor].random_walk
+            q, q_sigma = drifts[t.sensor].random_walk, drifts[t.sensor].random_walk_sigma
             evidence = (
                 f"within-position slopes χ² = {t.statistic:.1f} on {t.df} dof; random walk "
-                f"q = {np.array2string(q, precision=3)} counts/√s"
+                f"q = {np.array2string(q, precision=3)} ± "
+                f"{np.array2string(q_sigma, precision=2)} counts/√s"
             )
-            out.append(Finding("bias_drift", t.sensor, float(np.max(q)), units["bias_drift"],
-                               t.p_adjusted, evidence))  # fmt: skip
+            top = int(np.argmax(q))
+            out.append(Finding("bias_drift", t.sensor, float(q[top]), units["bias_drift"],
+                               t.p_adjusted, evidence, float(q_sigma[top])))  # fmt: skip
         elif t.effect == "axis_sign" and t.chosen:
             values, _ = named_values(prepared)
             diag = [values[f"accel.K[{i}][{i}]"] for i in range(3)]

@@ -8,14 +8,23 @@ the positions explains slopes ``c_c·dT/dt`` with one coefficient per axis; that
 removed first (``temperature_bias`` is tested across positions, not here). What remains,
 ``Σ z²``, is χ² with ``3·n_positions − (3 if temperature)`` degrees of freedom.
 
-A Wiener bias of intensity q (counts/√s) gives a slope variance ``6 q²/(5 T)`` over a
-window of T seconds (the OLS slope of Brownian motion), from which q is estimated.
+A Wiener bias of intensity q (counts/√s) gives a slope variance ``c_p q²``, ``c_p = 6/(5 T_p)``,
+over a window of ``T_p`` seconds (the OLS slope of Brownian motion), from which q is
+estimated. Each window's excess ``e_p = s_p² − σ_p²`` has mean ``c_p q²`` and, the slope
+being normal, variance ``2 (σ_p² + c_p q²)²``; the weighted least-squares estimate
+
+    q̂² = Σ_p w_p c_p e_p / Σ_p w_p c_p²,    w_p = 1 / (2 (σ_p² + c_p q̂²)²)          (1)
+
+(weights first at q = 0, then at that estimate) is unbiased at any window lengths,
+and its σ is ``σ(q̂²) = 1/√(Σ_p w_p c_p²)``; ``σ(q̂) = σ(q̂²)/(2 q̂)`` (the delta method; at
+``q̂ = 0``, the one-sided bound ``√σ(q̂²)``). With windows of one length this is the plain
+average ``(5T/6)·mean(e_p)``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,7 +40,8 @@ class DriftTest:
 
     ``z`` ``(n_positions, 3)`` slope z-scores after the temperature part; ``statistic`` their
     χ², ``df`` its degrees of freedom, ``p_value``; ``random_walk`` the q estimate per axis
-    (counts/√s, 0 where the slopes show none); ``seconds`` mean window length.
+    (counts/√s, 0 where the slopes show none; module doc eq. 1) and ``random_walk_sigma`` its
+    σ; ``seconds`` mean window length.
     """
 
     z: Array
@@ -40,6 +50,7 @@ class DriftTest:
     p_value: float
     random_walk: Array
     seconds: float
+    random_walk_sigma: Array = field(default_factory=lambda: np.full(3, np.nan))
 
 
 def _slope(t: Array, x: Array) -> tuple[Array, Array]:
@@ -83,11 +94,30 @@ def drift_test(
     df = max(z.size - removed, 1)
     statistic = float(np.sum(z**2))
     seconds = float(np.mean(lengths))
-    excess = np.mean(np.array(slopes) ** 2 - np.array(sigmas) ** 2, axis=0)
-    walk = np.sqrt(np.clip(excess, 0.0, None) * 5.0 * seconds / 6.0)
+    walk, walk_sigma = walk_estimate(np.array(slopes), np.array(sigmas), np.array(lengths))
     from scipy import special  # lazy (issue 23)
 
-    return DriftTest(z, statistic, df, float(special.chdtrc(df, statistic)), walk, seconds)
+    p = float(special.chdtrc(df, statistic))
+    return DriftTest(z, statistic, df, p, walk, seconds, walk_sigma)
+
+
+def walk_estimate(slopes: Array, sigmas: Array, seconds: Array) -> tuple[Array, Array]:
+    """q̂ and σ(q̂) per axis from the slopes ``(P, 3)``, their white σ and the windows' lengths.
+
+    Module doc eq. (1). Slopes with an infinite σ (a constant axis) carry no weight.
+    """
+    c = (6.0 / (5.0 * np.maximum(seconds, 1e-300)))[:, None] * np.ones_like(slopes)
+    white = np.where(np.isfinite(sigmas), sigmas**2, np.inf)
+    excess = np.where(np.isfinite(white), slopes**2 - white, 0.0)
+    q2 = np.zeros(slopes.shape[1])
+    for _ in range(2):  # weights at q = 0 (white slopes alone), then at that estimate
+        w = 1.0 / (2.0 * (white + c * np.clip(q2, 0.0, None)[None, :]) ** 2)
+        info = np.sum(w * c * c, axis=0)
+        q2 = np.sum(w * c * excess, axis=0) / np.where(info > 0, info, np.inf)
+    sigma_q2 = 1.0 / np.sqrt(np.where(info > 0, info, np.nan))
+    q = np.sqrt(np.clip(q2, 0.0, None))
+    sigma_q = np.where(q > 0, sigma_q2 / (2.0 * np.where(q > 0, q, 1.0)), np.sqrt(sigma_q2))
+    return q, sigma_q
 
 
 def random_walk_covariance(mid_times_s: Array, seconds: Array, q: float) -> Array:

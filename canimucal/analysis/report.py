@@ -91,6 +91,11 @@ def analyze(
     pointing to ``canimucal.analyze_static`` (its noise terms and averaging times).
     """
     recording, held = unique_samples(recording)
+    if not np.isfinite(recording.accel).any():
+        raise InputError(
+            f"{recording.source or 'recording'}: no accelerometer data: the discrepancy loop "
+            "needs it; `canimucal analyze` reports what the gyro alone shows"
+        )
     if static_rows(recording) is not None:
         raise InputError(
             f"{recording.source or 'recording'}: one static record (one pose): no calibration "
@@ -201,6 +206,7 @@ def analysis_document(a: Analysis) -> dict[str, Any]:
             "effect": f.effect,
             "sensor": f.sensor,
             "size": f.size,
+            **({} if f.sigma is None else {"sigma": f.sigma}),
             "units": f.units,
             "p_value": f.p_value,
             "evidence": f.evidence,

@@ -103,6 +103,10 @@ class SessionModel:
         recorded = np.array([a.pose.angles for a in averages])
         return bool(np.allclose(planned, recorded, atol=np.deg2rad(_MATCH_DEG)))
 
+    def matches(self, averages: Sequence[PositionAverage]) -> bool:
+        """Whether the averages are the header's plan's poses (its tolerances then apply)."""
+        return self.plan_tolerances and self._plan_poses(averages)
+
     def with_trim(self, spec: JointSpec, averages: Sequence[PositionAverage]) -> JointSpec:
         """``spec`` with the mounting trim when the plan fits one and these are its poses.
 
@@ -117,7 +121,7 @@ class SessionModel:
     def tolerances(self, averages: Sequence[PositionAverage]) -> list[PositionAverage]:
         """Give each average its plan position's tolerances when the poses are the plan's."""
         plan = self.plan
-        if not self.plan_tolerances or plan is None or not self._plan_poses(averages):
+        if plan is None or not self.matches(averages):
             return list(averages)
         return [
             replace(a, pose=replace(a.pose, tolerance=p.tolerance, psi_tolerance=p.psi_tolerance))

@@ -13,8 +13,9 @@ verdict travels in the record (never an exception: a failed check is a result).
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -23,7 +24,8 @@ from canimucal.analysis.calibrate import SiteConditions, Solution, solve_positio
 from canimucal.analysis.conditions import recording_conditions
 from canimucal.analysis.gravity_moves import solve_gravity_moves_recording
 from canimucal.analysis.gyro_moves import solve_gyro_moves
-from canimucal.analysis.pose_scatter import fit_scatter
+from canimucal.analysis.gyro_only import has_accel, solve_gyro_only
+from canimucal.analysis.pose_scatter import PoseScatter, fit_scatter
 from canimucal.analysis.repeats import unique_samples
 from canimucal.analysis.session_model import (
     GyroChoice,
@@ -33,7 +35,7 @@ from canimucal.analysis.session_model import (
     session_model,
 )
 from canimucal.errors import InputError, ModelError
-from canimucal.io.calibration import Calibration, Device, RecordingRef
+from canimucal.io.calibration import Calibration, Device, Fit, RecordingRef
 from canimucal.io.grouping import (
     average_rows,
     has_angles,
@@ -102,23 +104,28 @@ def solve_recording(
     site, g_source = site_of(rec, choice)
     serial, node_id = _header_int(rec, "device_serial"), _header_int(rec, "node_id")
     device = Device(serial=serial or 0, node_id=node_id)
-    if has_angles(rec):
+    if not has_accel(rec):  # gyro only: its bias (and S from the Earth rate), nothing else
+        solution = solve_gyro_only(
+            rec, site, device, gyro=choice.gyro, plan_name=session.plan_name, recording=recording
+        )
+    elif has_angles(rec):
         averages = session.tolerances(position_averages(rec, tolerance_deg=session.tolerance_deg))
         spec = choice.spec(has_gyro=all(a.mean_gyro is not None for a in averages))
         spec = session.with_trim(spec, averages)  # the vehicle plan's mounting trim
-        if session.tolerance_source == "default":  # no flag, no header: the data say
-            averages, scatter = _estimated_scatter(averages, spec, site)
-            notes += scatter
-        solution = solve_positions(
-            averages,
-            spec,
-            site,
-            device,
+        context = SolveContext(
             recording=recording,
             plan_name=session.plan_name,
             prior=session.prior(spec, site.accel_lsb),
             prior_source=session.prior_source,
         )
+        if session.tolerance_source == "default":  # no flag, no header: the data say
+            planned = [a.pose.tolerance for a in averages] if session.matches(averages) else None
+            solution, scatter = solve_estimating_scatter(
+                averages, spec, site, device, planned=planned, context=context
+            )
+            notes += () if scatter is None else (scatter.note(),)
+        else:
+            solution = solve_positions(averages, spec, site, device, **context.keywords())
         if choice.gyro == "moves":  # imucal's turns are known; its poses leave psi free
             sigmas = _pose_sigmas(rec, averages) if session.tolerance_source != "default" else None
             solution, _ = solve_gyro_moves(
@@ -138,7 +145,8 @@ def solve_recording(
         )
         if choice.gyro == "moves":  # imu_tk: the moves' rotations known through gravity only
             solution, _ = solve_gravity_moves_recording(rec, solution, site)
-    warnings = solution.warnings + _unchecked_gyro(solution) + _few_dof(solution)
+    unchecked = _unchecked_gyro(solution) if has_accel(rec) else ()
+    warnings = solution.warnings + unchecked + _few_dof(solution)
     verdict = judge(solution, site, accept)
     record = replace(solution.record, acceptance=verdict.block)
     return RecordingSolution(
@@ -175,23 +183,54 @@ def _few_dof(solution: Solution) -> tuple[str, ...]:
     )
 
 
-def _estimated_scatter(
-    averages: list[PositionAverage], spec: JointSpec, site: SiteConditions
-) -> tuple[list[PositionAverage], tuple[str, ...]]:
-    """Give the poses the scatter the data show (REML, :mod:`canimucal.analysis.pose_scatter`)."""
+@dataclass(frozen=True)
+class SolveContext:
+    """What :func:`~canimucal.analysis.calibrate.solve_positions` takes beside the positions."""
+
+    recording: RecordingRef | None = None
+    plan_name: str | None = None
+    prior: Mapping[str, tuple[float, float]] | None = None
+    prior_source: str = "factory K"
+
+    def keywords(self) -> dict[str, Any]:
+        """Return the keyword arguments of ``solve_positions``."""
+        return {
+            "recording": self.recording,
+            "plan_name": self.plan_name,
+            "prior": self.prior,
+            "prior_source": self.prior_source,
+        }
+
+
+def solve_estimating_scatter(
+    averages: Sequence[PositionAverage],
+    spec: JointSpec,
+    site: SiteConditions,
+    device: Device,
+    *,
+    planned: Sequence[float] | None = None,
+    context: SolveContext | None = None,
+) -> tuple[Solution, PoseScatter | None]:
+    """Solve positions whose pose scatter no header gives: the data say (docs/design.md §10).
+
+    The scatter is estimated from the fit's residuals (REML; with few residuals its one-sided
+    95 % upper bound, or ``planned``, each position's tolerance from the header's plan, where
+    larger: :func:`~canimucal.analysis.pose_scatter.fit_scatter`), the poses carry it, and
+    the record's ``fit`` block says what the σ rest on. What ``solve`` does without a
+    ``tolerance_deg``, for averages from anywhere (the departures suite's offline sessions).
+    """
+    keywords = (context or SolveContext()).keywords()
     try:
-        out, est = fit_scatter(
+        averages, scatter = fit_scatter(
             averages, spec, g=site.g, latitude=site.latitude, heading=site.heading,
-            accel_lsb=site.accel_lsb, gyro_lsb=site.gyro_lsb,
+            accel_lsb=site.accel_lsb, gyro_lsb=site.gyro_lsb, planned=planned,
         )  # fmt: skip
-    except ModelError:
-        return averages, ()  # the solve itself says what is wrong with these positions
-    low, high = est.ci95_deg
-    if est.source == "assumed":
-        how = "assumed: too few residuals to estimate it"
-    else:
-        how = f"estimated from the data (REML, 95 % {low:.3g}–{high:.3g}°)"
-    return out, (f"pose-setting scatter {est.value_deg:.3g}° {how}; no tolerance_deg header",)
+    except ModelError:  # the solve itself says what is wrong with these positions
+        return solve_positions(averages, spec, site, device, **keywords), None
+    solution = solve_positions(averages, spec, site, device, **keywords)
+    fit = solution.record.fit or Fit()
+    fit = replace(fit, pose_scatter_deg=scatter.used_deg, pose_scatter_basis=scatter.basis)
+    return replace(solution, record=replace(solution.record, fit=fit)), scatter
 
 
 def _unchecked_gyro(solution: Solution) -> tuple[str, ...]:

@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 
 from canimucal.analysis.base_fit import EARTH_RATE_NAMES, EARTH_RATE_VERTICAL
 from canimucal.analysis.conditions import recording_conditions
+from canimucal.analysis.gyro_only import analyse_gyro_only, gyro_document, gyro_report, has_accel
 from canimucal.analysis.reference import Reference, reference_for
 from canimucal.analysis.repeats import unique_samples
 from canimucal.analysis.replay import ReplayRow, replay, replay_ratios
@@ -24,6 +25,8 @@ from canimucal.analysis.report import (
     extended_truth,
     observed_poses,
 )
+from canimucal.analysis.session_model import ModelChoice
+from canimucal.analysis.solve import site_of
 from canimucal.analysis.static_noise import (
     analyse_static,
     recording_lsb,
@@ -120,6 +123,8 @@ def run(args: argparse.Namespace) -> int:
     rows = static_rows(rec)
     if rows is not None:
         return _run_static(args, rec, rows, notes)
+    if not has_accel(rec):
+        return _run_gyro_only(args, rec, notes)
     reference = reference_for(args.input)
     g_flag = args.g if args.g is not None else (reference.g if reference else None)
     cond = recording_conditions(rec, g_flag)
@@ -181,6 +186,21 @@ def _run_static(
 
 
 STATIC_REASON = "one static pose: calibration terms need several positions"
+
+
+def _run_gyro_only(args: argparse.Namespace, rec: Recording, notes: tuple[str, ...]) -> int:
+    """No accelerometer data: what the gyro alone shows (:mod:`canimucal.analysis.gyro_only`)."""
+    for flag, value in (("--truth-out", args.truth_out), ("--poses-out", args.poses_out),
+                        ("--plots", args.plots)):  # fmt: skip
+        if value:
+            raise InputError(
+                f"{flag}: {args.input} has no accelerometer data: the extended model, the "
+                "observed poses and the plots need it"
+            )
+    site, _source = site_of(rec, ModelChoice(g=args.g, latitude_deg=args.latitude_deg))
+    analysis = analyse_gyro_only(rec, site)
+    emit(args, gyro_document(analysis, notes), gyro_report(analysis, notes))
+    return 0
 
 
 def report_text(a: Analysis, reference: Reference | None, replayed: list[ReplayRow] | None) -> str:

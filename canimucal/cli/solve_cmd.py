@@ -116,6 +116,8 @@ def solution_report(solution: Solution, g_source: str, scales: Scales | None = N
         lines.append(f"fit: rms {r.fit.rms:.3g} m/s² after correction, dof {r.fit.dof}")
     if solution.quality is not None:
         scatter = " and the pose scatter" if solution.joint is not None else ""
+        if solution.joint is not None and r.fit is not None and r.fit.pose_scatter_deg is not None:
+            scatter += f" ({r.fit.pose_scatter_deg:.3g}°, {r.fit.pose_scatter_basis})"
         lines.append(solution.quality.line(f"the within-position noise{scatter}"))
     return "\n".join(lines) + "\n"
 

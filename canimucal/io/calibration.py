@@ -33,6 +33,10 @@ from canimucal.model.positions import PositionAverage
 from canimucal.model.vocabulary.plans import PLANS
 from canimucal.version import __version__
 
+POSE_SCATTER_BASES = ("estimated", "upper bound", "plan tolerance", "assumed")
+"""``fit.pose_scatter_basis``: the REML estimate, the upper end of its 95 % interval (few
+residuals), the plan's tolerance (above that bound), or the plans' default (no residuals)."""
+
 SCHEMA = "canimucal.calibration/1"
 """The only calibration schema this version reads and writes."""
 
@@ -195,10 +199,18 @@ class PositionSummary:
 
 @dataclass(frozen=True, kw_only=True)
 class Fit:
-    """``fit``: residual rms after correction (m/s²) and degrees of freedom."""
+    """``fit``: residual rms after correction (m/s²), dof, and the pose scatter of the σ.
+
+    ``pose_scatter_deg`` and ``pose_scatter_basis`` are written by ``solve`` when no
+    tolerance was given: the scatter the σ rest on and why that value (docs/design.md §10).
+    """
 
     rms: float | None = field(default=None, metadata=cs.number(low=0.0))
     dof: int | None = field(default=None, metadata=cs.integer(0, None))
+    pose_scatter_deg: float | None = field(default=None, metadata=cs.number(low=0.0))
+    pose_scatter_basis: str | None = field(
+        default=None, metadata=cs.text(choices=POSE_SCATTER_BASES)
+    )
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -211,8 +211,9 @@ def solve_joint(
     for name, value in (initial or {}).items():
         theta[layout.index(name)] = float(value)
     omega = np.zeros(data.nuisance)
-    scales = layout.effect_scales(g, 1.0 / accel_lsb)
-    check = analyse_information(*_whitened_information(layout, theta, omega, data, ctx), scales)
+    info, names = _whitened_information(layout, theta, omega, data, ctx)
+    scales = rank_scales(info, layout.effect_scales(g, 1.0 / accel_lsb))
+    check = analyse_information(info, names, scales)
     free = _free_mask(layout, check, allow_undetermined)
     message, converged = "", True
     for _ in range(max(1, passes)):
@@ -394,6 +395,34 @@ def _whitened_information(
     return info + data.prior.information(layout.size), layout.names
 
 
+UNSEEN_INFORMATION = 1e-20
+"""A parameter whose information (at its effect at 1 g) is below this × the best-seen one's is
+not seen at all by the data: its rank is judged at that effect, not at its own precision."""
+
+
+def rank_scales(info: Array, effect: Array) -> Array:
+    """Scales for the fit's rank decision: each parameter at its own precision, ``√F_jj``.
+
+    A fit's information mixes precisions many decades apart: the gyro's biases against the
+    accelerometer's terms, and within the accelerometer the directions along gravity (noise
+    only) against those the pose scatter blurs (``(τ g)²``). Normalised by the effects at 1 g
+    (the plan table's yardstick, docs/design.md §3), a large estimated scatter or a precise
+    gyro pushed the accelerometer's weakest combinations below the 1e-10 rank threshold, and
+    the fit held every bias and K entry at nominal though the accelerometer's own fit
+    determines them (issue 21: the five-position plan, full K, the scatter's bound 0.6°).
+    Scaled to unit diagonal (Jacobi's scaling, the best diagonal one for a matrix's
+    condition: van der Sluis 1969), the eigenvalues measure collinearity alone. A parameter
+    the data do not see at all (information below :data:`UNSEEN_INFORMATION` of the best
+    seen, at the effect scales) keeps its effect scale, so it stays undetermined.
+    """
+    diag = np.clip(np.diag(info), 0.0, None)
+    seen = diag / effect**2
+    top = float(np.max(seen)) if seen.size else 0.0
+    own = np.sqrt(diag)
+    unseen = seen <= UNSEEN_INFORMATION * top
+    return np.where(unseen, effect * np.sqrt(max(top, 1e-300)), own)
+
+
 def _free_mask(layout: ParameterLayout, check: Separability, allow: bool) -> NDArray[np.bool_]:
     """Parameters to fit; with ``allow``, hold enough undetermined ones to restore the rank."""
     free = np.ones(layout.size, dtype=bool)
@@ -513,7 +542,8 @@ def _result(
     whitened = np.einsum("nij,nj->ni", weights.whitener, residuals)
     jac = np.einsum("nij,njp->nip", weights.whitener, pred.d_theta).reshape(-1, layout.size)
     info, _names = _whitened_information(layout, theta, _rate_of(ctx, data), data, ctx)
-    sep = analyse_information(info, layout.names, layout.effect_scales(ctx.g, 1 / lsbs[0]))
+    scales = rank_scales(info, layout.effect_scales(ctx.g, 1 / lsbs[0]))
+    sep = analyse_information(info, layout.names, scales)
     values = theta.copy()
     undetermined = dict(sep.undetermined)
     for name in layout.names:

@@ -45,9 +45,11 @@ def test_errors_over_sigma_have_unit_spread(tolerance_deg: float) -> None:
             "g": truth.g, "latitude": truth.latitude, "heading": truth.heading,
             "accel_lsb": session.accel_lsb, "gyro_lsb": session.gyro_lsb,
         }  # fmt: skip
-        averages, est = fit_scatter(session.averages, SPEC, **site)
+        averages, used = fit_scatter(session.averages, SPEC, **site)
+        est = used.estimate
+        assert est is not None and used.basis == "estimated" and used.dof == 10
         taus.append(est.value_deg)
-        assert est.ci95[0] <= est.value <= est.ci95[1]
+        assert est.ci95[0] <= est.value <= est.upper84 <= est.ci95[1]
         res = solve_joint(averages, SPEC, allow_undetermined=True, **site)
         true = np.concatenate(
             [truth.accel.bias, truth.accel.K.ravel(), [truth.alpha0, truth.beta0]]

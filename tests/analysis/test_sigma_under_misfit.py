@@ -9,10 +9,12 @@ import pytest
 
 from canimucal.analysis.acceptance import AcceptanceLimits, check_acceptance
 from canimucal.analysis.calibrate import MISFIT_P
-from canimucal.analysis.pose_scatter import accel_dof
+from canimucal.analysis.pose_scatter import accel_dof, with_tolerance
 from canimucal.analysis.simulated import simulate_plan_recording
 from canimucal.analysis.solve import solve_recording
+from canimucal.io.grouping import position_averages
 from canimucal.io.recording import Recording, recording_from_columns
+from canimucal.model.joint import solve_joint
 from canimucal.model.layout import JointSpec
 from canimucal.model.vocabulary.plans import FIVE, RECOMMENDED
 from canimucal.sim.truth import Truth
@@ -75,3 +77,27 @@ def test_the_pose_scatter_counts_the_accelerometer_dof_only() -> None:
     # five positions: 15 accelerometer residuals less 6 parameters; the gyro's 15 add none
     assert accel_dof(len(FIVE.positions), spec) == 9
     assert accel_dof(len(RECOMMENDED.positions), spec) == 18
+
+
+@pytest.mark.parametrize("tolerance_deg", [0.1, 0.6])
+def test_a_precise_gyro_holds_nothing_of_the_accelerometer_at_nominal(
+    tolerance_deg: float,
+) -> None:
+    """The five-position plan with full K and the tilt (1 accelerometer dof): with the gyro in
+    the fit and a 0.6° scatter every accelerometer bias and K entry, and the tilt, used to be
+    held at nominal (their information below 1e-10 of the gyro bias's at the effects' scale)
+    while the same fit without the gyro held none; the rank is now judged at each parameter's
+    own precision, and the gyro changes nothing about what the accelerometer determines."""
+    truth = Truth.random(np.random.default_rng(0))
+    rec = simulate_plan_recording(truth, FIVE, seed=0)
+    averages = with_tolerance(position_averages(rec), float(np.deg2rad(tolerance_deg)))
+    site = {
+        "g": truth.g, "latitude": truth.latitude, "accel_lsb": truth.accel.nominal_lsb,
+        "gyro_lsb": truth.gyro.nominal_lsb, "allow_undetermined": True,
+        "unknown_earth_rate": True,
+    }  # fmt: skip
+    held = {}
+    for gyro in ("none", "mems"):
+        res = solve_joint(averages, JointSpec(accel_k="full", tilt="rigid", gyro=gyro), **site)
+        held[gyro] = {n for n in res.undetermined if not n.startswith("gyro.")}
+    assert held["mems"] == held["none"] == set(), held

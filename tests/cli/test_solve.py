@@ -433,13 +433,23 @@ def _with_tolerance_header(head: list[str], rows: list[str]) -> list[str]:
 
 
 def test_pose_scatter_from_header_else_estimated(cli: Cli, simulated: Sim, tmp_path: Path) -> None:
-    """No header: the scatter is estimated (recommended plan, dof ≥ 10) or, with too few
-    residuals (two positions), assumed, and `solve` says which; a header is used silently."""
-    run = cli(["solve", simulated("recommended", "diag").path, "--no-check"])
-    assert run.code == 0, run.err
+    """No header: the scatter is estimated (recommended plan, dof ≥ 10), its one-sided 84 %
+    upper bound carries the σ with few residuals (five positions, 7 dof), or with none (two
+    positions) it is assumed; `solve` says which in its notes, its fit line and the JSON's
+    ``fit``; a header is used silently."""
+    doc, run = solve_json(cli, simulated("recommended", "diag").path)
     assert "pose-setting scatter" in run.err and "estimated from the data (REML" in run.err
-    run = cli(["solve", simulated("two", "level").path, "--no-check"])
-    assert "assumed: too few residuals" in run.err
+    assert doc["fit"]["pose_scatter_basis"] == "estimated"
+    doc, run = solve_json(cli, simulated("five", "diag").path, "--tilt")
+    assert "its one-sided 84 % upper bound, only 7 accelerometer residual dof" in run.err
+    assert doc["fit"]["pose_scatter_basis"] == "upper bound"
+    run = cli(["solve", simulated("five", "diag").path, "--tilt", "--no-check"])
+    used = doc["fit"]["pose_scatter_deg"]
+    assert f"and the pose scatter ({used:.3g}°, upper bound)" in run.out
+    doc, run = solve_json(cli, simulated("two", "level").path)
+    assert "assumed (the plans' default tolerance): no accelerometer residual dof" in run.err
+    assert doc["fit"]["pose_scatter_basis"] == "assumed"
+    assert doc["fit"]["pose_scatter_deg"] == pytest.approx(0.1)
     assert "warning: only 3 residual degrees of freedom" in run.err
     path = _rewrite(simulated("two", "level").path, tmp_path / "hdr.csv", _with_tolerance_header)
     run = cli(["solve", path, "--no-check"])
