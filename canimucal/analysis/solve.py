@@ -99,7 +99,6 @@ def solve_recording(
     """
     rec, held = unique_samples(rec)
     choice, session = session_model(rec, choice or ModelChoice())
-    accept = limits_for(limits, session.plan_name)
     notes: tuple[str, ...] = () if held is None else (held.line(),)
     site, g_source = site_of(rec, choice)
     serial, node_id = _header_int(rec, "device_serial"), _header_int(rec, "node_id")
@@ -147,6 +146,8 @@ def solve_recording(
             solution, _ = solve_gravity_moves_recording(rec, solution, site)
     unchecked = _unchecked_gyro(solution) if has_accel(rec) else ()
     warnings = solution.warnings + unchecked + _few_dof(solution)
+    # the limits of the plan the record names: the header's, else the one its poses match
+    accept = limits_for(limits, session.plan_name or solution.record.plan)
     verdict = judge(solution, site, accept)
     record = replace(solution.record, acceptance=verdict.block)
     return RecordingSolution(
