@@ -28,8 +28,14 @@ demo: $(STAMP)
 	$(BIN)/canimucal demo --out $(DEMO_OUT)
 
 # The whole unit, device, procedure, TUI and CLI suite (HIL tests over vcan: `make test-vcan`).
+# Two workers (TEST_WORKERS=0: one process), one BLAS thread each (as the CLI runs: §7 of
+# docs/design.md); the slowest tests are listed at the end.
+TEST_WORKERS ?= 2
+export OPENBLAS_NUM_THREADS ?= 1
+export OMP_NUM_THREADS ?= 1
+export MKL_NUM_THREADS ?= 1
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -m "not vcan"
+	$(BIN)/python -m pytest -q -m "not vcan" -n $(TEST_WORKERS) --durations=25
 
 lint: $(STAMP)
 	$(BIN)/ruff check canimucal tests benchmarks firmware/tools
@@ -45,7 +51,7 @@ lowest:
 	$(PYTHON) -m venv $(LOWEST)
 	$(LOWEST)/bin/python -m pip install --quiet --upgrade pip
 	$(LOWEST)/bin/python -m pip install --quiet -c .ci/lowest-constraints.txt -e '.[dev]'
-	$(LOWEST)/bin/python -m pytest -q -m "not vcan" -p no:cacheprovider \
+	$(LOWEST)/bin/python -m pytest -q -m "not vcan" -n $(TEST_WORKERS) -p no:cacheprovider \
 	  tests/tui tests/device tests/simnode tests/model tests/io tests/sim
 
 bench: $(STAMP)
