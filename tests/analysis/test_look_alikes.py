@@ -4,14 +4,17 @@ With small tilts (≤ 15°) ``f_y`` stays near −g, ``f_y ≈ −g + (f_x² + f
 cross-axis term K[2][1] looks like a z quadratic. The plan: six tilts of at most 15°, each at
 psi 0° and 180°, poses set exactly (a fixture), no tolerance given: the scatter is estimated.
 Each seed hides one of the pair at 5σ of its own estimate (every other candidate fitted
-beside it; σ from seed 999), signs alternating; seeds 0..99 for each of the pair.
+beside it; σ from seed 999), signs alternating; seeds 0..39 for each of the pair.
 
 Counted: named exactly, reported ambiguous (nothing named; the rival may be the other of
 the pair or ``temperature_bias``, which the warm-up makes alike too), and confidently wrong
-(any other cause named). Measured: K[2][1] 83 named, 17 ambiguous; z quadratic 86 named, 14
-ambiguous; none wrong, none missed. The same sets with 0.1° poses (SMALL_TILTS' tolerance
-set to 0.1°, scatter still estimated; not run here: 4 min more) gave 81 named, 6 ambiguous,
-13 missed and 90, 9, 1 missed, with 1 wrong (z quadratic, seed 56: both causes named).
+(any other cause named). Measured with every candidate fitted exactly (issue 21): K[2][1] 35
+named, 5 ambiguous; z quadratic 35 named, 5 ambiguous; none wrong, none missed. (Seeds 0..99,
+with the candidates linearised at the base fit, gave 83/17 and 86/14; the 100 seeds cost 10
+min of the suite's 30, so 40 run here.) The same sets with 0.1° poses (SMALL_TILTS'
+tolerance set to 0.1°, scatter still estimated; not run here) gave, at 100 seeds, 81 named,
+6 ambiguous, 13 missed and 90, 9, 1 missed, with 1 wrong (z quadratic, seed 56: both causes
+named).
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ from canimucal.sim.truth import Truth
 from tests.analysis.test_hidden_effects import clean_truth
 from tests.support.sessions import simulate_session
 
-SEEDS = tuple(range(100))
+SEEDS = tuple(range(40))
 
 SMALL_TILTS = Plan(
     "small",
@@ -64,9 +67,9 @@ def hidden(effect: str, seed: int) -> dict[str, object]:
 @pytest.mark.slow
 @pytest.mark.parametrize("effect", PAIR)
 def test_look_alike_is_named_right_or_reported_ambiguous(effect: str) -> None:
-    """Wrong on at most 1 of 100 (measured 0; a one-sided binomial test of a 1 % rate
-    rejects from 4: P(Bin(100, 0.01) >= 4) = 0.018); named or ambiguous on >= 95 (the
-    oracle's power at 5σ is 1.0; measured 100)."""
+    """Wrong on at most 1 of 40 (measured 0; at a 1 % rate P(Bin(40, 0.01) >= 2) = 0.061);
+    named or ambiguous on >= 37 (the oracle's power at 5σ is 1.0; measured 40; 37 or more of
+    40 rejects a rate of 0.8: P(Bin(40, 0.8) >= 37) = 0.029)."""
     wrong, stated = [], 0
     for seed in SEEDS:
         session = simulate_session(
@@ -79,4 +82,4 @@ def test_look_alike_is_named_right_or_reported_ambiguous(effect: str) -> None:
             wrong.append((seed, sorted(found)))
         stated += found == {effect} or (not found and effect in unsure)
     assert len(wrong) <= 1, wrong
-    assert stated >= 95, stated
+    assert stated >= 37, stated
