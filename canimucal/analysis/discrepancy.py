@@ -7,9 +7,11 @@ then
 1. recognises drift inside the positions first (:mod:`.drift`), on windows already trimmed of
    the settling after each move (:mod:`.settling`). Trends are named ``bias_drift`` only when
    their random walk is one the Allan deviation of the same windows allows; then the walk's
-   covariance joins that of the position means. With trends of any kind the later tests
-   become F tests, so a wandering bias or motion is not mistaken for temperature or scale
-   terms;
+   covariance joins that of the position means. Other accelerometer trends are read for
+   motion: positions whose direction turned while ``|f|`` stayed steady are said so, "the
+   unit moved 0.3° during position 3" (:mod:`.motion`). With trends of any kind the later
+   tests become F tests, so a wandering bias or motion is not mistaken for temperature or
+   scale terms;
 2. tests every candidate of the vocabulary entry by entry (nested-model LR or F tests of
    each entry, Bonferroni within the candidate), adding terms in the step-down order of
    Holm's procedure weighted by each candidate's number of entries, at a family-wise
@@ -68,6 +70,7 @@ from canimucal.analysis.drift import (
 )
 from canimucal.analysis.exact_fit import exact_fit
 from canimucal.analysis.holdout import MIN_GAIN_DOF, Holdout, Selector, refit_holdout
+from canimucal.analysis.motion import PositionMotion, positions_that_moved
 from canimucal.analysis.noise_model import (
     ScatterEstimate,
     ScatterModel,
@@ -117,7 +120,10 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
     # the family: every entry of every candidate, each drift test, the axis-sign test
     family = sum(weights.values()) + len(drifts) + (1 if data.known_positions else 0)
     trending = {s for s, d in drifts.items() if d.p_value < alpha / family}
-    drifting = {s for s in trending if _walk_like(drifts[s], data, s)}
+    moved = _motion(data, temps, alpha / family) if "accel" in trending else ()
+    drifting = {s for s in trending if _walk_like(drifts[s], data, s)} - (
+        {"accel"} if moved else set()
+    )
     raw_columns = {c.key: c.columns for c in candidates}
     scatter = _scatter_model(prepared, drifts, drifting, data)
     tau = _scatter_in(scatter, prepared, raw_columns, list(raw_columns))
@@ -208,7 +214,7 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
         drift_found=bool(drifting),
         noise=NoiseSummary(tau, fit.chi2, fit.dof) if data.known_positions else None,
         warnings=_warnings(chosen, held, refuted)
-        + _drift_warnings(drifts, drifting, data, alpha, family),
+        + _drift_warnings(drifts, drifting, data, alpha / family, moved),
         ambiguous=tuple(duel),
         earth_rate_horizontal=tau if prepared.earth_unit_covariance is not None else None,
     )
@@ -500,14 +506,37 @@ def _sensor_windows(data: SessionData, sensor: str) -> list[tuple[Array, Array]]
     return [(w.t_s, np.asarray(w.gyro)) for w in data.windows if w.gyro is not None]
 
 
+def _motion(data: SessionData, temps: Array | None, level: float) -> tuple[PositionMotion, ...]:
+    """Return the positions that moved, when they alone carry the accelerometer's trends.
+
+    Positions whose direction turned while ``|f|`` stayed steady (:mod:`.motion`) are taken
+    out and the drift test run on the others: when these no longer trend at ``level`` the
+    trends were the unit moving, not a wandering bias (a bias walk trends in every position,
+    along gravity as much as across it); else nothing is said of motion.
+    """
+    windows = [(w.t_s, w.accel) for w in data.windows]
+    moved = positions_that_moved(windows, level)
+    still = [i for i in range(len(windows)) if i not in {m.index for m in moved}]
+    if not moved or len(still) < 2:
+        return ()
+    rates = None
+    if temps is not None:
+        rates = np.array([_temp_rate(data.windows[i].t_s, data.windows[i].temp_c) for i in still])
+    rest = drift_test([windows[i] for i in still], rates)
+    return moved if rest.p_value >= level else ()
+
+
 def _drift_warnings(
     drifts: Mapping[str, DriftTest],
     drifting: set[str],
     data: SessionData,
-    alpha: float,
-    family: float,
+    level: float,
+    moved: tuple[PositionMotion, ...] = (),
 ) -> tuple[str, ...]:
-    """Say what the settling fit trimmed, and which trends were not taken for drift."""
+    """Say what was trimmed, which positions moved, which trends were not taken for drift.
+
+    ``level`` is each drift test's: the family's alpha over its size.
+    """
     out = []
     for sensor, fit in data.settling.items():
         if fit.found:
@@ -517,8 +546,9 @@ def _drift_warnings(
                 f"(95 % {low:.3g}–{high:.3g} s); the first {np.min(fit.trim_s):.3g}–"
                 f"{np.max(fit.trim_s):.3g} s of each position were trimmed"
             )
+    out += [f"accel: {m.line()}; not named bias_drift" for m in moved]
     for sensor, d in drifts.items():
-        if d.p_value < alpha / family and sensor not in drifting:
+        if d.p_value < level and sensor not in drifting and not (sensor == "accel" and moved):
             out.append(
                 f"{sensor}: trends inside the positions (slope χ² = {d.statistic:.1f} on {d.df} "
                 "dof) exceed the random walk the Allan deviation allows: motion or settling, "

@@ -53,7 +53,7 @@ class DriftTest:
     random_walk_sigma: Array = field(default_factory=lambda: np.full(3, np.nan))
 
 
-def _slope(t: Array, x: Array) -> tuple[Array, Array]:
+def slope(t: Array, x: Array) -> tuple[Array, Array]:
     """OLS slope of each column of ``x`` against ``t`` and its white-noise standard error.
 
     From centred sums (no residual array): ``s = Sxy/Sxx``, ``s_e² = (Syy − s·Sxy)/(n − 2)``.
@@ -80,7 +80,7 @@ def drift_test(
     slopes, sigmas, lengths = [], [], []
     for t, x in windows:
         keep = np.all(np.isfinite(x), axis=1)
-        s, e = _slope(t[keep], x[keep])
+        s, e = slope(t[keep], x[keep])
         slopes.append(s)
         sigmas.append(np.where(e > 0, e, np.inf))
         lengths.append(float(t[keep][-1] - t[keep][0]))

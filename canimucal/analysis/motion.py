@@ -1,0 +1,93 @@
+"""Motion inside a position: the accelerometer's direction turning while ``|f|`` stays steady.
+
+Within position p the least-squares slope ``s_p`` (counts/s, one per axis, with its white
+standard error ``σ_pc``; :func:`~.drift.slope`) splits along the position's mean direction
+``u_p = m_p/|m_p|`` and across it. A unit that turns during the position (a stand creeping,
+a vehicle settling on its jacks, a hand letting go) turns ``f`` and keeps ``|f|``: to first
+order its slope ``K (ω × f)`` lies across ``u_p``. A bias that moves has no such preference.
+With ``e₁, e₂`` unit vectors across ``u_p``:
+
+    z_k = (e_k · s_p) / √(Σ_c e_kc² σ_pc²),   k = 1, 2      (across: χ² on 2 dof)
+    z_r = (u_p · s_p) / √(Σ_c u_pc² σ_pc²)                  (along: χ² on 1 dof)
+
+(the axes' white errors are independent, so each projection's variance is the weighted sum;
+the cross term between ``e₁`` and ``e₂`` is dropped: with near-equal ``σ_pc`` it vanishes).
+Position p *moved* when the across part is significant at ``alpha / P`` (Bonferroni over
+the P positions) and the along part is not; it turned by ``θ_p ≈ |s_⊥| T_p / |m_p|`` rad over
+its window of ``T_p`` seconds (``|m_p|`` stands for ``|K f|``; a bias of 2 % of it moves θ by
+as much). Only trends the random-walk test did not take for a wandering bias are read so
+(:mod:`.discrepancy`): a bias walk on an axis across gravity would look alike in one position.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from canimucal.analysis.drift import slope
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class PositionMotion:
+    """One position that moved: its index (0-based), the turn over its window and its z."""
+
+    index: int
+    angle_deg: float
+    across_chi2: float
+    along_z: float
+    seconds: float
+
+    def line(self) -> str:
+        """Say it: ``the unit moved 0.3° during position 3 (…)``."""
+        return (
+            f"the unit moved {self.angle_deg:.2g}° during position {self.index + 1} (its "
+            f"direction turned over {self.seconds:.3g} s, across-gravity slope χ² = "
+            f"{self.across_chi2:.1f} on 2 dof, |f| steady: along z = {self.along_z:+.1f})"
+        )
+
+
+def _across(u: Array) -> tuple[Array, Array]:
+    """Two unit vectors completing ``u`` to a right-handed orthonormal basis."""
+    seed = np.eye(3)[int(np.argmin(np.abs(u)))]
+    e1 = np.cross(u, seed)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(u, e1)
+
+
+def positions_that_moved(
+    windows: Sequence[tuple[Array, Array]], alpha: float
+) -> tuple[PositionMotion, ...]:
+    """Return the positions whose accelerometer direction turned (module doc).
+
+    ``windows`` are each position's ``(t_s (n,), accel (n, 3))`` counts; ``alpha`` the level
+    of the whole test (Bonferroni over the positions inside).
+    """
+    from scipy import special  # lazy (issue 23)
+
+    level = alpha / max(len(windows), 1)
+    moved = []
+    for i, (t, x) in enumerate(windows):
+        keep = np.all(np.isfinite(x), axis=1)
+        if keep.sum() < 8:
+            continue
+        s, e = slope(t[keep], x[keep])
+        mean = x[keep].mean(axis=0)
+        size = float(np.linalg.norm(mean))
+        if not size > 0 or not np.all(e > 0):
+            continue
+        u = mean / size
+        e1, e2 = _across(u)
+        z1, z2 = (float(v @ s) / float(np.sqrt((v * v) @ (e * e))) for v in (e1, e2))
+        z_r = float(u @ s) / float(np.sqrt((u * u) @ (e * e)))
+        across = z1 * z1 + z2 * z2
+        if special.chdtrc(2, across) < level and special.chdtrc(1, z_r * z_r) >= level:
+            seconds = float(t[keep][-1] - t[keep][0])
+            perp = s - (u @ s) * u
+            angle = float(np.rad2deg(np.linalg.norm(perp) * seconds / size))
+            moved.append(PositionMotion(i, angle, across, z_r, seconds))
+    return tuple(moved)
