@@ -320,7 +320,8 @@ class Recorder:
         """Check the gyro's move to ``position`` from the last recorded one, per node.
 
         The guided procedure's own check (:class:`~canimucal.procedure.movecheck.MoveTracker`,
-        15°): the attitude change integrated since that position, against the plan's. None
+        15°, or 4σ of the poses' tolerances): the attitude change integrated since that
+        position, against the plan's. None
         for a node with nothing to compare yet (the first position).
         """
         return [

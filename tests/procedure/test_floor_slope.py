@@ -58,7 +58,7 @@ def _session(
     """Follow ``plan`` on the simulated unit; fail on the first refused pose.
 
     With ``errors`` each pose is set off by the plan's tolerances (drawn, within 1.5σ: the
-    gyro's move check allows 15° between two turns of 5° 1σ each).
+    gyro's move check allows 4σ of two turns of 5° 1σ each, 28°).
     """
     spec = replace(spec_for_plan(plan, "mems"), gyro_g=False)
     bench = Bench([truth], _plan(plan), seed=seed, spec=spec, averaging=AveragingPolicy(2.0))
