@@ -25,6 +25,7 @@ import can
 import canopen
 import numpy as np
 
+from canimucal.analysis.acceptance import plan_limits
 from canimucal.analysis.calibrate import SiteConditions
 from canimucal.analysis.session_model import read_factory_k
 from canimucal.device.answerers import refuse_second_answerer
@@ -300,9 +301,11 @@ class Devices:
         and ``prior_k_sigma`` set the prior on K
         (:meth:`k_priors`); a resumed session without them keeps the prior its recordings
         say the first part held. ``config`` goes to :class:`ProcedureConfig`; without
-        ``limits`` there the session judges against the built-in acceptance limits (the shells
-        pass the user's, docs/design.md §3).
+        ``limits`` there the session judges against the plan's built-in acceptance limits
+        (``plan_name``'s registry defaults over the built-in ones; the shells pass the
+        user's, docs/design.md §3).
         """
+        config.setdefault("limits", plan_limits(plan_name))
         identities = identities or self.identities()
         if backup_dir is None and self.sim_nodes:
             backup_dir = out_dir / "backups"
