@@ -58,6 +58,9 @@ def test_a_vehicle_session_with_slope_and_trim_writes_the_trim_it_solved(
     (solved,) = [e for e in history if isinstance(e, ev.Solved)]
     joint = solved.solutions[0x10].joint
     assert joint is not None
+    # a clean unit on a sloped floor passes the vehicle plan's own acceptance (§3), which a
+    # session opened without limits judges against
+    assert solved.acceptance[0x10].passed, [c.line() for c in solved.acceptance[0x10].checks]
     truths = {"base_tilt.alpha0": truth.alpha0, "base_tilt.beta0": truth.beta0}
     truths.update(zip(TRIM_NAMES, truth.trim, strict=True))
     for name, true in truths.items():
