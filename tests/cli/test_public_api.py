@@ -158,11 +158,14 @@ def test_calibrate_never_reads_the_users_acceptance_file(
     config = cm.AcceptanceConfig({"max_bias_sigma_mg": 0.001})
     given = cm.calibrate(path, model="full", tilt=True, limits=config)
     assert given.acceptance is not None and not given.acceptance.passed
-    # the command line reads the file (this recording names no plan: the top level applies)
+    # the command line reads the file; this recording's header names no plan, but its poses
+    # are the recommended plan's, which its calibration names: that plan's table applies too
     run = cli(["solve", str(path), "--model", "full", "--tilt", "--json", "-"])
     assert run.code == 3
-    limits = json.loads(run.out)["acceptance"]["limits"]
-    assert (limits["max_bias_sigma_mg"], limits["max_rms_ms2"]) == (0.001, 0.05)
+    document = json.loads(run.out)
+    assert document["plan"] == "recommended"
+    limits = document["acceptance"]["limits"]
+    assert (limits["max_bias_sigma_mg"], limits["max_rms_ms2"]) == (0.001, 1e-9)
 
 
 def test_every_public_name_resolves() -> None:
