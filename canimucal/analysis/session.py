@@ -73,18 +73,23 @@ def session_from_recording(
     for rows, trim in zip(kept, trim_s, strict=True):
         keep = rows[trim_mask(rec.t[rows], float(trim))]
         first = keep[0]
-        angles = [rec.alpha_deg[first], rec.beta_deg[first], rec.psi_deg[first]]
+        angles = [
+            float(rec.alpha_deg[first]),
+            float(rec.beta_deg[first]),
+            float(rec.psi_deg[first]),
+        ]
         a, b, p = (float(x) for x in np.deg2rad(angles))
         pose = Pose(a, b, p, tolerance=tol) if known else Pose(np.nan, np.nan)
-        temp = rec.temp_c[keep] if temp_ok else None
-        gyro = rec.gyro[keep] if gyro_ok else None
+        temp = np.asarray(rec.temp_c[keep], dtype=np.float64) if temp_ok else None
+        gyro = np.asarray(rec.gyro[keep], dtype=np.float64) if gyro_ok else None
+        accel = np.asarray(rec.accel[keep], dtype=np.float64)
         averages.append(
             average_position(
-                pose, rec.accel[keep], gyro, rec.sample_rate_hz,
+                pose, accel, gyro, rec.sample_rate_hz,
                 float(np.nanmean(temp)) if temp is not None else None,
             )
         )  # fmt: skip
-        windows.append(Window(rec.t[keep], rec.accel[keep], gyro, temp))
+        windows.append(Window(rec.t[keep], accel, gyro, temp))
     if len(averages) < 3:
         raise InputError(f"{rec.source or 'recording'}: found {len(averages)} positions, need 3")
     return SessionData(

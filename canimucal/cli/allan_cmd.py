@@ -103,8 +103,9 @@ def _still_stretch(rec: Recording, position: int | None) -> tuple[int, int, str]
     if np.any(labels >= 0):
         best = max((np.flatnonzero(labels == p) for p in np.unique(labels[labels >= 0])), key=len)
         return int(best[0]), int(best[-1]) + 1, f"position {int(labels[best[0]])} (longest)"
-    finite = np.all(np.isfinite(rec.accel), axis=1)
-    filled = np.where(finite[:, None], rec.accel, np.nanmedian(rec.accel, axis=0))
+    accel = np.asarray(rec.accel, dtype=np.float64)
+    finite = np.all(np.isfinite(accel), axis=1)
+    filled = np.where(finite[:, None], accel, np.nanmedian(accel, axis=0))
     intervals = detect_static_intervals(filled, rec.sample_rate_hz)
     if not intervals:
         raise InputError("no still stretch found (no labelled position, no static interval)")
