@@ -8,6 +8,7 @@ orientations are unknown, so only the scalar ``|f| = g`` fit applies.
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,6 +38,16 @@ def _lsb(rec: Recording, key: str, default: float) -> float:
     return default
 
 
+def _take(values: NDArray[Any], rows: NDArray[np.intp]) -> NDArray[Any]:
+    """Return ``values[rows]``, a view when the rows are one run.
+
+    The settling fit reads a window's ends only: a long position is not copied whole.
+    """
+    if rows.size and int(rows[-1]) - int(rows[0]) + 1 == rows.size:
+        return values[int(rows[0]) : int(rows[-1]) + 1]
+    return values[rows]
+
+
 def session_from_recording(
     rec: Recording,
     *,
@@ -64,9 +75,9 @@ def session_from_recording(
         keep = rows[np.all(np.isfinite(rec.accel[rows]), axis=1)]
         if keep.size >= MIN_POSITION_SAMPLES:
             kept.append(keep)
-    settling = {"accel": fit_settling([(rec.t[k], rec.accel[k]) for k in kept])}
+    settling = {"accel": fit_settling([(_take(rec.t, k), _take(rec.accel, k)) for k in kept])}
     if gyro_ok:
-        settling["gyro"] = fit_settling([(rec.t[k], rec.gyro[k]) for k in kept])
+        settling["gyro"] = fit_settling([(_take(rec.t, k), _take(rec.gyro, k)) for k in kept])
     trim_s = np.max([s.trim_s for s in settling.values()], axis=0)
     averages: list[PositionAverage] = []
     windows: list[Window] = []

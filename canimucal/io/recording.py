@@ -262,11 +262,14 @@ class _Columns:
         data["t"][rows] = table[:, 0]
         label = table[:, 2]
         data["position"][rows] = np.where(np.isnan(label), -1, label)
+        narrow = [name for name in _TABLE_COLUMNS if data[name].dtype == np.float32]
+        if narrow:
+            fits = _fits_float32(table)
+            for name in narrow:
+                if not fits[_TABLE_COLUMNS[name]].all():
+                    self._widen(name)
         for name, cols in _TABLE_COLUMNS.items():
-            values = table[:, cols]
-            if data[name].dtype == np.float32 and not _fits_float32(values):
-                self._widen(name)
-            data[name][rows] = values
+            data[name][rows] = table[:, cols]
         self.n += k
 
     def _widen(self, name: str) -> None:
@@ -314,15 +317,15 @@ _TABLE_COLUMNS: dict[str, int | slice] = {
 }
 
 
-def _fits_float32(values: FloatArray) -> bool:
-    """Whether every value is NaN or exactly a float32 (finite: the table checks refused inf).
+def _fits_float32(table: FloatArray) -> NDArray[np.bool_]:
+    """Whether each column's values are all NaN or exactly a float32 (one pass over the block).
 
-    A value that does not fit differs from its float32 rounding; NaN differs from itself:
-    so the values fit exactly when those are the only differences.
+    A value that does not fit differs from its float32 rounding (finite: the table checks
+    refused inf); NaN differs from itself and is skipped.
     """
     with np.errstate(over="ignore"):
-        narrow = values.astype(np.float32)
-    return int(np.count_nonzero(narrow != values)) == int(np.count_nonzero(np.isnan(values)))
+        narrow = table.astype(np.float32)
+    return np.asarray(~((narrow != table) & ~np.isnan(table)).any(axis=0))
 
 
 def _recording_from_parts(
@@ -939,24 +942,24 @@ def check_table(table: FloatArray, first_line: int, source: str) -> None:
 
     if np.isinf(table).any():
         raise located_error(where, first(np.isinf(table).any(axis=1)), "number out of range")
-    if np.isnan(table[:, 0]).any():
-        raise located_error(where, first(np.isnan(table[:, 0])), "t is empty")
+    nan = np.isnan(table).T  # one pass over the table; nan[c] is column c
+    if nan[0].any():
+        raise located_error(where, first(nan[0]), "t is empty")
     back = np.diff(table[:, 0]) < 0
     if back.any():
         raise located_error(where, first(back) + 1, "t goes backwards")
     for col, name in ((1, "counter"), (2, "position")):
         values = table[:, col]
-        bad = ~np.isnan(values) & ((values < 0) | (values != np.floor(values)))
+        bad = ~nan[col] & ((values < 0) | (values != np.floor(values)))
         if bad.any():
             raise located_error(where, first(bad), f"{name} is not a non-negative integer")
-    for cols, what in ((slice(3, 6), "angles"), (slice(6, 9), "accel"), (slice(9, 12), "gyro")):
-        empty = np.isnan(table[:, cols])
-        partial = empty.any(axis=1) & ~empty.all(axis=1)
+    for col, what in ((3, "angles"), (6, "accel"), (9, "gyro")):
+        partial = (nan[col] != nan[col + 1]) | (nan[col + 1] != nan[col + 2])
         if partial.any():
             raise located_error(
                 where, first(partial), f"{what} cells partly empty (all three or none)"
             )
-    no_data = np.isnan(table[:, 6]) & np.isnan(table[:, 9])
+    no_data = nan[6] & nan[9]
     if no_data.any():
         raise located_error(where, first(no_data), "row has neither accel nor gyro values")
     _check_angles_constant(table, first_line, where)
