@@ -1012,15 +1012,17 @@ def parse_rows(data: bytes, first_line: int, source: str, width: int = len(COLUM
         data = data[:-1]
     if not data:
         return np.empty((0, width))
-    blank_line, empty_cell = _blanks(data)
+    blank_line, empty_cells = _blanks(data)
     if data.translate(None, _NUMERIC_BYTES) or data.startswith(b"\n") or blank_line:
         raise _diagnose(data, first_line, source, "unexpected characters", width)
-    # Empty cells become "nan" (letters were refused above, so NaN only comes from here).
-    filled = data
-    if empty_cell:
-        filled = data.replace(b",,", b",nan,").replace(b",,", b",nan,")
-        filled = filled.replace(b",\n", b",nan\n")
-    text = filled.decode("ascii") + ("nan" if filled.endswith(b",") else "")
+    # Empty cells become "nan" (letters were refused above, so NaN only comes from here),
+    # inserted where each one starts: one pass, however many there are.
+    if empty_cells.size:
+        nan = np.tile(np.frombuffer(b"nan", dtype=np.uint8), empty_cells.size)
+        at = np.repeat(empty_cells, 3)
+        text = np.insert(np.frombuffer(data, dtype=np.uint8), at, nan).tobytes().decode("ascii")
+    else:
+        text = data.decode("ascii")
     try:
         table = np.loadtxt(io.StringIO(text), delimiter=",", comments=None, ndmin=2)
     except ValueError as exc:
@@ -1030,16 +1032,20 @@ def parse_rows(data: bytes, first_line: int, source: str, width: int = len(COLUM
     return table
 
 
-def _blanks(data: bytes) -> tuple[bool, bool]:
-    """Whether ``data`` (rows without their final newline) has an empty line, an empty cell.
+def _blanks(data: bytes) -> tuple[bool, NDArray[np.intp]]:
+    """Find the empty lines and empty cells of ``data`` (rows without their final newline).
 
-    Looked for with numpy: 8x faster than ``bytes`` searches for a two-byte pattern.
+    Returns whether there is an empty line, and where each empty cell starts (after a comma
+    followed by a comma, a newline or the end). Looked for with numpy: 8x faster than
+    ``bytes`` searches for a two-byte pattern.
     """
     u = np.frombuffer(data, dtype=np.uint8)
     newline, comma = u == ord("\n"), u == ord(",")
     blank_line = bool((newline[:-1] & newline[1:]).any())
-    empty_cell = data.endswith(b",") or bool((comma[:-1] & (comma[1:] | newline[1:])).any())
-    return blank_line, empty_cell
+    empty = np.flatnonzero(comma[:-1] & (comma[1:] | newline[1:])) + 1
+    if data.endswith(b","):
+        empty = np.append(empty, len(data))
+    return blank_line, empty
 
 
 def _diagnose(
