@@ -8,10 +8,12 @@ one row per sample. Empty cells mean "unknown": ``counter``/angles/``temp_c`` re
 Reading streams the file (issue 23): the header line by line, then the rows in blocks of
 about :data:`CHUNK_BYTES`, each parsed with numpy and checked (row checks, ``t`` and the
 angles of a position across blocks too) before its numbers go straight into typed columns
-(float64 ``t`` and samples, int ``position``); neither the whole text nor a whole ``(n, 13)``
-table ever exists. When a block fails to parse, a slow line-by-line pass over that block finds
-the first bad line, so the error names file, line and problem. A file with several problems
-reports the first block's first one. The streaming and
+(float64 ``t``, int64 ``position``, the others float32 while their values fit it exactly, see
+:class:`_Columns`); neither the whole text nor a whole ``(n, 13)`` table ever exists.
+Recording arrays may therefore be float32: code summing samples converts to float64 first.
+When a block fails to parse, a slow line-by-line pass over that block finds the first bad
+line, so the error names file, line and problem. A file with several problems reports the
+first block's first one. The streaming and
 whole-file writers live in :mod:`canimucal.io.recording_writer`.
 """
 
@@ -72,6 +74,8 @@ class Recording:
     """A parsed recording: typed header and one numpy array per column (see module doc).
 
     ``accel``/``gyro`` are ``(n, 3)`` counts; ``position`` is int with -1 for "no position".
+    Read from a file, the columns but ``t`` and ``position`` are float32 when every value
+    fits it exactly (module doc): convert to float64 before summing many samples.
     ``sample_rate_inferred`` is true when the header had no ``sample_rate_hz`` and the
     value in ``header`` is the median sample interval's inverse. ``turns`` are the known
     turns an importer found (gyro moves beside the labelled positions).
@@ -509,9 +513,10 @@ MEMORY_PER_FILE_BYTE = 14
 importers still read whole files."""
 
 STREAMED_MEMORY_PER_FILE_BYTE = 5
-"""Peak memory of :func:`read_recording_csv` per byte of file: the typed columns (104 bytes a
-row, about 2 per byte of a 56-byte row, up to 4 for the shortest rows) and the repeats check's
-indices; the text is read in blocks of :data:`CHUNK_BYTES`."""
+"""Peak memory of :func:`read_recording_csv` per byte of file: the typed columns (60 bytes a
+row with float32-exact values, 104 without, about 1-2 per byte of a 56-byte row, up to 4 for
+the shortest rows); the text is read in blocks of :data:`CHUNK_BYTES` and the repeats check
+runs in chunks of :data:`DUPLICATE_CHUNK_ROWS`."""
 
 
 def available_memory_bytes() -> int | None:
