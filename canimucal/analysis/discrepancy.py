@@ -38,7 +38,6 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats
 
 from canimucal.analysis.base_fit import (
     PreparedBase,
@@ -313,8 +312,10 @@ def separated_noncentrality(level: float, power: float = 0.9) -> float:
     A pair whose head-to-head non-centrality (:mod:`.separation` eq. 3) already reaches it
     is separated by the recording's own positions: no position is proposed for it.
     """
-    critical = float(stats.chi2.isf(level, 1))
-    z = float(stats.norm.ppf(power))
+    from scipy import special  # lazy (issue 23); chi2.isf, norm.ppf are chdtri, ndtri
+
+    critical = float(special.chdtri(1, level))
+    z = float(special.ndtri(power))
     return (np.sqrt(critical) + z) ** 2
 
 
@@ -430,7 +431,9 @@ def _base_under(
 
 
 def _chi2_sf(chi2: float, dof: int) -> float:
-    return float(stats.chi2.sf(chi2, dof)) if dof > 0 else float("nan")
+    from scipy import special  # lazy (issue 23); chi2.sf is chdtrc
+
+    return float(special.chdtrc(dof, chi2)) if dof > 0 else float("nan")
 
 
 def _earth_rate_in_base(data: SessionData) -> bool:
@@ -715,7 +718,9 @@ def _axis_sign(prepared: PreparedBase, data: SessionData) -> tuple[float, float]
     sign = np.sign(data.accel_lsb)
     z = [-sign * values[f"accel.K[{i}][{i}]"] / sigmas[f"accel.K[{i}][{i}]"] for i in range(3)]
     zmax = float(np.max(z))
-    return zmax, float(min(1.0, 3.0 * stats.norm.sf(zmax)))
+    from scipy import special  # lazy (issue 23); norm.sf(z) is ndtr(-z)
+
+    return zmax, float(min(1.0, 3.0 * special.ndtr(-zmax)))
 
 
 def _findings(

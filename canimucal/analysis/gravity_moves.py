@@ -57,7 +57,7 @@ def recording_gravity_moves(rec: Recording, accel: AccelBlock, accel_lsb: float)
         mean = f.mean(axis=0)
         norm = float(np.linalg.norm(mean))
         sigma_u = float(np.linalg.norm(f.std(axis=0, ddof=1)) / np.sqrt(f.shape[0]) / norm)
-        g = rec.gyro[rows]
+        g = np.asarray(rec.gyro[rows], dtype=np.float64)
         ends.append((mean / norm, sigma_u, np.nanmean(g, axis=0), np.nanstd(g, axis=0, ddof=1)))
     moves: list[GravityMove] = []
     notes: list[str] = []

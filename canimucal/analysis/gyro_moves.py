@@ -128,9 +128,9 @@ def recording_moves(
         raise InputError(f"{rec.source or 'recording'}: gyro moves need labelled positions")
     fs = rec.sample_rate_hz
     s0 = np.eye(3) / site.gyro_lsb
-    static = np.concatenate([rec.gyro[a : b + 1] for _, a, b in runs])
+    static = np.concatenate([rec.gyro[a : b + 1] for _, a, b in runs]).astype(np.float64)
     static = static[np.all(np.isfinite(static), axis=1)]
-    sigma = np.median([np.nanstd(rec.gyro[a : b + 1], axis=0, ddof=1) for _, a, b in runs], 0)
+    sigma = np.median([np.nanstd(_f64(rec.gyro[a : b + 1]), axis=0, ddof=1) for _, a, b in runs], 0)
     moves: list[Move] = []
     biases: list[Array] = []
     notes: list[str] = []
@@ -162,9 +162,10 @@ def recording_moves(
                 tol = np.deg2rad(tolerance_deg)
                 if pose_sigmas is not None and key in pose_sigmas:
                     tol = np.asarray(pose_sigmas[key], dtype=float)
-                angles = np.deg2rad([rec.alpha_deg[row], rec.beta_deg[row], rec.psi_deg[row]])
+                angles = np.deg2rad(_angles_deg(rec, row))
                 attitude[key] = attitude_covariance(angles, tol)
-                mean_gyro[key] = mean_covariance(rec.gyro[rec.position == key])
+                rows_k = np.asarray(rec.gyro[rec.position == key], dtype=np.float64)
+                mean_gyro[key] = mean_covariance(rows_k)
     shared = Shared(attitude, mean_gyro) if attitude else None
     return RecordingMoves(tuple(moves), tuple(biases), sigma, tuple(notes), shared)
 
@@ -204,7 +205,17 @@ def uniform_rows(
     else:
         clock = np.round((rec.t[start:stop] - rec.t[start]) * fs)
     data = rec.accel if accel else rec.gyro
-    return resample_rows(data[start:stop], clock, fs, label, notes)
+    return resample_rows(np.asarray(data[start:stop], dtype=np.float64), clock, fs, label, notes)
+
+
+def _f64(values: NDArray[np.floating]) -> Array:
+    """Return ``values`` as float64 (the reader may keep samples as exact float32) for sums."""
+    return np.asarray(values, dtype=np.float64)
+
+
+def _angles_deg(rec: Recording, row: int) -> Array:
+    """Return the angles of row ``row`` (degrees, float64)."""
+    return np.array([rec.alpha_deg[row], rec.beta_deg[row], rec.psi_deg[row]], dtype=np.float64)
 
 
 def sample_clock(counter: Array) -> Array:
@@ -252,16 +263,15 @@ def _pose_move(
     trim: Array | None = None,
 ) -> tuple[Move, Array] | None:
     (la, a_end), (lb, b_start) = start, end
-    angles = np.deg2rad(np.column_stack([rec.alpha_deg, rec.beta_deg, rec.psi_deg]))
-    pa, pb = angles[a_end], angles[b_start]
+    pa, pb = np.deg2rad(_angles_deg(rec, a_end)), np.deg2rad(_angles_deg(rec, b_start))
     if not (np.all(np.isfinite(pa)) and np.all(np.isfinite(pb))):
         notes.append(f"{label}: dropped, a position without angles")
         return None
     rows = uniform_rows(rec, a_end, b_start + 1, label, notes)
     if rows is None:
         return None
-    mean_a = np.nanmean(rec.gyro[rec.position == la], axis=0)
-    mean_b = np.nanmean(rec.gyro[rec.position == lb], axis=0)
+    mean_a = np.nanmean(_f64(rec.gyro[rec.position == la]), axis=0)
+    mean_b = np.nanmean(_f64(rec.gyro[rec.position == lb]), axis=0)
     force = None
     if g_sensitivity is not None:
         accel = uniform_rows(rec, a_end, b_start + 1, label, [], accel=True)

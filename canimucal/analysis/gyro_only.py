@@ -116,13 +116,18 @@ def gyro_positions(rec: Recording) -> GyroPositions:
     means, covs, angles, windows, temps, counts, rates = [], [], [], [], [], [], []
     for r, trim in zip(kept, settling.trim_s, strict=True):
         r = r[trim_mask(rec.t[r], float(trim))]
-        x = rec.gyro[r]
+        x = np.asarray(rec.gyro[r], dtype=np.float64)
         means.append(x.mean(axis=0))
         covs.append(np.cov(x, rowvar=False, ddof=1) / r.size)
         first = r[0]
-        angles.append(np.deg2rad([rec.alpha_deg[first], rec.beta_deg[first], rec.psi_deg[first]]))
+        angles.append(
+            np.deg2rad(
+                [float(rec.alpha_deg[first]), float(rec.beta_deg[first]), float(rec.psi_deg[first])]
+            )
+        )
         windows.append((rec.t[r], x))
-        t, ok = rec.temp_c[r], np.isfinite(rec.temp_c[r])
+        t = np.asarray(rec.temp_c[r], dtype=np.float64)
+        ok = np.isfinite(t)
         temps.append(float(np.mean(t[ok])) if ok.any() else np.nan)
         rates.append(float(np.polyfit(rec.t[r][ok], t[ok], 1)[0]) if ok.sum() > 1 else 0.0)
         counts.append(r.size)

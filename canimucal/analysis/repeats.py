@@ -56,10 +56,13 @@ class HeldSamples:
         )
 
 
-def _sensor_columns(rec: Recording) -> NDArray[np.float64]:
-    """Return the sensor channels the file has (accel, gyro: those with any finite sample)."""
-    parts = [x for x in (rec.accel, rec.gyro) if np.isfinite(x).any()]
-    return np.hstack(parts) if parts else np.empty((rec.n_rows, 0))
+def _sensor_columns(rec: Recording) -> list[NDArray[np.float64]]:
+    """Return the sensors the file has (accel, gyro: those with any finite sample)."""
+    return [x for x in (rec.accel, rec.gyro) if np.isfinite(x).any()]
+
+
+REPEAT_CHUNK_ROWS = 1 << 20
+"""Rows compared at a time by :func:`repeated_rows` (its temporaries do not grow with the file)."""
 
 
 def repeated_rows(rec: Recording) -> tuple[NDArray[np.bool_], HeldSamples | None]:
@@ -67,17 +70,32 @@ def repeated_rows(rec: Recording) -> tuple[NDArray[np.bool_], HeldSamples | None
 
     The verdict is None when the repeats are what independent channels give by chance (a
     quiet sensor's quantisation) or too few to matter (:data:`MIN_REPEAT_FRACTION`).
+    Compared :data:`REPEAT_CHUNK_ROWS` rows at a time, the channels' equal and finite pairs
+    counted as they pass.
     """
-    x = _sensor_columns(rec)
-    same = np.zeros(rec.n_rows, dtype=bool)
-    if rec.n_rows < 3 or x.shape[1] == 0:
+    sensors = _sensor_columns(rec)
+    n = rec.n_rows
+    same = np.zeros(n, dtype=bool)
+    if n < 3 or not sensors:
         return same, None
-    equal = x[1:] == x[:-1]  # NaN is never equal: a lost half is no repeat
-    same[1:] = np.all(equal, axis=1)
-    joint = float(np.mean(same[1:]))
-    both = np.isfinite(x[1:]) & np.isfinite(x[:-1])
-    per_channel = [float(np.mean(equal[b, c])) for c, b in enumerate(both.T) if b.any()]
-    independent = float(np.prod(per_channel)) if per_channel else 0.0
+    channels = 3 * len(sensors)
+    equal_pairs = np.zeros(channels, dtype=np.int64)
+    finite_pairs = np.zeros(channels, dtype=np.int64)
+    for start in range(1, n, REPEAT_CHUNK_ROWS):
+        stop = min(n, start + REPEAT_CHUNK_ROWS)
+        rows = np.ones(stop - start, dtype=bool)
+        for k, x in enumerate(sensors):
+            now, before = x[start:stop], x[start - 1 : stop - 1]
+            equal = now == before  # NaN is never equal: a lost half is no repeat
+            rows &= np.all(equal, axis=1)
+            both = np.isfinite(now) & np.isfinite(before)
+            equal_pairs[3 * k : 3 * k + 3] += np.count_nonzero(equal & both, axis=0)
+            finite_pairs[3 * k : 3 * k + 3] += np.count_nonzero(both, axis=0)
+        same[start:stop] = rows
+    joint = float(np.count_nonzero(same[1:])) / (n - 1)
+    seen = finite_pairs > 0
+    per_channel = equal_pairs[seen] / finite_pairs[seen]
+    independent = float(np.prod(per_channel)) if per_channel.size else 0.0
     if joint < MIN_REPEAT_FRACTION or joint < INDEPENDENCE_FACTOR * independent:
         return same, None
     repeated = int(np.count_nonzero(same))

@@ -129,9 +129,9 @@ def replay_ratios(rows: list[ReplayRow] | None) -> dict[str, Any] | None:
     mean = float(np.mean(ratios))
     half = float("nan")
     if n >= 2:
-        from scipy import stats  # lazy (issue 23)
+        from scipy import special  # lazy (issue 23); t.ppf is stdtrit, without scipy.stats
 
-        half = float(stats.t.ppf(0.975, n - 1) * np.std(ratios, ddof=1) * np.sqrt(1 + 1 / n))
+        half = float(special.stdtrit(n - 1, 0.975) * np.std(ratios, ddof=1) * np.sqrt(1 + 1 / n))
     return {
         "rms_ratio": mean,
         "rms_ratio_ci95": [mean - half, mean + half],

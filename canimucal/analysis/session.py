@@ -8,6 +8,7 @@ orientations are unknown, so only the scalar ``|f| = g`` fit applies.
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,6 +38,16 @@ def _lsb(rec: Recording, key: str, default: float) -> float:
     return default
 
 
+def _take(values: NDArray[Any], rows: NDArray[np.intp]) -> NDArray[Any]:
+    """Return ``values[rows]``, a view when the rows are one run.
+
+    The settling fit reads a window's ends only: a long position is not copied whole.
+    """
+    if rows.size and int(rows[-1]) - int(rows[0]) + 1 == rows.size:
+        return values[int(rows[0]) : int(rows[-1]) + 1]
+    return values[rows]
+
+
 def session_from_recording(
     rec: Recording,
     *,
@@ -64,27 +75,32 @@ def session_from_recording(
         keep = rows[np.all(np.isfinite(rec.accel[rows]), axis=1)]
         if keep.size >= MIN_POSITION_SAMPLES:
             kept.append(keep)
-    settling = {"accel": fit_settling([(rec.t[k], rec.accel[k]) for k in kept])}
+    settling = {"accel": fit_settling([(_take(rec.t, k), _take(rec.accel, k)) for k in kept])}
     if gyro_ok:
-        settling["gyro"] = fit_settling([(rec.t[k], rec.gyro[k]) for k in kept])
+        settling["gyro"] = fit_settling([(_take(rec.t, k), _take(rec.gyro, k)) for k in kept])
     trim_s = np.max([s.trim_s for s in settling.values()], axis=0)
     averages: list[PositionAverage] = []
     windows: list[Window] = []
     for rows, trim in zip(kept, trim_s, strict=True):
         keep = rows[trim_mask(rec.t[rows], float(trim))]
         first = keep[0]
-        angles = [rec.alpha_deg[first], rec.beta_deg[first], rec.psi_deg[first]]
+        angles = [
+            float(rec.alpha_deg[first]),
+            float(rec.beta_deg[first]),
+            float(rec.psi_deg[first]),
+        ]
         a, b, p = (float(x) for x in np.deg2rad(angles))
         pose = Pose(a, b, p, tolerance=tol) if known else Pose(np.nan, np.nan)
-        temp = rec.temp_c[keep] if temp_ok else None
-        gyro = rec.gyro[keep] if gyro_ok else None
+        temp = np.asarray(rec.temp_c[keep], dtype=np.float64) if temp_ok else None
+        gyro = np.asarray(rec.gyro[keep], dtype=np.float64) if gyro_ok else None
+        accel = np.asarray(rec.accel[keep], dtype=np.float64)
         averages.append(
             average_position(
-                pose, rec.accel[keep], gyro, rec.sample_rate_hz,
+                pose, accel, gyro, rec.sample_rate_hz,
                 float(np.nanmean(temp)) if temp is not None else None,
             )
         )  # fmt: skip
-        windows.append(Window(rec.t[keep], rec.accel[keep], gyro, temp))
+        windows.append(Window(rec.t[keep], accel, gyro, temp))
     if len(averages) < 3:
         raise InputError(f"{rec.source or 'recording'}: found {len(averages)} positions, need 3")
     return SessionData(

@@ -107,14 +107,17 @@ def fit_settling(
 
     clean, closing, used = [], [], []
     for i, (t_all, x_all) in enumerate(windows):
-        keep_all = np.all(np.isfinite(x_all), axis=1)
-        t_all, x_all = np.asarray(t_all[keep_all], float), np.asarray(x_all[keep_all], float)
-        if t_all.size < 10:
+        finite = np.flatnonzero(np.all(np.isfinite(x_all), axis=1))
+        if finite.size < 10:
             continue
-        opening = int(np.searchsorted(t_all, t_all[0] + OPENING_S, side="right"))
-        clean.append((t_all[:opening], x_all[:opening]))
-        start = int(np.searchsorted(t_all, t_all[-1] - OPENING_S, side="left"))
-        t_end, x_end = t_all[start:], x_all[start:]
+        # only the opening and closing OPENING_S are read: cut them from the window (t is
+        # sorted) before the finite rows are taken, so a long window is never copied whole
+        first, last = float(t_all[finite[0]]), float(t_all[finite[-1]])
+        head = int(np.searchsorted(t_all, first + OPENING_S, side="right"))
+        t_open, x_open = _finite_part(t_all, x_all, finite[finite < head])
+        clean.append((t_open, x_open))
+        tail = int(np.searchsorted(t_all, last - OPENING_S, side="left"))
+        t_end, x_end = _finite_part(t_all, x_all, finite[finite >= tail])
         closing.append((t_end[-1] - t_end[::-1], x_end[::-1]))  # reversed: last sample first
         used.append(i)
     n = len(windows)
@@ -146,6 +149,11 @@ def fit_settling(
             z = float(np.max(np.abs(amplitude[i]) / se))
             trims[i] = ci[1] * max(MIN_TRIM_TIME_CONSTANTS, np.log(max(z, 1.0) / RESIDUAL_Z))
     return Settling(tau, ci, best, df, p, found, trims, amplitude)
+
+
+def _finite_part(t: Array, x: Array, rows: NDArray[np.intp]) -> tuple[Array, Array]:
+    """Return ``t`` and ``x`` at ``rows`` as float64."""
+    return np.asarray(t[rows], dtype=float), np.asarray(x[rows], dtype=float)
 
 
 def _prepare(t: Array, x: Array) -> tuple[Array, Array, Array]:

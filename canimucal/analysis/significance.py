@@ -31,7 +31,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import special
 
 from canimucal.analysis.noise_model import ScatterModel, scatter_f_test
 
@@ -247,6 +246,8 @@ class _Smaller:
 
     def test(self, term: str, extra: Array, q: int) -> NestedTest:
         """Test the smaller model plus ``extra`` (``q`` new directions) against it."""
+        from scipy import special  # lazy (issue 23): loads with a test, not with the module
+
         problem = self.problem
         design = np.hstack([self.design, extra])
         chi2, dof = _chi2_dof(design, problem.residual_w)

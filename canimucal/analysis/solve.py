@@ -71,7 +71,7 @@ def site_of(rec: Recording, choice: ModelChoice) -> tuple[SiteConditions, str]:
     latitude = cond.latitude_rad
     if choice.latitude_deg is not None:
         latitude = float(np.deg2rad(choice.latitude_deg))
-    t = rec.temp_c[np.isfinite(rec.temp_c)]
+    t = np.asarray(rec.temp_c[np.isfinite(rec.temp_c)], dtype=np.float64)
     site = SiteConditions(
         g=cond.g,
         latitude=latitude,

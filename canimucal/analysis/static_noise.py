@@ -118,7 +118,9 @@ def static_rows(rec: Recording) -> NDArray[np.intp] | None:
         return groups[0] if len(groups) == 1 else None
     if not groups:
         return None
-    means = np.array([np.nanmean(rec.accel[g], axis=0) for g in groups])
+    means = np.array(
+        [np.nanmean(np.asarray(rec.accel[g], dtype=np.float64), axis=0) for g in groups]
+    )
     norm = np.linalg.norm(means, axis=1, keepdims=True)
     if not np.all(np.isfinite(norm) & (norm > 0)):
         return None
@@ -163,7 +165,7 @@ def analyse_static(
     seconds = rows.size / fs
     sensors = {}
     for name, data in (("accel", rec.accel), ("gyro", rec.gyro)):
-        x = data[rows]
+        x = np.asarray(data[rows], dtype=np.float64)
         keep = np.all(np.isfinite(x), axis=1)
         if np.sum(keep) >= min_seconds * fs:
             sensors[name] = _sensor(rec.t[rows], x, fs)

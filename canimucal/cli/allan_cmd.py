@@ -29,6 +29,7 @@ from canimucal.analysis.static_noise import (
 from canimucal.cli.input_options import INPUT_HELP, SECOND_HELP, add_input_options, read_input
 from canimucal.cli.output import add_json_option, check_outputs, emit
 from canimucal.errors import InputError
+from canimucal.io.grouping import label_runs
 from canimucal.io.recording import Recording
 from canimucal.model.sensor import STANDARD_GRAVITY
 from canimucal.model.static import detect_static_intervals
@@ -100,11 +101,13 @@ def _still_stretch(rec: Recording, position: int | None) -> tuple[int, int, str]
     whole = static_rows(rec) if not np.any(labels >= 0) else None
     if whole is not None and whole.size >= MIN_STILL_SECONDS * rec.sample_rate_hz:
         return int(whole[0]), int(whole[-1]) + 1, "the whole record (one static pose)"
-    if np.any(labels >= 0):
-        best = max((np.flatnonzero(labels == p) for p in np.unique(labels[labels >= 0])), key=len)
-        return int(best[0]), int(best[-1]) + 1, f"position {int(labels[best[0]])} (longest)"
-    finite = np.all(np.isfinite(rec.accel), axis=1)
-    filled = np.where(finite[:, None], rec.accel, np.nanmedian(rec.accel, axis=0))
+    runs = label_runs(labels)  # ascending labels: the first of equal lengths wins, as before
+    if runs:
+        label, spans = max(runs.items(), key=lambda item: sum(b - a for a, b in item[1]))
+        return spans[0][0], spans[-1][1], f"position {label} (longest)"
+    accel = np.asarray(rec.accel, dtype=np.float64)
+    finite = np.all(np.isfinite(accel), axis=1)
+    filled = np.where(finite[:, None], accel, np.nanmedian(accel, axis=0))
     intervals = detect_static_intervals(filled, rec.sample_rate_hz)
     if not intervals:
         raise InputError("no still stretch found (no labelled position, no static interval)")

@@ -209,7 +209,10 @@ def _averaging(
     rows = static_rows(rec)
     if rows is None:
         rows = max(position_rows(rec)[0], key=len, default=np.arange(0))
-    samples = {"accel": [rec.accel[rows]], "gyro": [rec.gyro[rows]]}
+    samples = {
+        "accel": [np.asarray(rec.accel[rows], dtype=np.float64)],
+        "gyro": [np.asarray(rec.gyro[rows], dtype=np.float64)],
+    }
     event = choose_time(
         AveragingPolicy(), samples, rec.sample_rate_hz, sensors, later_budget_s(plan)
     )

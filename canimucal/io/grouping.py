@@ -34,18 +34,34 @@ def position_labels(recording: Recording) -> list[int]:
 def label_rows(position: NDArray[np.int64]) -> dict[int, NDArray[np.intp]]:
     """Row indices of every label ``>= 0``, ascending labels, rows in file order.
 
-    One stable sort of the labelled rows (nearly sorted already: a session's labels come in
-    runs), then one split: never a scan of every row per position (issue 23).
+    Found from the runs of equal labels (:func:`label_runs`); never a sort or a scan of
+    every row per position (issue 23).
     """
-    labelled = np.flatnonzero(position >= 0)
-    order = labelled[np.argsort(position[labelled], kind="stable")]
-    sorted_labels = position[order]
-    starts = np.flatnonzero(np.diff(sorted_labels)) + 1
-    if order.size == 0:
+    return {
+        label: np.concatenate([np.arange(a, b, dtype=np.intp) for a, b in spans])
+        for label, spans in label_runs(position).items()
+    }
+
+
+def label_runs(position: NDArray[np.int64]) -> dict[int, list[tuple[int, int]]]:
+    """Return the runs ``[start, stop)`` of every label ``>= 0`` in file order, ascending labels.
+
+    One comparison of each row with the next (a session's labels come in runs).
+    """
+    n = position.shape[0]
+    if n == 0:
         return {}
-    firsts = [0, *starts.tolist()]
-    pieces = np.split(order, starts)
-    return {int(sorted_labels[i]): rows for i, rows in zip(firsts, pieces, strict=True)}
+    change = np.flatnonzero(position[1:] != position[:-1]) + 1
+    starts = np.concatenate([[0], change])
+    stops = np.concatenate([change, [n]])
+    labels = position[starts]
+    keep = labels >= 0
+    runs: dict[int, list[tuple[int, int]]] = {}
+    for label, a, b in zip(
+        labels[keep].tolist(), starts[keep].tolist(), stops[keep].tolist(), strict=True
+    ):
+        runs.setdefault(int(label), []).append((a, b))
+    return {label: runs[label] for label in sorted(runs)}
 
 
 def position_rows(recording: Recording) -> tuple[list[NDArray[np.intp]], bool]:
@@ -79,8 +95,8 @@ def has_angles(recording: Recording) -> bool:
     labelled = recording.position >= 0
     if not labelled.any():
         return False
-    angles = np.column_stack([recording.alpha_deg, recording.beta_deg, recording.psi_deg])
-    return bool(np.isfinite(angles[labelled]).all())
+    columns = (recording.alpha_deg, recording.beta_deg, recording.psi_deg)
+    return not any(np.any(labelled & ~np.isfinite(angle)) for angle in columns)
 
 
 def position_averages(
@@ -94,62 +110,96 @@ def position_averages(
     """
     if not np.isfinite(tolerance_deg) or tolerance_deg < 0:
         raise InputError(f"tolerance_deg must be a finite number >= 0, got {tolerance_deg}")
-    by_label = label_rows(recording.position)
+    by_label = label_runs(recording.position)
     if not by_label:
         raise InputError(f"{recording.source or 'recording'}: no labelled position")
     tolerance_rad = float(np.deg2rad(tolerance_deg))
+    with_gyro = bool(np.isfinite(recording.gyro).any())
     return [
-        _average_one(recording, label, rows, tolerance_rad, require_angles)
-        for label, rows in by_label.items()
+        _average_one(recording, label, _rows_of(spans), tolerance_rad, require_angles, with_gyro)
+        for label, spans in by_label.items()
     ]
+
+
+def _rows_of(spans: list[tuple[int, int]]) -> NDArray[np.intp] | slice:
+    """Return a label's rows: a slice for one run (views, no index array), else indices."""
+    if len(spans) == 1:
+        return slice(*spans[0])
+    return np.concatenate([np.arange(a, b, dtype=np.intp) for a, b in spans])
 
 
 def _average_one(
     recording: Recording,
     label: int,
-    rows: NDArray[np.intp],
+    take: NDArray[np.intp] | slice,
     tolerance_rad: float,
     require_angles: bool,
+    with_gyro: bool,
 ) -> PositionAverage:
-    first = rows[0]
-    angles_deg = [recording.alpha_deg[first], recording.beta_deg[first], recording.psi_deg[first]]
+    first = take.start if isinstance(take, slice) else int(take[0])
+    angles_deg = [
+        float(recording.alpha_deg[first]),
+        float(recording.beta_deg[first]),
+        float(recording.psi_deg[first]),
+    ]
     if not np.all(np.isfinite(angles_deg)) and require_angles:
         raise InputError(
             f"{recording.source or 'recording'}: position {label} has no angles "
             "(only scalar |f| = g methods apply)"
         )
     alpha, beta, psi = (float(x) for x in np.deg2rad(angles_deg))
-    temps = recording.temp_c[rows]
-    temp_c = float(np.mean(temps[np.isfinite(temps)])) if np.isfinite(temps).any() else None
+    temps = np.asarray(recording.temp_c[take], dtype=np.float64)
+    finite_temps = temps[np.isfinite(temps)]
+    temp_c = float(np.mean(finite_temps)) if finite_temps.size else None
     try:
         return average_position(
             Pose(alpha, beta, psi, tolerance_rad),
-            recording.accel[rows],
-            recording.gyro[rows] if np.isfinite(recording.gyro).any() else None,
+            recording.accel[take],
+            recording.gyro[take] if with_gyro else None,
             sample_rate_hz=recording.sample_rate_hz,
             temp_c=temp_c,
-            lost=lost_samples(recording, rows),
+            lost=lost_samples(recording, take, with_gyro),
         )
     except ValueError as exc:
         raise InputError(f"{recording.source or 'recording'}: position {label}: {exc}") from exc
 
 
-def lost_samples(recording: Recording, rows: NDArray[np.intp]) -> int:
-    """Count samples of ``rows`` (one position) with a PDO half missing, counter gaps included."""
+def lost_samples(
+    recording: Recording, rows: NDArray[np.intp] | slice, with_gyro: bool | None = None
+) -> int:
+    """Count samples of ``rows`` (one position) with a PDO half missing, counter gaps included.
+
+    ``rows`` are indices, or a slice (one run of rows); ``with_gyro``: whether the recording
+    has gyro data (looked up when None).
+    """
     half_missing = np.isnan(recording.accel[rows, 0])
-    if np.isfinite(recording.gyro).any():
+    if with_gyro is None:
+        with_gyro = bool(np.isfinite(recording.gyro).any())
+    if with_gyro:
         half_missing |= np.isnan(recording.gyro[rows, 0])
     return int(half_missing.sum()) + _counter_gaps(recording.counter[rows], rows)
 
 
-def _counter_gaps(counter: NDArray[np.float64], rows: NDArray[np.intp]) -> int:
+def _counter_gaps(counter: NDArray[np.float64], rows: NDArray[np.intp] | slice) -> int:
     """Count samples skipped between consecutive rows of one run (the counter wraps).
 
     A run ends where rows of another label (motion, another position) come in between: the
     samples there are not lost. A row with an empty counter is a sample present, not a gap.
+    ``rows`` as a slice is a single run.
     """
+    finite = np.isfinite(counter)
+    if bool(finite.all()):  # every counter known: no row skipped between two known ones
+        if counter.size < 2:
+            return 0
+        step = np.mod(np.diff(counter), COUNTER_MODULUS)
+        if isinstance(rows, slice):
+            return int(np.maximum(step - 1, 0).sum(dtype=np.float64))  # whole counts: exact
+        same_run = np.diff(rows) == 1
+        return int(np.where(same_run, np.maximum(step - 1, 0), 0).sum(dtype=np.float64))
+    if isinstance(rows, slice):
+        rows = np.arange(rows.start, rows.stop, dtype=np.intp)
     run = np.concatenate([[0], np.cumsum(np.diff(rows) > 1)])
-    known = np.flatnonzero(np.isfinite(counter))
+    known = np.flatnonzero(finite)
     if known.size < 2:
         return 0
     step = np.mod(np.diff(counter[known]), COUNTER_MODULUS)

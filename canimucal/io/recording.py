@@ -8,10 +8,12 @@ one row per sample. Empty cells mean "unknown": ``counter``/angles/``temp_c`` re
 Reading streams the file (issue 23): the header line by line, then the rows in blocks of
 about :data:`CHUNK_BYTES`, each parsed with numpy and checked (row checks, ``t`` and the
 angles of a position across blocks too) before its numbers go straight into typed columns
-(float64 ``t`` and samples, int ``position``); neither the whole text nor a whole ``(n, 13)``
-table ever exists. When a block fails to parse, a slow line-by-line pass over that block finds
-the first bad line, so the error names file, line and problem. A file with several problems
-reports the first block's first one. The streaming and
+(float64 ``t``, int64 ``position``, the others float32 while their values fit it exactly, see
+:class:`_Columns`); neither the whole text nor a whole ``(n, 13)`` table ever exists.
+Recording arrays may therefore be float32: code summing samples converts to float64 first.
+When a block fails to parse, a slow line-by-line pass over that block finds the first bad
+line, so the error names file, line and problem. A file with several problems reports the
+first block's first one. The streaming and
 whole-file writers live in :mod:`canimucal.io.recording_writer`.
 """
 
@@ -72,6 +74,8 @@ class Recording:
     """A parsed recording: typed header and one numpy array per column (see module doc).
 
     ``accel``/``gyro`` are ``(n, 3)`` counts; ``position`` is int with -1 for "no position".
+    Read from a file, the columns but ``t`` and ``position`` are float32 when every value
+    fits it exactly (module doc): convert to float64 before summing many samples.
     ``sample_rate_inferred`` is true when the header had no ``sample_rate_hz`` and the
     value in ``header`` is the median sample interval's inverse. ``turns`` are the known
     turns an importer found (gyro moves beside the labelled positions).
@@ -227,67 +231,105 @@ def _recording_from_table(
 
 
 class _Columns:
-    """Typed columns filled block by block (capacity grows by half when a block overflows)."""
+    """Typed columns filled block by block (capacity grows by half when a block overflows).
+
+    ``t`` is float64 and ``position`` int64; every other column starts as float32 and stays
+    so while each value read fits it exactly (sample counts, the 16-bit counter, whole or
+    binary-fraction angles and temperatures: 4 bytes a cell instead of 8), and becomes
+    float64 from the first block with a value that does not (:data:`COMPACT_COLUMNS`).
+    Either way every value reads back exactly as the file wrote it.
+    """
 
     def __init__(self, capacity: int, *, with_trial: bool = False) -> None:
         self.n = 0
-        self._trial = np.empty(capacity if with_trial else 0, dtype=np.int64)
         self.with_trial = with_trial
-        self._t, self._counter = _empty(capacity), _empty(capacity)
-        self._angles, self._accel = _empty(capacity, 3), _empty(capacity, 3)
-        self._gyro, self._temp = _empty(capacity, 3), _empty(capacity)
-        self._position = np.empty(capacity, dtype=np.int64)
+        self._capacity = capacity
+        self._data: dict[str, NDArray[Any]] = {
+            "t": np.empty(capacity, dtype=np.float64),
+            "position": np.empty(capacity, dtype=np.int64),
+        }
+        for name, width in COMPACT_COLUMNS.items():
+            shape = (capacity, width) if width > 1 else (capacity,)
+            self._data[name] = np.empty(shape, dtype=np.float32)
+        if with_trial:
+            self._data["trial"] = np.empty(capacity, dtype=np.int64)
 
     def append(self, table: FloatArray, trial: NDArray[np.int64] | None = None) -> None:
         k = table.shape[0]
-        if self.n + k > self._t.shape[0]:
-            self._grow(max(self.n + k, int(self._t.shape[0] * 1.5) + 1024))
+        if self.n + k > self._capacity:
+            self._grow(max(self.n + k, int(self._capacity * 1.5) + 1024))
         rows = slice(self.n, self.n + k)
+        data = self._data
         if self.with_trial:
             assert trial is not None and trial.shape == (k,)
-            self._trial[rows] = trial
-        self._t[rows] = table[:, 0]
-        self._counter[rows] = table[:, 1]
+            data["trial"][rows] = trial
+        data["t"][rows] = table[:, 0]
         label = table[:, 2]
-        self._position[rows] = np.where(np.isnan(label), -1, label)
-        self._angles[rows] = table[:, 3:6]
-        self._accel[rows] = table[:, 6:9]
-        self._gyro[rows] = table[:, 9:12]
-        self._temp[rows] = table[:, 12]
+        data["position"][rows] = np.where(np.isnan(label), -1, label)
+        narrow = [name for name in _TABLE_COLUMNS if data[name].dtype == np.float32]
+        if narrow:
+            fits = _fits_float32(table)
+            for name in narrow:
+                if not fits[_TABLE_COLUMNS[name]].all():
+                    self._widen(name)
+        for name, cols in _TABLE_COLUMNS.items():
+            data[name][rows] = table[:, cols]
         self.n += k
 
+    def _widen(self, name: str) -> None:
+        """Make column ``name`` float64 (its filled rows converted exactly)."""
+        old = self._data[name]
+        new = np.empty(old.shape, dtype=np.float64)
+        new[: self.n] = old[: self.n]
+        self._data[name] = new
+
     def _grow(self, capacity: int) -> None:
-        names = ["_t", "_counter", "_position", "_angles", "_accel", "_gyro", "_temp"]
-        for name in names + (["_trial"] if self.with_trial else []):
-            old = getattr(self, name)
+        for name, old in self._data.items():
             new = np.empty((capacity, *old.shape[1:]), dtype=old.dtype)
             new[: self.n] = old[: self.n]
-            setattr(self, name, new)
+            self._data[name] = new
+        self._capacity = capacity
 
     def arrays(self) -> dict[str, NDArray[np.float64] | NDArray[np.int64]]:
-        """Return the filled rows, read-only (the angles as contiguous columns of their own)."""
+        """Return the filled rows, read-only (views: no column is copied)."""
         n = self.n
-        out: dict[str, NDArray[np.float64] | NDArray[np.int64]] = {
-            "t": self._t[:n],
-            "counter": self._counter[:n],
-            "position": self._position[:n],
-            "alpha_deg": np.ascontiguousarray(self._angles[:n, 0]),
-            "beta_deg": np.ascontiguousarray(self._angles[:n, 1]),
-            "psi_deg": np.ascontiguousarray(self._angles[:n, 2]),
-            "accel": self._accel[:n],
-            "gyro": self._gyro[:n],
-            "temp_c": self._temp[:n],
-        }
-        self._angles = _empty(0, 3)
-        if self.with_trial:
-            out["trial"] = self._trial[:n]
+        out: dict[str, NDArray[Any]] = {name: arr[:n] for name, arr in self._data.items()}
         for arr in out.values():
             arr.setflags(write=False)
         return out
 
 
-def _empty(rows: int, width: int = 0) -> FloatArray:
-    return np.empty((rows, width) if width else rows, dtype=np.float64)
+COMPACT_COLUMNS: dict[str, int] = {
+    "counter": 1,
+    "alpha_deg": 1,
+    "beta_deg": 1,
+    "psi_deg": 1,
+    "accel": 3,
+    "gyro": 3,
+    "temp_c": 1,
+}
+"""The columns kept as float32 while their values fit it exactly, and their widths."""
+
+_TABLE_COLUMNS: dict[str, int | slice] = {
+    "counter": 1,
+    "alpha_deg": 3,
+    "beta_deg": 4,
+    "psi_deg": 5,
+    "accel": slice(6, 9),
+    "gyro": slice(9, 12),
+    "temp_c": 12,
+}
+
+
+def _fits_float32(table: FloatArray) -> NDArray[np.bool_]:
+    """Whether each column's values are all NaN or exactly a float32 (one pass over the block).
+
+    A value that does not fit differs from its float32 rounding (finite: the table checks
+    refused inf); NaN differs from itself and is skipped.
+    """
+    with np.errstate(over="ignore"):
+        narrow = table.astype(np.float32)
+    return np.asarray(~((narrow != table) & ~np.isnan(table)).any(axis=0))
 
 
 def _recording_from_parts(
@@ -355,18 +397,47 @@ def count_duplicates_columns(
     times never go back, so a sample written again later has a later ``t``) equals the
     nearest such row's (empty cells equal empty cells). Rows with an empty counter are
     compared with the row before only, in every column. Vectorised (a stable sort by
-    counter), so ten million rows cost seconds.
+    counter), and done :data:`DUPLICATE_CHUNK_ROWS` rows at a time, each with the window
+    before it, so ten million rows cost seconds and no temporary grows with the file.
     """
     n = counter.shape[0]
     if n < 2:
         return 0, 0
-    finite = np.flatnonzero(np.isfinite(counter))
+    repeats = copies = 0
+    for start in range(0, n, DUPLICATE_CHUNK_ROWS):
+        stop = min(n, start + DUPLICATE_CHUNK_ROWS)
+        r, c = _duplicates_in(t, counter, others, start, stop)
+        repeats += r
+        copies += c
+    return repeats, copies
+
+
+DUPLICATE_CHUNK_ROWS = 1 << 20
+"""Rows whose repeats :func:`count_duplicates_columns` looks for at a time."""
+
+
+def _duplicates_in(
+    t: FloatArray,
+    counter: FloatArray,
+    others: list[NDArray[np.float64] | NDArray[np.int64]],
+    start: int,
+    stop: int,
+) -> tuple[int, int]:
+    """:func:`count_duplicates_columns` for the rows ``start:stop`` (the window before read).
+
+    The nearest earlier row with the same counter within the window is found among rows
+    ``start - REPEAT_WINDOW_ROWS`` on, so the count is that of the whole file's sort.
+    """
+    low = max(0, start - REPEAT_WINDOW_ROWS)
+    finite = np.flatnonzero(np.isfinite(counter[low:stop])) + low
     order = finite[np.argsort(counter[finite], kind="stable")]  # same counters: by row
     later, earlier = order[1:], order[:-1]
     same = (counter[later] == counter[earlier]) & (later - earlier <= REPEAT_WINDOW_ROWS)
+    same &= later >= start
     later, earlier = later[same], earlier[same]
     copies = int(np.count_nonzero(_rows_equal(others, later, earlier)))
-    empty = np.flatnonzero(~np.isfinite(counter[1:])) + 1  # no counter: the row before only
+    first = max(start, 1)
+    empty = np.flatnonzero(~np.isfinite(counter[first:stop])) + first  # the row before only
     same_counter = np.isnan(counter[empty]) & np.isnan(counter[empty - 1])
     same_t = t[empty] == t[empty - 1]
     copies += int(np.count_nonzero(_rows_equal(others, empty, empty - 1) & same_counter & same_t))
@@ -394,14 +465,23 @@ def check_time_advances(t: FloatArray, source: str) -> None:
 
     Every analysis takes the sample interval from the median step of ``t``; a constant
     column, or a file whose rows were each written twice, makes it zero. Said here, once,
-    in words, rather than as a division by zero wherever ``t`` is used.
+    in words, rather than as a division by zero wherever ``t`` is used. With ``t``
+    non-decreasing (every caller checked it) the median step is zero exactly when more than half
+    of the steps are (the larger middle one for an even count), so the zero steps are
+    counted block by block instead of sorting every step.
     """
-    steps = np.diff(t)
-    if steps.size == 0 or float(np.median(steps)) > 0.0:
+    steps = t.shape[0] - 1
+    if steps <= 0:
         return
-    still = int(np.count_nonzero(steps == 0))
+    block = DUPLICATE_CHUNK_ROWS
+    still = sum(
+        int(np.count_nonzero(t[i + 1 : i + block + 1] == t[i : min(i + block, steps)]))
+        for i in range(0, steps, block)
+    )
+    if still <= steps // 2:
+        return
     raise InputError(
-        f"{source or 'recording'}: t does not advance ({still} of {steps.size} steps are 0: "
+        f"{source or 'recording'}: t does not advance ({still} of {steps} steps are 0: "
         "a constant time column, or rows written twice); fix t or remove the repeated rows"
     )
 
@@ -433,9 +513,10 @@ MEMORY_PER_FILE_BYTE = 14
 importers still read whole files."""
 
 STREAMED_MEMORY_PER_FILE_BYTE = 5
-"""Peak memory of :func:`read_recording_csv` per byte of file: the typed columns (104 bytes a
-row, about 2 per byte of a 56-byte row, up to 4 for the shortest rows) and the repeats check's
-indices; the text is read in blocks of :data:`CHUNK_BYTES`."""
+"""Peak memory of :func:`read_recording_csv` per byte of file: the typed columns (60 bytes a
+row with float32-exact values, 104 without, about 1-2 per byte of a 56-byte row, up to 4 for
+the shortest rows); the text is read in blocks of :data:`CHUNK_BYTES` and the repeats check
+runs in chunks of :data:`DUPLICATE_CHUNK_ROWS`."""
 
 
 def available_memory_bytes() -> int | None:
@@ -866,43 +947,61 @@ def check_table(table: FloatArray, first_line: int, source: str) -> None:
 
     if np.isinf(table).any():
         raise located_error(where, first(np.isinf(table).any(axis=1)), "number out of range")
-    if np.isnan(table[:, 0]).any():
-        raise located_error(where, first(np.isnan(table[:, 0])), "t is empty")
+    nan = np.isnan(table).T  # one pass over the table; nan[c] is column c
+    if nan[0].any():
+        raise located_error(where, first(nan[0]), "t is empty")
     back = np.diff(table[:, 0]) < 0
     if back.any():
         raise located_error(where, first(back) + 1, "t goes backwards")
     for col, name in ((1, "counter"), (2, "position")):
         values = table[:, col]
-        bad = ~np.isnan(values) & ((values < 0) | (values != np.floor(values)))
+        bad = ~nan[col] & ((values < 0) | (values != np.floor(values)))
         if bad.any():
             raise located_error(where, first(bad), f"{name} is not a non-negative integer")
-    for cols, what in ((slice(3, 6), "angles"), (slice(6, 9), "accel"), (slice(9, 12), "gyro")):
-        empty = np.isnan(table[:, cols])
-        partial = empty.any(axis=1) & ~empty.all(axis=1)
+    for col, what in ((3, "angles"), (6, "accel"), (9, "gyro")):
+        partial = (nan[col] != nan[col + 1]) | (nan[col + 1] != nan[col + 2])
         if partial.any():
             raise located_error(
                 where, first(partial), f"{what} cells partly empty (all three or none)"
             )
-    no_data = np.isnan(table[:, 6]) & np.isnan(table[:, 9])
+    no_data = nan[6] & nan[9]
     if no_data.any():
         raise located_error(where, first(no_data), "row has neither accel nor gyro values")
     _check_angles_constant(table, first_line, where)
 
 
 def _check_angles_constant(table: FloatArray, first_line: int, where: str) -> None:
-    labelled = np.flatnonzero(~np.isnan(table[:, 2]))
-    if labelled.size == 0:
+    """Refuse a position whose rows' angles differ (empty equals empty).
+
+    Read from the runs of equal labels: each row against the one before in its run, each
+    run's first row against the last row of the label's previous run. Reports the smallest
+    label with a change, at its first changed row (as a stable sort by label would).
+    """
+    label = table[:, 2]
+    if np.isnan(label).all():
         return
-    labels = table[labelled, 2]
-    angles = np.nan_to_num(table[labelled, 3:6], nan=np.inf)  # inf: a comparable "empty"
-    order = np.argsort(labels, kind="stable")
-    labels, angles, rows = labels[order], angles[order], labelled[order]
-    same_label = labels[1:] == labels[:-1]
-    changed = same_label & (angles[1:] != angles[:-1]).any(axis=1)
-    if changed.any():
-        k = int(np.argmax(changed)) + 1
+    angles = np.nan_to_num(table[:, 3:6], nan=np.inf)  # inf: a comparable "empty"
+    first_change: dict[float, int] = {}
+    same_label = label[1:] == label[:-1]  # NaN never equals: unlabelled rows are skipped
+    inside = np.flatnonzero(same_label & (angles[1:] != angles[:-1]).any(axis=1)) + 1
+    if inside.size:
+        labels, first = np.unique(label[inside], return_index=True)
+        first_change = dict(zip(labels.tolist(), inside[first].tolist(), strict=True))
+    last_row: dict[float, int] = {}
+    starts = np.concatenate([[0], np.flatnonzero(~same_label) + 1])
+    stops = np.concatenate([starts[1:], [label.shape[0]]])
+    for a, b in zip(starts.tolist(), stops.tolist(), strict=True):
+        value = float(label[a])
+        if value != value:  # NaN: no position
+            continue
+        before = last_row.get(value)
+        if before is not None and bool((angles[a] != angles[before]).any()):
+            first_change[value] = min(first_change.get(value, a), a)
+        last_row[value] = b - 1
+    if first_change:
+        worst = min(first_change)
         raise located_error(
-            where, first_line + int(rows[k]), f"angles change within position {labels[k]:g}"
+            where, first_line + first_change[worst], f"angles change within position {worst:g}"
         )
 
 
@@ -918,11 +1017,17 @@ def parse_rows(data: bytes, first_line: int, source: str, width: int = len(COLUM
         data = data[:-1]
     if not data:
         return np.empty((0, width))
-    if data.translate(None, _NUMERIC_BYTES) or data.startswith(b"\n") or b"\n\n" in data:
+    blank_line, empty_cells = _blanks(data)
+    if data.translate(None, _NUMERIC_BYTES) or data.startswith(b"\n") or blank_line:
         raise _diagnose(data, first_line, source, "unexpected characters", width)
-    # Empty cells become "nan" (letters were refused above, so NaN only comes from here).
-    filled = data.replace(b",,", b",nan,").replace(b",,", b",nan,").replace(b",\n", b",nan\n")
-    text = filled.decode("ascii") + ("nan" if filled.endswith(b",") else "")
+    # Empty cells become "nan" (letters were refused above, so NaN only comes from here),
+    # inserted where each one starts: one pass, however many there are.
+    if empty_cells.size:
+        nan = np.tile(np.frombuffer(b"nan", dtype=np.uint8), empty_cells.size)
+        at = np.repeat(empty_cells, 3)
+        text = np.insert(np.frombuffer(data, dtype=np.uint8), at, nan).tobytes().decode("ascii")
+    else:
+        text = data.decode("ascii")
     try:
         table = np.loadtxt(io.StringIO(text), delimiter=",", comments=None, ndmin=2)
     except ValueError as exc:
@@ -930,6 +1035,22 @@ def parse_rows(data: bytes, first_line: int, source: str, width: int = len(COLUM
     if table.shape[1] != width:
         raise _diagnose(data, first_line, source, "wrong number of columns", width)
     return table
+
+
+def _blanks(data: bytes) -> tuple[bool, NDArray[np.intp]]:
+    """Find the empty lines and empty cells of ``data`` (rows without their final newline).
+
+    Returns whether there is an empty line, and where each empty cell starts (after a comma
+    followed by a comma, a newline or the end). Looked for with numpy: 8x faster than
+    ``bytes`` searches for a two-byte pattern.
+    """
+    u = np.frombuffer(data, dtype=np.uint8)
+    newline, comma = u == ord("\n"), u == ord(",")
+    blank_line = bool((newline[:-1] & newline[1:]).any())
+    empty = np.flatnonzero(comma[:-1] & (comma[1:] | newline[1:])) + 1
+    if data.endswith(b","):
+        empty = np.append(empty, len(data))
+    return blank_line, empty
 
 
 def _diagnose(
@@ -1006,9 +1127,14 @@ def _format_numbers(values: FloatArray) -> list[str]:
 
 def angles_by_position(table: FloatArray) -> dict[int, tuple[float, ...]]:
     """Angles of each labelled position (first row; the table was checked to agree)."""
-    labelled = table[~np.isnan(table[:, 2])]
-    labels, first = np.unique(labelled[:, 2], return_index=True)
-    angles = np.nan_to_num(labelled[first, 3:6], nan=np.inf)  # inf: a comparable "empty"
+    label = table[:, 2]
+    if label.shape[0] == 0:
+        return {}
+    starts = np.concatenate([[0], np.flatnonzero(label[1:] != label[:-1]) + 1])
+    starts = starts[~np.isnan(label[starts])]
+    labels, first = np.unique(label[starts], return_index=True)
+    rows = starts[first]
+    angles = np.nan_to_num(table[rows, 3:6], nan=np.inf)  # inf: a comparable "empty"
     return {int(k): tuple(a) for k, a in zip(labels.tolist(), angles.tolist(), strict=True)}
 
 

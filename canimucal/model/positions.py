@@ -161,7 +161,8 @@ def average_position(
 def _finite_rows(x: NDArray[np.float64]) -> NDArray[np.float64]:
     if x.ndim != 2 or x.shape[1] != 3:
         raise ValueError(f"samples must be an (n, 3) array, got shape {x.shape}")
-    return x[np.all(np.isfinite(x), axis=1)]
+    finite = np.all(np.isfinite(x), axis=1)
+    return x if bool(finite.all()) else x[finite]  # no copy of a position without losses
 
 
 def _mean_cov(

@@ -14,12 +14,11 @@ from __future__ import annotations
 import html
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from canimucal.analysis.acceptance import AcceptanceLimits, AcceptanceReport
-from canimucal.device.client import Identity
 from canimucal.io.calibration import Calibration, Verification, calibration_to_dict
 from canimucal.model.mounting import MountingMap
 from canimucal.model.sensor import STANDARD_GRAVITY
@@ -28,6 +27,9 @@ from canimucal.model.vocabulary.units import QUANTITIES, Scales, operator_value,
 from canimucal.procedure.events import LevelChecked, PoseVerified
 from canimucal.runtime.plan_forecast import LimitForecast
 from canimucal.untrusted import markdown_text
+
+if TYPE_CHECKING:  # python-can and canopen load with a bus, not with a certificate
+    from canimucal.device.client import Identity
 
 K1_STATEMENT = (
     "Every ± is one standard uncertainty (k = 1, about 68 % coverage for a normal "

@@ -498,7 +498,7 @@ def _matched(
             out.append(_given(stretch, -1, "after the plan's last position"))
             continue
         pose = plan.positions[nxt]
-        rows = recording.accel[stretch.start : stretch.stop]
+        rows = np.asarray(recording.accel[stretch.start : stretch.stop], dtype=np.float64)
         mean = np.nanmean(rows, axis=0)
         f = measured_force(mean, accel_lsb)
         tolerance = FIRST_POSE_TOLERANCE_DEG if floor.empty else POSE_TOLERANCE_DEG

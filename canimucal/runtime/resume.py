@@ -84,8 +84,8 @@ def load_resume_state(
         if held is not None:
             priors[node_id] = held
         if first_accel is None and np.any(recording.position == 0):
-            first_accel = recording.accel[recording.position == 0]
-            first_gyro = recording.gyro[recording.position == 0]
+            first_accel = np.asarray(recording.accel[recording.position == 0], dtype=np.float64)
+            first_gyro = np.asarray(recording.gyro[recording.position == 0], dtype=np.float64)
     done = {frozenset(a) for a in averages.values()}
     if len(done) > 1:
         raise InputError(f"cannot resume: the recordings in {out} hold different positions")
