@@ -11,6 +11,7 @@ altogether, seen as gaps in the wrapping 16-bit sample counter between consecuti
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 
 import numpy as np
@@ -88,7 +89,10 @@ def position_averages(
 ) -> list[PositionAverage]:
     """One :class:`PositionAverage` per position label, in ascending label order.
 
-    ``tolerance_deg`` becomes each pose's 1σ angle-setting error. A labelled position without
+    With trials (the recording's ``trial`` column, docs/design.md §5) one per trial and
+    label, ascending trials then labels, each carrying its ``trial`` (rows of an empty trial
+    cell form a trial of their own, ``-1``). ``tolerance_deg`` becomes each pose's 1σ
+    angle-setting error. A labelled position without
     angles raises :class:`InputError` unless ``require_angles`` is false, in which case its
     pose has NaN angles (for the scalar methods only).
     """
@@ -98,10 +102,32 @@ def position_averages(
     if not by_label:
         raise InputError(f"{recording.source or 'recording'}: no labelled position")
     tolerance_rad = float(np.deg2rad(tolerance_deg))
-    return [
-        _average_one(recording, label, rows, tolerance_rad, require_angles)
-        for label, rows in by_label.items()
-    ]
+    if recording.trial is None:
+        return [
+            _average_one(recording, label, rows, tolerance_rad, require_angles)
+            for label, rows in by_label.items()
+        ]
+    out = []
+    for trial, label, rows in trial_label_rows(recording.position, recording.trial):
+        average = _average_one(recording, label, rows, tolerance_rad, require_angles)
+        out.append(dataclasses.replace(average, trial=trial))
+    return out
+
+
+def trial_label_rows(
+    position: NDArray[np.int64], trial: NDArray[np.int64]
+) -> list[tuple[int, int, NDArray[np.intp]]]:
+    """``(trial, label, rows)`` of every labelled position of every trial, ascending.
+
+    A row whose trial cell is empty (< 0) belongs to trial -1; rows in file order.
+    """
+    keyed = np.where(trial < 0, -1, trial)
+    out = []
+    for t in np.unique(keyed[position >= 0]).tolist():
+        mine = np.flatnonzero(keyed == t)
+        for label, rows in label_rows(position[mine]).items():
+            out.append((int(t), label, mine[rows]))
+    return out
 
 
 def _average_one(
@@ -157,3 +183,61 @@ def _counter_gaps(counter: NDArray[np.float64], rows: NDArray[np.intp]) -> int:
     same_run = np.diff(run[known]) == 0
     gaps = np.where(same_run, np.maximum(step - 1 - skipped, 0), 0)
     return int(gaps.sum())
+
+
+TRIAL_GAP_S = 60.0
+"""A step in ``t`` longer than this (and 100 sample periods) splits an unlabelled file into
+trials, when every piece holds at least two labelled positions."""
+
+
+def detect_trials(recording: Recording) -> tuple[Recording, str | None]:
+    """Give a recording without a ``trial`` column its trials, when the file shows them.
+
+    Two signs, either enough: the position labels recur in time order (the label sequence
+    runs again: a new trial starts where a label comes back that the current trial has had
+    already), or long pauses in ``t`` (:data:`TRIAL_GAP_S`). Found only when there are at
+    least two trials of two labelled positions each; then the recording comes back with its
+    ``trial`` column and a one-line note saying why. Otherwise (or when the file has the
+    column) it comes back as it is, with no note.
+    """
+    if recording.trial is not None:
+        return recording, None
+    labelled = np.flatnonzero(recording.position >= 0)
+    if labelled.size < 4:
+        return recording, None
+    starts: set[int] = set()
+    seen: set[int] = set()
+    labels = recording.position[labelled]
+    change = np.concatenate([[0], np.flatnonzero(np.diff(labels)) + 1])
+    for k in change.tolist():
+        label = int(labels[k])
+        if label in seen:
+            starts.add(int(labelled[k]))
+            seen = set()
+        seen.add(label)
+    repeat_starts = set(starts)
+    if recording.t.size > 1:
+        dt = np.diff(recording.t)
+        finite = dt[np.isfinite(dt) & (dt > 0)]
+        typical = float(np.median(finite)) if finite.size else 0.0
+        gaps = np.flatnonzero(dt > max(TRIAL_GAP_S, 100.0 * typical)) + 1
+        starts |= {int(g) for g in gaps.tolist()}
+    if not starts:
+        return recording, None
+    edges = sorted(starts)
+    trial = np.searchsorted(np.array(edges), np.arange(recording.n_rows), side="right")
+    pieces = [
+        np.unique(recording.position[labelled][trial[labelled] == t]) for t in range(len(edges) + 1)
+    ]
+    if len(pieces) < 2 or any(p.size < 2 for p in pieces):
+        return recording, None
+    why = []
+    if repeat_starts:
+        why.append("the position labels recur in time order")
+    if starts - repeat_starts:
+        why.append(f"t pauses over {TRIAL_GAP_S:g} s")
+    note = (
+        f"no trial column, but {' and '.join(why)}: treated as {len(pieces)} trials "
+        "(one bias each, K shared; a trial column says so explicitly)"
+    )
+    return dataclasses.replace(recording, trial=trial.astype(np.int64)), note
