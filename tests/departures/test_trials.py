@@ -17,12 +17,17 @@ line says so and the trials are solved as if labelled.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
 from canimucal.analysis.solve import solve_recording
+from canimucal.io.calibration import Calibration
 from canimucal.io.grouping import detect_trials
+from canimucal.io.recording_writer import write_recording
+from tests.departures.conftest import CliRun
 from tests.support import departures as dep
 
 SEEDS = tuple(range(20))
@@ -79,3 +84,28 @@ def test_one_trial_of_a_plan_is_no_trials() -> None:
     rec = dep.short_recording(case, 0)
     same, note = detect_trials(rec)
     assert note is None and same.trial is None
+
+
+def test_solve_reports_the_trials_in_text_and_json(
+    tmp_path: Path, cli: Callable[[Sequence[str]], CliRun]
+) -> None:
+    case = dep.Case(dep.REMOUNTED, "recommended", 0.1)
+    rec, units = dep.trials_recording(case, 4)
+    path = write_recording(tmp_path / "trials.csv", rec, overwrite=False)
+    target = tmp_path / "cal.json"
+    run = cli(["solve", str(path), "--model", "full", "--tilt", "--json", str(target)])
+    assert run.code == 0, run.err
+    assert "4 trials: one bias each, K and S shared" in run.out, run.out
+    record = Calibration.from_json(target)
+    assert record.trials is not None
+    assert [t.trial for t in record.trials] == [0, 1, 2, 3]
+    assert all(t.positions == 8 for t in record.trials)
+    assert record.positions is not None and {p.trial for p in record.positions} == {0, 1, 2, 3}
+    biases = np.array([t.accel_bias for t in record.trials], dtype=float)
+    assert record.accel.bias is not None
+    np.testing.assert_allclose(np.mean(biases, axis=0), np.array(record.accel.bias, dtype=float))
+    sigmas = np.array([t.accel_bias_sigma for t in record.trials], dtype=float)
+    assert np.all(np.abs(biases - units.accel_bias) < 5.0 * sigmas)
+    gyro = np.array([t.gyro_bias for t in record.trials], dtype=float)
+    gyro_sigma = np.array([t.gyro_bias_sigma for t in record.trials], dtype=float)
+    assert np.all(np.abs(gyro - units.gyro_bias) < 5.0 * gyro_sigma)
