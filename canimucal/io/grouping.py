@@ -193,51 +193,91 @@ trials, when every piece holds at least two labelled positions."""
 def detect_trials(recording: Recording) -> tuple[Recording, str | None]:
     """Give a recording without a ``trial`` column its trials, when the file shows them.
 
-    Two signs, either enough: the position labels recur in time order (the label sequence
-    runs again: a new trial starts where a label comes back that the current trial has had
-    already), or long pauses in ``t`` (:data:`TRIAL_GAP_S`). Found only when there are at
-    least two trials of two labelled positions each; then the recording comes back with its
-    ``trial`` column and a one-line note saying why. Otherwise (or when the file has the
-    column) it comes back as it is, with no note.
+    Two signs, either enough: the label sequence runs again (a new trial starts where a label
+    comes back that the current trial has had already, and every trial runs the first one's
+    labels in its order, the last one possibly cut short), or long pauses in ``t``
+    (:data:`TRIAL_GAP_S`). Found only when there are at least two trials of two labelled
+    positions each; then the recording comes back with its ``trial`` column and a one-line
+    note saying why. Labels that recur otherwise (a position redone later) leave the
+    recording as it is, with a note that they were averaged together. A file with the column,
+    or showing neither sign, comes back as it is, with no note.
     """
     if recording.trial is not None:
         return recording, None
     labelled = np.flatnonzero(recording.position >= 0)
     if labelled.size < 4:
         return recording, None
-    starts: set[int] = set()
-    seen: set[int] = set()
-    labels = recording.position[labelled]
+    repeats, chunks = _label_chunks(recording.position[labelled])
+    repeated = len(chunks) > 1 and all(
+        len(c) >= 2
+        and c == chunks[0][: len(c)]
+        and (len(c) == len(chunks[0]) or k == len(chunks) - 1)
+        for k, c in enumerate(chunks)
+    )
+    starts = {int(labelled[k]) for k in repeats} if repeated else set()
+    gap_starts = _pauses(recording.t)
+    edges = sorted(starts | gap_starts)
+    found = _trials_of(recording, labelled, edges)
+    if found is None:
+        if repeats:
+            first = int(recording.position[labelled[repeats[0]]])
+            return recording, (
+                f"position {first} recurs in time order, not as a repeated plan: its rows are "
+                "averaged as one position (a trial column tells trials apart)"
+            )
+        return recording, None
+    why = []
+    if starts:
+        why.append("the position labels recur in time order")
+    if gap_starts - starts:
+        why.append(f"t pauses over {TRIAL_GAP_S:g} s")
+    note = (
+        f"no trial column, but {' and '.join(why)}: treated as {int(found.max()) + 1} trials "
+        "(one bias each, K shared; a trial column says so explicitly)"
+    )
+    return dataclasses.replace(recording, trial=found), note
+
+
+def _label_chunks(labels: NDArray[np.int64]) -> tuple[list[int], list[list[int]]]:
+    """Split the labels' run sequence where a label comes back.
+
+    Returns the split points (indices into ``labels``) and each chunk's labels in order.
+    """
     change = np.concatenate([[0], np.flatnonzero(np.diff(labels)) + 1])
+    splits: list[int] = []
+    chunks: list[list[int]] = [[]]
     for k in change.tolist():
         label = int(labels[k])
-        if label in seen:
-            starts.add(int(labelled[k]))
-            seen = set()
-        seen.add(label)
-    repeat_starts = set(starts)
-    if recording.t.size > 1:
-        dt = np.diff(recording.t)
-        finite = dt[np.isfinite(dt) & (dt > 0)]
-        typical = float(np.median(finite)) if finite.size else 0.0
-        gaps = np.flatnonzero(dt > max(TRIAL_GAP_S, 100.0 * typical)) + 1
-        starts |= {int(g) for g in gaps.tolist()}
-    if not starts:
-        return recording, None
-    edges = sorted(starts)
+        if label in chunks[-1]:
+            splits.append(int(k))
+            chunks.append([])
+        chunks[-1].append(label)
+    return splits, chunks
+
+
+def _pauses(t: NDArray[np.float64]) -> set[int]:
+    """Rows after a step in ``t`` over :data:`TRIAL_GAP_S` and 100 typical steps."""
+    if t.size < 2:
+        return set()
+    dt = np.diff(t)
+    finite = dt[np.isfinite(dt) & (dt > 0)]
+    typical = float(np.median(finite)) if finite.size else 0.0
+    return {int(g) + 1 for g in np.flatnonzero(dt > max(TRIAL_GAP_S, 100.0 * typical)).tolist()}
+
+
+def _trials_of(
+    recording: Recording, labelled: NDArray[np.intp], edges: list[int]
+) -> NDArray[np.int64] | None:
+    """Return the trial of every row split at ``edges``.
+
+    None unless two or more pieces each hold two labelled positions or more.
+    """
+    if not edges:
+        return None
     trial = np.searchsorted(np.array(edges), np.arange(recording.n_rows), side="right")
     pieces = [
         np.unique(recording.position[labelled][trial[labelled] == t]) for t in range(len(edges) + 1)
     ]
-    if len(pieces) < 2 or any(p.size < 2 for p in pieces):
-        return recording, None
-    why = []
-    if repeat_starts:
-        why.append("the position labels recur in time order")
-    if starts - repeat_starts:
-        why.append(f"t pauses over {TRIAL_GAP_S:g} s")
-    note = (
-        f"no trial column, but {' and '.join(why)}: treated as {len(pieces)} trials "
-        "(one bias each, K shared; a trial column says so explicitly)"
-    )
-    return dataclasses.replace(recording, trial=trial.astype(np.int64)), note
+    if any(p.size < 2 for p in pieces):
+        return None
+    return trial.astype(np.int64)

@@ -109,3 +109,15 @@ def test_solve_reports_the_trials_in_text_and_json(
     gyro = np.array([t.gyro_bias for t in record.trials], dtype=float)
     gyro_sigma = np.array([t.gyro_bias_sigma for t in record.trials], dtype=float)
     assert np.all(np.abs(gyro - units.gyro_bias) < 5.0 * gyro_sigma)
+
+
+def test_a_position_redone_later_is_not_a_trial() -> None:
+    case = dep.Case(dep.REMOUNTED, "recommended", 0.0)
+    rec = dep.short_recording(case, 1)
+    # the operator redid position 2 after position 5: its label comes back once
+    position = rec.position.copy()
+    five = np.flatnonzero(position == 5)
+    position[five[len(five) // 2 :]] = 2
+    same, note = detect_trials(replace(rec, position=position))
+    assert same.trial is None
+    assert note is not None and "position 2 recurs in time order, not as a repeated plan" in note
