@@ -23,8 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
+from canimucal.analysis.calibrate import SiteConditions, solve_positions
 from canimucal.analysis.solve import solve_recording
-from canimucal.io.calibration import Calibration
+from canimucal.io.calibration import Calibration, Device
 from canimucal.io.grouping import detect_trials
 from canimucal.io.recording_writer import write_recording
 from tests.departures.conftest import CliRun
@@ -121,3 +122,17 @@ def test_a_position_redone_later_is_not_a_trial() -> None:
     same, note = detect_trials(replace(rec, position=position))
     assert same.trial is None
     assert note is not None and "position 2 recurs in time order, not as a repeated plan" in note
+
+
+def test_one_trial_solves_as_no_trials() -> None:
+    case = dep.Case(dep.REMOUNTED, "recommended", 0.1)
+    truth, averages = dep.offline_averages(case, 2)
+    site = SiteConditions(g=truth.g, accel_lsb=truth.accel.nominal_lsb)
+    spec = dep.solve_spec("recommended")
+    plain = solve_positions(averages, spec, site, Device(serial=0)).joint
+    one = solve_positions([replace(a, trial=7) for a in averages], spec, site, Device(serial=0))
+    assert plain is not None and one.joint is not None
+    assert one.joint.trial_bias is None and one.record.trials is None
+    np.testing.assert_array_equal(one.joint.values, plain.values)
+    np.testing.assert_array_equal(one.joint.covariance, plain.covariance)
+    assert one.joint.dof == plain.dof
