@@ -111,9 +111,17 @@ def grid(departure: Departure, seeds: Sequence[int] = tuple(range(20))) -> list[
 # ------------------------------------------------------------------------------ plans, units
 
 
+SIX_FACES_DEG = ((0, 0, 0), (180, 0, 0), (90, 0, 0), (-90, 0, 0), (0, 90, 0), (0, -90, 0))
+"""The classic six-position plan (each axis up and down, degrees): the issue's real trials."""
+
+
 def plan_of(name: str, tolerance_deg: float) -> Plan:
-    """The built-in plan (or ``twelve``) with every angle set to ``tolerance_deg`` (1σ)."""
+    """The built-in plan (or ``twelve``, ``six``) with every angle set to ``tolerance_deg`` (1σ)."""
     tol = float(np.deg2rad(tolerance_deg))
+    if name == "six":
+        degrees = np.deg2rad(np.array(SIX_FACES_DEG, dtype=float))
+        poses = tuple(PlannedPosition(*map(float, d), tolerance=tol, seconds=30.0) for d in degrees)
+        return Plan("six", poses)
     if name == "twelve":
         degrees = np.deg2rad(np.array(TWELVE_DEG, dtype=float))
         poses = tuple(PlannedPosition(*map(float, d), tolerance=tol, seconds=30.0) for d in degrees)
