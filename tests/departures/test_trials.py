@@ -11,8 +11,14 @@ and estimates the pose scatter from the residuals within trials (docs/design.md 
 parameter's Σz²/n within its χ² band; the pose scatter stays near the poses' own (never at
 its 10° bound, where one bias for all four trials drove it on the issue's real file).
 
+Measured (40 seeds, ``trials_errors``): rms 0.92 (K alone 1.00, the trial biases 0.89),
+largest |z| 3.5, scatter at most 0.13°; with one bias for all four trials the scatter ran to
+its 10° bound on every seed and K came out up to 7.4 % off. Four trials of the classic six
+faces (each axis up and down, full K; the issue's real file's shape): rms 0.99 on 12 seeds.
+
 A file without the ``trial`` column whose label sequence runs four times is detected: one
-line says so and the trials are solved as if labelled.
+line says so and the trials are solved as if labelled; long pauses in ``t`` split too; a
+position redone later is not a trial. ``solve``'s text and JSON list every trial's biases.
 """
 
 from __future__ import annotations
