@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from canimucal.analysis.calibrate import SiteConditions, solve_positions
+from canimucal.analysis.report import analyze
 from canimucal.analysis.solve import solve_recording
 from canimucal.io.calibration import Calibration, Device
 from canimucal.io.grouping import detect_trials
@@ -155,3 +156,10 @@ def test_four_six_position_trials() -> None:
     spread = dep.spread_of(rows)
     assert not spread.within(), (spread.rms, spread.within())
     assert max(scatters) < 0.5, scatters
+
+
+def test_analyze_says_it_fits_one_bias_for_all_trials() -> None:
+    case = dep.Case(dep.REMOUNTED, "recommended", 0.0)
+    rec, _units = dep.trials_recording(case, 6)
+    notes = analyze(rec).notes
+    assert any(n.startswith("4 trials in this file: analyze fits one bias") for n in notes), notes
