@@ -13,6 +13,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numpy.typing import NDArray
 
 from canimucal.errors import ModelError
 from canimucal.io.calibration import (
@@ -22,6 +23,7 @@ from canimucal.io.calibration import (
     Fit,
     Prior,
     RecordingRef,
+    TrialSummary,
     record_from_estimates,
     summarize_position,
 )
@@ -161,7 +163,12 @@ def solve_positions(
     )
     quality = birge(result.chi2, result.dof)
     if quality.inflation > 1.0:
-        result = replace(result, covariance=result.covariance * quality.inflation**2)
+        trial_cov = result.trial_bias_cov
+        result = replace(
+            result,
+            covariance=result.covariance * quality.inflation**2,
+            trial_bias_cov=None if trial_cov is None else trial_cov * quality.inflation**2,
+        )
     keep = [i for i, n in enumerate(result.names) if n not in result.undetermined]
     names = [result.names[i] for i in keep]
     record = record_from_estimates(
@@ -170,7 +177,7 @@ def solve_positions(
         result.covariance[np.ix_(keep, keep)],
         device=device,
         held_fixed=dict(result.undetermined),
-        plan=plan_name or plan_name_of(averages),
+        plan=plan_name or plan_name_of(first_trial(averages)),
         conditions=site.as_record_conditions(),
         positions=[summarize_position(a) for a in averages],
         fit=Fit(rms=result.rms_accel_ms2, dof=result.dof),
@@ -180,6 +187,8 @@ def solve_positions(
             for n, (m, s) in (prior or {}).items()
         ],
     )
+    if result.trials:
+        record = replace(record, trials=trial_summaries(result, averages))
     warnings = _prior_warnings(prior, prior_source) + _correlation_warnings(result)
     warnings += _plan_warnings(averages, spec, site, warnings) + _lack_of_fit_warning(result)
     if not result.converged:
@@ -190,6 +199,58 @@ def solve_positions(
         undetermined=dict(result.undetermined),
         warnings=warnings,
         quality=quality,
+    )
+
+
+def first_trial(averages: Sequence[PositionAverage]) -> list[PositionAverage]:
+    """Return the first trial's positions (all of them without trials): the plan's poses."""
+    first = averages[0].trial if averages else None
+    return [a for a in averages if a.trial == first]
+
+
+def trial_summaries(
+    result: JointResult, averages: Sequence[PositionAverage]
+) -> tuple[TrialSummary, ...]:
+    """Return the record's ``trials``: each trial's biases with σ (accelerometer, then gyro)."""
+    assert result.trial_bias is not None and result.trial_bias_cov is not None
+    out = []
+    for k, trial in enumerate(result.trials):
+        bias = result.trial_bias[k]
+        sigma = np.sqrt(np.clip(np.diagonal(result.trial_bias_cov[k]), 0.0, None))
+
+        def vec(x: NDArray[np.float64]) -> tuple[float | None, ...]:
+            return tuple(None if not np.isfinite(v) else float(v) for v in x)
+
+        gyro = bias.size == 6
+        out.append(
+            TrialSummary(
+                trial=int(trial),
+                positions=sum((a.trial if a.trial is not None else -1) == trial for a in averages),
+                accel_bias=vec(bias[:3]),
+                accel_bias_sigma=vec(sigma[:3]),
+                gyro_bias=vec(bias[3:]) if gyro else None,
+                gyro_bias_sigma=vec(sigma[3:]) if gyro else None,
+            )
+        )
+    return tuple(out)
+
+
+def trials_line(record: Calibration) -> str | None:
+    """``4 trials: one bias each, K shared`` and each trial's accelerometer bias, or None."""
+    if not record.trials:
+        return None
+
+    def counts(v: Sequence[float | None] | None) -> str:
+        return "[" + ", ".join("—" if x is None else f"{x:.3f}" for x in (v or ())) + "]"
+
+    parts = [
+        f"trial {t.trial}: {counts(t.accel_bias)} ± {counts(t.accel_bias_sigma)}"
+        for t in record.trials
+    ]
+    shared = "K and S shared" if record.gyro is not None else "K shared"
+    return (
+        f"{len(record.trials)} trials: one bias each, {shared}; accelerometer bias (counts) "
+        + "; ".join(parts)
     )
 
 

@@ -25,7 +25,7 @@ from canimucal.analysis.base_fit import UNIT_PROBE_RAD
 from canimucal.analysis.noise_model import ScatterEstimate, ScatterModel, estimate_scatter
 from canimucal.errors import InputError
 from canimucal.io.recording import Recording
-from canimucal.model.joint import JointResult, solve_joint
+from canimucal.model.joint import JointResult, solve_joint, trial_contrast
 from canimucal.model.layout import (
     JointSpec,
     ModelContext,
@@ -150,7 +150,7 @@ def fit_scatter(
     90 %). Without any accelerometer residual the plan's tolerance, else the plans' default
     0.1°, is assumed.
     """
-    dof = accel_dof(len(averages), spec)
+    dof = accel_dof(len(averages), spec, trials=max(1, len(trial_contrast(averages)[0])))
     floor = np.zeros(len(averages)) if planned is None else np.asarray(planned, dtype=float)
     if dof <= 0:
         if planned is None:
@@ -199,10 +199,13 @@ def _at_least(
     ]
 
 
-def accel_dof(n_positions: int, spec: JointSpec) -> int:
-    """Residual dof of the accelerometer: 3 per position less its parameters (and tilt)."""
+def accel_dof(n_positions: int, spec: JointSpec, trials: int = 1) -> int:
+    """Residual dof of the accelerometer: 3 per position less its parameters (and tilt).
+
+    Less 3 per trial beyond the first: each trial's own biases.
+    """
     own = [n for n in ParameterLayout.of(spec).names if not n.startswith("gyro.")]
-    return 3 * n_positions - len(own)
+    return 3 * n_positions - len(own) - 3 * (trials - 1)
 
 
 def scatter_of(
@@ -214,7 +217,10 @@ def scatter_of(
     theta = np.where(np.isnan(res.values), nominal, res.values)
     angles = np.array([a.pose.angles for a in averages])
     n, m = res.residuals.shape
-    design = predict(layout, theta, angles, ctx).d_theta.reshape(n * m, layout.size)
+    _ids, contrast = trial_contrast(averages)
+    columns = np.einsum("nj,cd->ncjd", contrast, np.eye(m)).reshape(n, m, -1)
+    d_theta = np.concatenate([predict(layout, theta, angles, ctx).d_theta, columns], axis=2)
+    design = d_theta.reshape(n * m, -1)  # the trials' own biases, where any, beside theta
     probe = np.full(n, UNIT_PROBE_RAD)
     unit_blocks = angle_error_moments(layout, theta, angles, ctx, probe).covariance
     unit_blocks = unit_blocks / UNIT_PROBE_RAD**2

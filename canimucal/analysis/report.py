@@ -24,6 +24,7 @@ from canimucal.analysis.repeats import unique_samples
 from canimucal.analysis.session import session_from_recording
 from canimucal.analysis.static_noise import static_rows
 from canimucal.errors import InputError
+from canimucal.io.grouping import detect_trials, has_angles
 from canimucal.io.recording import Recording
 from canimucal.model.noise import (
     NoiseTerms,
@@ -116,6 +117,20 @@ def analyze(
     )
 
 
+def _trials_note(recording: Recording) -> tuple[str, ...]:
+    """Say so when the file holds several trials: ``analyze`` does not model them yet."""
+    found, _why = detect_trials(recording) if has_angles(recording) else (recording, None)
+    if found.trial is None:
+        return ()
+    count = int(np.unique(found.trial[found.position >= 0]).size)
+    if count < 2:
+        return ()
+    return (
+        f"{count} trials in this file: analyze fits one bias for all of them (its causes may be "
+        "the trials' bias steps); solve gives each trial its own bias",
+    )
+
+
 def analyse_recording(
     rec: Recording,
     *,
@@ -131,7 +146,7 @@ def analyse_recording(
     ``tolerance_deg`` fixes the pose-setting scatter; None takes the recording's
     ``tolerance_deg`` header, else estimates it from the data. ``rec`` is taken as it is:
     held repeats are removed before (:func:`.repeats.unique_samples`, whose line goes in
-    ``notes``).
+    ``notes``). A file with several trials gets a note: the loop fits one bias for all.
     """
     session = session_from_recording(
         rec, g=g, latitude=latitude, heading=heading, tolerance_deg=tolerance_deg
@@ -144,7 +159,7 @@ def analyse_recording(
     allan = {"accel": _allan(rec, longest.accel)}
     if session.has_gyro and longest.gyro is not None:
         allan["gyro"] = _allan(rec, longest.gyro)
-    return Analysis(rec, session, result, allan, g_source, notes)
+    return Analysis(rec, session, result, allan, g_source, notes + _trials_note(rec))
 
 
 def _allan(rec: Recording, x: Array) -> AllanCheck:

@@ -8,9 +8,11 @@ labelled with its position, as the recorder labels a real session.
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from canimucal.io.recording import Recording, recording_from_columns
 from canimucal.model.positions import Plan
@@ -100,3 +102,97 @@ def _at_rate(truth: Truth, rate_hz: float) -> Truth:
         accel=folded(truth.accel, truth.accel.K),
         gyro=folded(truth.gyro, truth.gyro.S),
     )
+
+
+@dataclass(frozen=True)
+class TrialsTruth:
+    """What :func:`simulate_trials_recording` drew: each trial's unit (its own biases)."""
+
+    trials: tuple[Truth, ...]
+
+    @property
+    def accel_bias(self) -> NDArray[np.float64]:
+        """``(n_trials, 3)`` accelerometer biases (counts), one row a trial."""
+        return np.array([t.accel.bias for t in self.trials], dtype=float)
+
+    @property
+    def gyro_bias(self) -> NDArray[np.float64]:
+        """``(n_trials, 3)`` gyro biases (counts), one row a trial."""
+        return np.array([t.gyro.bias for t in self.trials], dtype=float)
+
+
+def remounted(
+    truth: Truth, rng: np.random.Generator, accel_counts: float, gyro_counts: float
+) -> Truth:
+    """``truth`` re-mounted: its biases moved by a draw, uniform within ±the given counts.
+
+    A unit taken off and fastened again keeps its scale (K, S, G) while its biases move
+    (mounting stress, a new warm-up): what separates the trials of one recording.
+    """
+    accel = dataclasses.replace(
+        truth.accel, bias=np.asarray(truth.accel.bias) + rng.uniform(-accel_counts, accel_counts, 3)
+    )
+    gyro = dataclasses.replace(
+        truth.gyro, bias=np.asarray(truth.gyro.bias) + rng.uniform(-gyro_counts, gyro_counts, 3)
+    )
+    return dataclasses.replace(truth, accel=accel, gyro=gyro)
+
+
+def simulate_trials_recording(
+    truth: Truth,
+    plan: Plan,
+    trials: int,
+    *,
+    seed: int,
+    accel_offset_counts: float = 20.0,
+    gyro_offset_counts: float = 5.0,
+    angle_errors: bool = True,
+    sample_rate_hz: float | None = None,
+    gap_s: float = 0.0,
+    label_trials: bool = True,
+) -> tuple[Recording, TrialsTruth]:
+    """Simulate ``trials`` re-mountings of one unit, each running ``plan``, in one recording.
+
+    Each trial's unit is ``truth`` with its accelerometer and gyro biases moved by a draw
+    uniform within ±``accel_offset_counts`` and ±``gyro_offset_counts`` (:func:`remounted`;
+    K, S and G shared), its poses set anew (``angle_errors``), its noise its own. The trials
+    follow one another in time (``gap_s`` of silence between them) with the same position
+    labels; with ``label_trials`` every row names its trial in the ``trial`` column
+    (docs/design.md §5), else the file has none (what detection must find). Returns the
+    recording and the trials' units.
+    """
+    if trials < 1:
+        raise ValueError(f"trials must be >= 1, got {trials}")
+    rng = np.random.default_rng([seed, 7])
+    units = tuple(
+        remounted(truth, rng, accel_offset_counts, gyro_offset_counts) for _ in range(trials)
+    )
+    parts = [
+        simulate_plan_recording(
+            unit,
+            plan,
+            seed=int(rng.integers(2**31)),
+            angle_errors=angle_errors,
+            sample_rate_hz=sample_rate_hz,
+        )  # fmt: skip
+        for unit in units
+    ]
+    t, start = [], 0.0
+    for part in parts:
+        t.append(part.t - part.t[0] + start)
+        step = float(np.median(np.diff(part.t))) if part.n_rows > 1 else 0.0
+        start = float(t[-1][-1]) + step + gap_s
+    n = sum(p.n_rows for p in parts)
+
+    def cat(name: str) -> NDArray[np.float64]:
+        return np.concatenate([getattr(p, name) for p in parts])
+
+    rec = recording_from_columns(
+        {**parts[0].header, "device_serial": int(parts[0].header["device_serial"])},
+        t=np.concatenate(t), accel=cat("accel"), gyro=cat("gyro"),
+        counter=np.arange(n) % COUNTER_MODULUS, position=cat("position"),
+        alpha_deg=cat("alpha_deg"), beta_deg=cat("beta_deg"), psi_deg=cat("psi_deg"),
+        temp_c=cat("temp_c"),
+        trial=np.repeat(np.arange(trials), [p.n_rows for p in parts]) if label_trials else None,
+    )  # fmt: skip
+    return rec, TrialsTruth(units)

@@ -20,7 +20,13 @@ from typing import Any
 import numpy as np
 
 from canimucal.analysis.acceptance import AcceptanceLimits, Limits, Verdict, judge, limits_for
-from canimucal.analysis.calibrate import SiteConditions, Solution, solve_positions, solve_scalar
+from canimucal.analysis.calibrate import (
+    SiteConditions,
+    Solution,
+    solve_positions,
+    solve_scalar,
+    trials_line,
+)
 from canimucal.analysis.conditions import recording_conditions
 from canimucal.analysis.gravity_moves import solve_gravity_moves_recording
 from canimucal.analysis.gyro_moves import solve_gyro_moves
@@ -38,6 +44,7 @@ from canimucal.errors import InputError, ModelError
 from canimucal.io.calibration import Calibration, Device, Fit, RecordingRef
 from canimucal.io.grouping import (
     average_rows,
+    detect_trials,
     has_angles,
     position_averages,
     position_labels,
@@ -100,6 +107,9 @@ def solve_recording(
     rec, held = unique_samples(rec)
     choice, session = session_model(rec, choice or ModelChoice())
     notes: tuple[str, ...] = () if held is None else (held.line(),)
+    if has_angles(rec):  # several trials in one file without a trial column
+        rec, found = detect_trials(rec)
+        notes += () if found is None else (found,)
     site, g_source = site_of(rec, choice)
     serial, node_id = _header_int(rec, "device_serial"), _header_int(rec, "node_id")
     device = Device(serial=serial or 0, node_id=node_id)
@@ -108,9 +118,13 @@ def solve_recording(
             rec, site, device, gyro=choice.gyro, plan_name=session.plan_name, recording=recording
         )
     elif has_angles(rec):
-        averages = session.tolerances(position_averages(rec, tolerance_deg=session.tolerance_deg))
+        averages = [
+            a
+            for trial in by_trial(position_averages(rec, tolerance_deg=session.tolerance_deg))
+            for a in session.tolerances(trial)
+        ]
         spec = choice.spec(has_gyro=all(a.mean_gyro is not None for a in averages))
-        spec = session.with_trim(spec, averages)  # the vehicle plan's mounting trim
+        spec = session.with_trim(spec, by_trial(averages)[0])  # the vehicle plan's trim
         context = SolveContext(
             recording=recording,
             plan_name=session.plan_name,
@@ -118,13 +132,19 @@ def solve_recording(
             prior_source=session.prior_source,
         )
         if session.tolerance_source == "default":  # no flag, no header: the data say
-            planned = [a.pose.tolerance for a in averages] if session.matches(averages) else None
+            planned = (
+                [a.pose.tolerance for a in averages]
+                if all(session.matches(t) for t in by_trial(averages))
+                else None
+            )
             solution, scatter = solve_estimating_scatter(
                 averages, spec, site, device, planned=planned, context=context
             )
             notes += () if scatter is None else (scatter.note(),)
         else:
             solution = solve_positions(averages, spec, site, device, **context.keywords())
+        line = trials_line(solution.record)
+        notes += () if line is None else (line,)
         if choice.gyro == "moves":  # imucal's turns are known; its poses leave psi free
             sigmas = _pose_sigmas(rec, averages) if session.tolerance_source != "default" else None
             solution, _ = solve_gyro_moves(
@@ -153,6 +173,14 @@ def solve_recording(
     return RecordingSolution(
         replace(solution, record=record, warnings=warnings), g_source, verdict, notes
     )
+
+
+def by_trial(averages: Sequence[PositionAverage]) -> list[list[PositionAverage]]:
+    """``averages`` split by trial, in their order (one list without trials)."""
+    out: dict[int | None, list[PositionAverage]] = {}
+    for a in averages:
+        out.setdefault(a.trial, []).append(a)
+    return list(out.values()) or [[]]
 
 
 def _pose_sigmas(

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from canimucal.analysis.calibrate import Solution
+from canimucal.analysis.calibrate import Solution, trials_line
 from canimucal.analysis.solve import solve_recording
 from canimucal.analysis.static_noise import recording_lsb
 from canimucal.cli.input_options import INPUT_HELP, SECOND_HELP, add_input_options, read_input
@@ -110,6 +110,8 @@ def solution_report(solution: Solution, g_source: str, scales: Scales | None = N
     lines += [f"{name:<{width}}  {device:<{wide}}  {shown}" for name, device, shown in rows]
     if r.mounting_trim_deg is not None:
         lines.append(trim_line(r))
+    if r.trials:
+        lines.append(trials_line(r) or "")
     for name, reason in solution.undetermined.items():
         lines.append(f"not determined: {name}: {reason}")
     if r.fit is not None and r.fit.rms is not None:

@@ -195,6 +195,24 @@ class PositionSummary:
     std_accel: Vector | None = field(default=None, metadata=cs.array((3,)))
     std_gyro: Vector | None = field(default=None, metadata=cs.array((3,)))
     temp_c: float | None = field(default=None, metadata=cs.number())
+    trial: int | None = field(default=None, metadata=cs.integer(-1, None))
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrialSummary:
+    """One entry of ``trials``: one mounting of the unit and the biases it had (counts).
+
+    K, S and G are shared by every trial; the ``accel.bias`` of the record is the trials'
+    mean (docs/design.md §5, Trials). ``trial`` is the recording's trial number (-1: the
+    rows whose trial cell was empty).
+    """
+
+    trial: int = field(metadata=cs.integer(-1, None))
+    positions: int | None = field(default=None, metadata=cs.integer(0, None))
+    accel_bias: Vector | None = field(default=None, metadata=cs.array((3,)))
+    accel_bias_sigma: Vector | None = field(default=None, metadata=cs.array((3,)))
+    gyro_bias: Vector | None = field(default=None, metadata=cs.array((3,)))
+    gyro_bias_sigma: Vector | None = field(default=None, metadata=cs.array((3,)))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -294,6 +312,9 @@ class Calibration:
     covariance: Covariance | None = field(default=None, metadata=cs.block(Covariance))
     positions: tuple[PositionSummary, ...] | None = field(
         default=None, metadata=cs.block_list(PositionSummary)
+    )
+    trials: tuple[TrialSummary, ...] | None = field(
+        default=None, metadata=cs.block_list(TrialSummary)
     )
     fit: Fit | None = field(default=None, metadata=cs.block(Fit))
     recording: RecordingRef | None = field(default=None, metadata=cs.block(RecordingRef))
@@ -678,6 +699,7 @@ def summarize_position(average: PositionAverage) -> PositionSummary:
         std_accel=vec(average.std_accel),
         std_gyro=vec(average.std_gyro),
         temp_c=average.temp_c,
+        trial=average.trial,
     )
 
 

@@ -11,6 +11,7 @@ altogether, seen as gaps in the wrapping 16-bit sample counter between consecuti
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 
 import numpy as np
@@ -104,7 +105,10 @@ def position_averages(
 ) -> list[PositionAverage]:
     """One :class:`PositionAverage` per position label, in ascending label order.
 
-    ``tolerance_deg`` becomes each pose's 1σ angle-setting error. A labelled position without
+    With trials (the recording's ``trial`` column, docs/design.md §5) one per trial and
+    label, ascending trials then labels, each carrying its ``trial`` (rows of an empty trial
+    cell form a trial of their own, ``-1``). ``tolerance_deg`` becomes each pose's 1σ
+    angle-setting error. A labelled position without
     angles raises :class:`InputError` unless ``require_angles`` is false, in which case its
     pose has NaN angles (for the scalar methods only).
     """
@@ -115,10 +119,34 @@ def position_averages(
         raise InputError(f"{recording.source or 'recording'}: no labelled position")
     tolerance_rad = float(np.deg2rad(tolerance_deg))
     with_gyro = bool(np.isfinite(recording.gyro).any())
-    return [
-        _average_one(recording, label, _rows_of(spans), tolerance_rad, require_angles, with_gyro)
-        for label, spans in by_label.items()
-    ]
+    if recording.trial is None:
+        return [
+            _average_one(
+                recording, label, _rows_of(spans), tolerance_rad, require_angles, with_gyro
+            )
+            for label, spans in by_label.items()
+        ]
+    out = []
+    for trial, label, rows in trial_label_rows(recording.position, recording.trial):
+        average = _average_one(recording, label, rows, tolerance_rad, require_angles, with_gyro)
+        out.append(dataclasses.replace(average, trial=trial))
+    return out
+
+
+def trial_label_rows(
+    position: NDArray[np.int64], trial: NDArray[np.int64]
+) -> list[tuple[int, int, NDArray[np.intp]]]:
+    """``(trial, label, rows)`` of every labelled position of every trial, ascending.
+
+    A row whose trial cell is empty (< 0) belongs to trial -1; rows in file order.
+    """
+    keyed = np.where(trial < 0, -1, trial)
+    out = []
+    for t in np.unique(keyed[position >= 0]).tolist():
+        mine = np.flatnonzero(keyed == t)
+        for label, rows in label_rows(position[mine]).items():
+            out.append((int(t), label, mine[rows]))
+    return out
 
 
 def _rows_of(spans: list[tuple[int, int]]) -> NDArray[np.intp] | slice:
@@ -207,3 +235,101 @@ def _counter_gaps(counter: NDArray[np.float64], rows: NDArray[np.intp] | slice) 
     same_run = np.diff(run[known]) == 0
     gaps = np.where(same_run, np.maximum(step - 1 - skipped, 0), 0)
     return int(gaps.sum())
+
+
+TRIAL_GAP_S = 60.0
+"""A step in ``t`` longer than this (and 100 sample periods) splits an unlabelled file into
+trials, when every piece holds at least two labelled positions."""
+
+
+def detect_trials(recording: Recording) -> tuple[Recording, str | None]:
+    """Give a recording without a ``trial`` column its trials, when the file shows them.
+
+    Two signs, either enough: the label sequence runs again (a new trial starts where a label
+    comes back that the current trial has had already, and every trial runs the first one's
+    labels in its order, the last one possibly cut short), or long pauses in ``t``
+    (:data:`TRIAL_GAP_S`). Found only when there are at least two trials of two labelled
+    positions each; then the recording comes back with its ``trial`` column and a one-line
+    note saying why. Labels that recur otherwise (a position redone later) leave the
+    recording as it is, with a note that they were averaged together. A file with the column,
+    or showing neither sign, comes back as it is, with no note.
+    """
+    if recording.trial is not None:
+        return recording, None
+    labelled = np.flatnonzero(recording.position >= 0)
+    if labelled.size < 4:
+        return recording, None
+    repeats, chunks = _label_chunks(recording.position[labelled])
+    repeated = len(chunks) > 1 and all(
+        len(c) >= 2
+        and c == chunks[0][: len(c)]
+        and (len(c) == len(chunks[0]) or k == len(chunks) - 1)
+        for k, c in enumerate(chunks)
+    )
+    starts = {int(labelled[k]) for k in repeats} if repeated else set()
+    gap_starts = _pauses(recording.t)
+    edges = sorted(starts | gap_starts)
+    found = _trials_of(recording, labelled, edges)
+    if found is None:
+        if repeats:
+            first = int(recording.position[labelled[repeats[0]]])
+            return recording, (
+                f"position {first} recurs in time order, not as a repeated plan: its rows are "
+                "averaged as one position (a trial column tells trials apart)"
+            )
+        return recording, None
+    why = []
+    if starts:
+        why.append("the position labels recur in time order")
+    if gap_starts - starts:
+        why.append(f"t pauses over {TRIAL_GAP_S:g} s")
+    note = (
+        f"no trial column, but {' and '.join(why)}: treated as {int(found.max()) + 1} trials "
+        "(one bias each, K shared; a trial column says so explicitly)"
+    )
+    return dataclasses.replace(recording, trial=found), note
+
+
+def _label_chunks(labels: NDArray[np.int64]) -> tuple[list[int], list[list[int]]]:
+    """Split the labels' run sequence where a label comes back.
+
+    Returns the split points (indices into ``labels``) and each chunk's labels in order.
+    """
+    change = np.concatenate([[0], np.flatnonzero(np.diff(labels)) + 1])
+    splits: list[int] = []
+    chunks: list[list[int]] = [[]]
+    for k in change.tolist():
+        label = int(labels[k])
+        if label in chunks[-1]:
+            splits.append(int(k))
+            chunks.append([])
+        chunks[-1].append(label)
+    return splits, chunks
+
+
+def _pauses(t: NDArray[np.float64]) -> set[int]:
+    """Rows after a step in ``t`` over :data:`TRIAL_GAP_S` and 100 typical steps."""
+    if t.size < 2:
+        return set()
+    dt = np.diff(t)
+    finite = dt[np.isfinite(dt) & (dt > 0)]
+    typical = float(np.median(finite)) if finite.size else 0.0
+    return {int(g) + 1 for g in np.flatnonzero(dt > max(TRIAL_GAP_S, 100.0 * typical)).tolist()}
+
+
+def _trials_of(
+    recording: Recording, labelled: NDArray[np.intp], edges: list[int]
+) -> NDArray[np.int64] | None:
+    """Return the trial of every row split at ``edges``.
+
+    None unless two or more pieces each hold two labelled positions or more.
+    """
+    if not edges:
+        return None
+    trial = np.searchsorted(np.array(edges), np.arange(recording.n_rows), side="right")
+    pieces = [
+        np.unique(recording.position[labelled][trial[labelled] == t]) for t in range(len(edges) + 1)
+    ]
+    if any(p.size < 2 for p in pieces):
+        return None
+    return trial.astype(np.int64)

@@ -23,6 +23,14 @@ as a nuisance: the Earth rate in the level frame, three parameters ``w_L`` with 
 with the rest and then marginalised (the Schur complement of the information); χ² counts
 their prior rows and the dof does not change (three rows, three parameters). The gyro biases
 then carry the part of the Earth rate the poses cannot tell from them.
+
+Trials (several mountings of one unit, ``PositionAverage.trial``): each trial has its own
+biases (accelerometer, and gyro when fitted), K, S, G and the tilt shared. The layout's
+biases are then the trials' mean, and ``T − 1`` offsets per bias channel ride along
+(``δ_t`` for the first ``T − 1`` trials, ``δ_T = −Σ δ_t``: offsets summing to zero). They
+are linear and enter no angle derivative; the theta covariance and rank marginalise them,
+the dof count them, and ``JointResult.trial_bias`` holds each trial's biases with their
+covariance.
 """
 
 from __future__ import annotations
@@ -83,6 +91,12 @@ class JointResult:
     accel_lsb: float = DEFAULT_ACCEL_LSB
     gyro_lsb: float = DEFAULT_GYRO_LSB
     undetermined: Mapping[str, str] = field(default_factory=dict)
+    trials: tuple[int, ...] = ()
+    """The trial of each row of ``trial_bias`` (empty without trials)."""
+    trial_bias: Array | None = None
+    """``(n_trials, channels)``: each trial's biases (accelerometer, then gyro), counts."""
+    trial_bias_cov: Array | None = None
+    """``(n_trials, channels, channels)``: the covariance of each trial's biases."""
 
     def value(self, name: str) -> float:
         """Return the estimate of parameter ``name`` (NaN when undetermined)."""
@@ -139,11 +153,31 @@ class _Data:
     prior: _Prior
     earth_sigma: float = 0.0
     """Prior σ (rad/s, each level axis) of the unknown Earth rate; 0: known or not seen."""
+    contrast: Array = field(default_factory=lambda: np.zeros((0, 0)))
+    """``(n, T − 1)``: each position's row of the trials' offset contrast (module doc)."""
+    trial_ids: tuple[int, ...] = ()
 
     @property
     def nuisance(self) -> int:
         """How many nuisance parameters (the unknown Earth rate) ride along with theta."""
         return 3 if self.earth_sigma > 0 else 0
+
+    @property
+    def offsets(self) -> int:
+        """How many trial offsets ride along with theta (``(T − 1)·channels``)."""
+        return self.contrast.shape[1] * self.observed.shape[1]
+
+    def offset_columns(self) -> Array:
+        """d(predicted means)/d(trial offsets), ``(n, m, offsets)``."""
+        m = self.observed.shape[1]
+        n, t = self.contrast.shape
+        return np.einsum("nj,cd->ncjd", self.contrast, np.eye(m)).reshape(n, m, t * m)
+
+    def offset_means(self, d: Array) -> Array:
+        """Return the trial offsets ``d`` as each position's ``(n, m)`` shift of its means."""
+        if self.offsets == 0:
+            return np.zeros_like(self.observed)
+        return self.contrast @ d.reshape(self.contrast.shape[1], self.observed.shape[1])
 
 
 @dataclass(frozen=True)
@@ -211,15 +245,18 @@ def solve_joint(
     for name, value in (initial or {}).items():
         theta[layout.index(name)] = float(value)
     omega = np.zeros(data.nuisance)
-    info, names = _whitened_information(layout, theta, omega, data, ctx)
+    offsets = np.zeros(data.offsets)
+    info = _marginal(_whitened_information(layout, theta, omega, data, ctx), layout.size)
     scales = rank_scales(info, layout.effect_scales(g, 1.0 / accel_lsb))
-    check = analyse_information(info, names, scales)
+    check = analyse_information(info, layout.names, scales)
     free = _free_mask(layout, check, allow_undetermined)
     message, converged = "", True
     for _ in range(max(1, passes)):
         weights = _weights(layout, theta, data, _with_rate(ctx, omega))
-        fit = _least_squares(_Problem(layout, theta, omega, free, weights, data, ctx))
-        theta[free], omega = fit.x[: int(np.sum(free))], fit.x[int(np.sum(free)) :]
+        problem = _Problem(layout, theta, omega, free, weights, data, ctx, offsets)
+        fit = _least_squares(problem)
+        problem.split(fit.x)
+        theta, omega, offsets = problem.theta.copy(), problem.omega.copy(), problem.offsets.copy()
         message, converged = str(fit.message), bool(fit.status > 0)
     return _result(
         layout,
@@ -229,6 +266,7 @@ def solve_joint(
         _with_rate(ctx, omega),
         (converged, message),
         (accel_lsb, gyro_lsb),
+        offsets,
     )
 
 
@@ -280,7 +318,25 @@ def _validate(
         raise ModelError("position angles and tolerances must be finite (tolerance >= 0)")
     unknown_rate = m == 6 and latitude is None  # the module docstring: a nuisance
     earth_sigma = EARTH_RATE_RAD_S / np.sqrt(3.0) if unknown_rate else 0.0
-    return _Data(angles, obs, cov, tol, prior, float(earth_sigma))
+    ids, contrast = trial_contrast(averages)
+    return _Data(angles, obs, cov, tol, prior, float(earth_sigma), contrast, ids)
+
+
+def trial_contrast(averages: Sequence[PositionAverage]) -> tuple[tuple[int, ...], Array]:
+    """Return the trials of ``averages`` and the contrast of their offsets (module doc).
+
+    Trials ascending (a position without one is trial -1); the ``(n, T − 1)`` contrast maps
+    the offsets to positions. ``((), (n, 0))`` with fewer than two trials.
+    """
+    keys = [-1 if a.trial is None else int(a.trial) for a in averages]
+    ids = tuple(sorted(set(keys)))
+    if len(ids) < 2:
+        return (), np.zeros((len(averages), 0))
+    contrast = np.zeros((len(averages), len(ids) - 1))
+    for k, key in enumerate(keys):
+        t = ids.index(key)
+        contrast[k] = -1.0 if t == len(ids) - 1 else np.eye(len(ids) - 1)[t]
+    return ids, contrast
 
 
 def _checked(k: int, what: str, mean: object, cov: object) -> tuple[Array, Array]:
@@ -372,27 +428,34 @@ def _rate_columns(layout: ParameterLayout, theta: Array, data: _Data, ctx: Model
     return np.stack(columns, axis=2)
 
 
-def _marginal(info: Array, p: int, data: _Data) -> Array:
-    """Return the information of theta with the nuisance parameters (the last) marginalised."""
-    if data.nuisance == 0:
+def _marginal(info: Array, p: int) -> Array:
+    """Return the information of the first ``p`` parameters, the others marginalised."""
+    if info.shape[0] == p:
         return info
     own, cross = info[:p, :p], info[:p, p:]
-    nuisance = info[p:, p:] + np.eye(data.nuisance) / data.earth_sigma**2
-    return own - cross @ np.linalg.solve(nuisance, cross.T)
+    return own - cross @ np.linalg.solve(info[p:, p:], cross.T)
 
 
 def _whitened_information(
     layout: ParameterLayout, theta: Array, omega: Array, data: _Data, ctx: ModelContext
-) -> tuple[Array, tuple[str, ...]]:
+) -> Array:
+    """Return the information of theta, the trial offsets and the Earth rate, in that order.
+
+    The prior's information and the Earth rate's prior are included.
+    """
     ctx = _with_rate(ctx, omega)
     pred = predict(layout, theta, data.angles, ctx)
-    d_theta = pred.d_theta
+    d_theta = np.concatenate([pred.d_theta, data.offset_columns()], axis=2)
     if data.nuisance:
         d_theta = np.concatenate([d_theta, _rate_columns(layout, theta, data, ctx)], axis=2)
     jw = np.einsum("nij,njp->nip", _weights(layout, theta, data, ctx).whitener, d_theta)
     jw = jw.reshape(-1, d_theta.shape[2])
-    info = _marginal(jw.T @ jw, layout.size, data)
-    return info + data.prior.information(layout.size), layout.names
+    info = jw.T @ jw
+    p = layout.size
+    info[:p, :p] += data.prior.information(p)
+    if data.nuisance:
+        info[-data.nuisance :, -data.nuisance :] += np.eye(data.nuisance) / data.earth_sigma**2
+    return info
 
 
 UNSEEN_INFORMATION = 1e-20
@@ -457,20 +520,27 @@ class _Problem:
         weights: _Weights,
         data: _Data,
         ctx: ModelContext,
+        offsets: Array,
     ) -> None:
         self.layout, self.theta, self.free = layout, theta.copy(), free
-        self.omega = omega.copy()
+        self.omega, self.offsets = omega.copy(), offsets.copy()
         self.whitener, self.data, self.ctx = weights.whitener, data, ctx
         self.target = data.observed - weights.shift
         self._key: bytes | None = None
         self._pred = predict(layout, theta, data.angles, _with_rate(ctx, omega))
         self._rate = _rate_columns(layout, theta, data, ctx) if data.nuisance else None
+        self._offset_columns = data.offset_columns()
+
+    def split(self, x: Array) -> None:
+        """Set the free parameters, the trial offsets and the Earth rate from ``x``."""
+        n_free, q = int(np.sum(self.free)), self.data.offsets
+        self.theta[self.free] = x[:n_free]
+        self.offsets, self.omega = x[n_free : n_free + q], x[n_free + q :]
 
     def _update(self, x: Array) -> None:
         key = x.tobytes()
         if key != self._key:
-            n_free = int(np.sum(self.free))
-            self.theta[self.free], self.omega = x[:n_free], x[n_free:]
+            self.split(x)
             ctx = _with_rate(self.ctx, self.omega)
             self._pred = predict(self.layout, self.theta, self.data.angles, ctx)
             if self._rate is not None:
@@ -480,7 +550,7 @@ class _Problem:
     def residuals(self, x: Array) -> Array:
         """Whitened predicted − observed, flattened by position then channel; prior rows."""
         self._update(x)
-        r = self._pred.mean - self.target
+        r = self._pred.mean + self.data.offset_means(self.offsets) - self.target
         rows = np.einsum("nij,nj->ni", self.whitener, r).ravel()
         nuisance = self.omega / self.data.earth_sigma if self.data.nuisance else self.omega
         return np.concatenate([rows, self.data.prior.rows(self.theta, self.free), nuisance])
@@ -488,23 +558,23 @@ class _Problem:
     def jacobian(self, x: Array) -> Array:
         """d(whitened residuals)/d(free parameters, then the nuisance ones)."""
         self._update(x)
-        d_theta = self._pred.d_theta[:, :, self.free]
+        d_theta = np.concatenate([self._pred.d_theta[:, :, self.free], self._offset_columns], 2)
         if self._rate is not None:
             d_theta = np.concatenate([d_theta, self._rate], axis=2)
         jw = np.einsum("nij,njp->nip", self.whitener, d_theta)
         rows = jw.reshape(-1, d_theta.shape[2])
         prior = self.data.prior.jacobian(self.free)
-        k = self.data.nuisance
-        prior = np.hstack([prior, np.zeros((prior.shape[0], k))])
-        nuisance = np.hstack([np.zeros((k, int(np.sum(self.free)))), np.eye(k)])
+        k, q = self.data.nuisance, self.data.offsets
+        prior = np.hstack([prior, np.zeros((prior.shape[0], q + k))])
+        nuisance = np.hstack([np.zeros((k, int(np.sum(self.free)) + q)), np.eye(k)])
         if k:
             nuisance[:, -k:] /= self.data.earth_sigma
         return np.vstack([rows, prior, nuisance])
 
     @property
     def start(self) -> Array:
-        """The free parameters' starting values, then the nuisance ones."""
-        return np.concatenate([self.theta[self.free], self.omega])
+        """The free parameters' starting values, the trial offsets, then the nuisance ones."""
+        return np.concatenate([self.theta[self.free], self.offsets, self.omega])
 
 
 def _least_squares(problem: _Problem) -> OptimizeResult:
@@ -535,13 +605,15 @@ def _result(
     ctx: ModelContext,
     status: tuple[bool, str],
     lsbs: tuple[float, float],
+    offsets: Array,
 ) -> JointResult:
     pred = predict(layout, theta, data.angles, ctx)
     weights = _weights(layout, theta, data, ctx)
-    residuals = data.observed - weights.shift - pred.mean
+    residuals = data.observed - weights.shift - pred.mean - data.offset_means(offsets)
     whitened = np.einsum("nij,nj->ni", weights.whitener, residuals)
     jac = np.einsum("nij,njp->nip", weights.whitener, pred.d_theta).reshape(-1, layout.size)
-    info, _names = _whitened_information(layout, theta, _rate_of(ctx, data), data, ctx)
+    full = _whitened_information(layout, theta, _rate_of(ctx, data), data, ctx)
+    info = _marginal(full, layout.size)
     scales = rank_scales(info, layout.effect_scales(ctx.g, 1 / lsbs[0]))
     sep = analyse_information(info, layout.names, scales)
     values = theta.copy()
@@ -550,6 +622,7 @@ def _result(
         if not free[layout.index(name)] and name not in undetermined:
             undetermined[name] = "held at its starting value to restore the rank"
     values[[layout.index(n) for n in undetermined]] = np.nan
+    biases, covariances = _trial_biases(layout, values, offsets, full, data)
     rank = int(np.sum(sep.eigenvalue_ratios >= NOT_IDENTIFIABLE_RATIO))
     k_matrix = layout.unpack(theta, lsbs[1]).K
     rms = float(np.sqrt(np.mean(np.linalg.solve(k_matrix, residuals[:, :3].T) ** 2)))
@@ -560,7 +633,7 @@ def _result(
         residuals=residuals,
         whitened_residuals=whitened,
         jacobian=jac,
-        dof=int(residuals.size + np.sum(free[data.prior.index]) - rank),
+        dof=int(residuals.size + np.sum(free[data.prior.index]) - rank - data.offsets),
         chi2=float(
             np.sum(whitened**2)
             + np.sum(data.prior.rows(theta, free) ** 2)
@@ -574,4 +647,44 @@ def _result(
         accel_lsb=lsbs[0],
         gyro_lsb=lsbs[1],
         undetermined=undetermined,
+        trials=data.trial_ids,
+        trial_bias=biases,
+        trial_bias_cov=covariances,
     )
+
+
+def _trial_biases(
+    layout: ParameterLayout, values: Array, offsets: Array, full: Array, data: _Data
+) -> tuple[Array | None, Array | None]:
+    """Return each trial's biases and their covariance: the shared biases plus its offsets.
+
+    The covariance inverts the information of the determined theta and the offsets (the
+    Earth rate marginalised); a bias the fit did not determine is NaN in every trial.
+    """
+    if data.offsets == 0:
+        return None, None
+    p, q = layout.size, data.offsets
+    m = data.observed.shape[1]
+    sensors = ["accel"] + (["gyro"] if m == 6 else [])
+    bias_index = [layout.index(f"{s}.bias[{i}]") for s in sensors for i in range(3)]
+    known = np.flatnonzero(np.isfinite(values))
+    keep = np.concatenate([known, p + np.arange(q)])
+    inner = _marginal(full, p + q)[np.ix_(keep, keep)]
+    cov = np.linalg.pinv(0.5 * (inner + inner.T), hermitian=True)
+    t = data.contrast.shape[1] + 1
+    contrast = np.vstack([np.eye(t - 1), -np.ones((1, t - 1))])
+    biases, covariances = np.zeros((t, m)), np.zeros((t, m, m))
+    shared = values[bias_index]
+    d = offsets.reshape(t - 1, m)
+    for trial in range(t):
+        biases[trial] = shared + contrast[trial] @ d
+        rows = np.zeros((m, keep.size))
+        for c, k in enumerate(bias_index):
+            hit = np.flatnonzero(known == k)
+            if hit.size:
+                rows[c, hit[0]] = 1.0
+            rows[c, known.size + c + m * np.arange(t - 1)] = contrast[trial]
+        covariances[trial] = rows @ cov @ rows.T
+    undetermined = ~np.isfinite(shared)
+    biases[:, undetermined] = np.nan
+    return biases, covariances

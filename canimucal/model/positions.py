@@ -118,6 +118,10 @@ class PositionAverage:
     seconds: float = 0.0
     temp_c: float | None = None
     lost: int = 0
+    trial: int | None = None
+    """Which trial (mounting of the unit, the recording's ``trial`` column) the position
+    belongs to; None: the recording has no trials. The joint fit gives each trial its own
+    biases (:mod:`canimucal.model.joint`)."""
 
 
 def average_position(

@@ -37,7 +37,11 @@ from canimucal.analysis.data import SessionData
 from canimucal.analysis.discrepancy import analyse_discrepancy, effect_sigmas
 from canimucal.analysis.session import session_from_recording
 from canimucal.analysis.session_model import ModelChoice
-from canimucal.analysis.simulated import simulate_plan_recording
+from canimucal.analysis.simulated import (
+    TrialsTruth,
+    simulate_plan_recording,
+    simulate_trials_recording,
+)
 from canimucal.analysis.solve import solve_estimating_scatter, solve_recording
 from canimucal.io.calibration import Device
 from canimucal.io.recording import Recording, recording_from_columns
@@ -107,9 +111,17 @@ def grid(departure: Departure, seeds: Sequence[int] = tuple(range(20))) -> list[
 # ------------------------------------------------------------------------------ plans, units
 
 
+SIX_FACES_DEG = ((0, 0, 0), (180, 0, 0), (90, 0, 0), (-90, 0, 0), (0, 90, 0), (0, -90, 0))
+"""The classic six-position plan (each axis up and down, degrees): the issue's real trials."""
+
+
 def plan_of(name: str, tolerance_deg: float) -> Plan:
-    """The built-in plan (or ``twelve``) with every angle set to ``tolerance_deg`` (1σ)."""
+    """The built-in plan (or ``twelve``, ``six``) with every angle set to ``tolerance_deg`` (1σ)."""
     tol = float(np.deg2rad(tolerance_deg))
+    if name == "six":
+        degrees = np.deg2rad(np.array(SIX_FACES_DEG, dtype=float))
+        poses = tuple(PlannedPosition(*map(float, d), tolerance=tol, seconds=30.0) for d in degrees)
+        return Plan("six", poses)
     if name == "twelve":
         degrees = np.deg2rad(np.array(TWELVE_DEG, dtype=float))
         poses = tuple(PlannedPosition(*map(float, d), tolerance=tol, seconds=30.0) for d in degrees)
@@ -482,3 +494,57 @@ def quieter(factor: float) -> Callable[[Doc, np.random.Generator, str], Doc]:
 
 LONG_POSITIONS = Departure("long_positions", quieter(4.0))
 """Means as precise as 480 s positions at the default noise (30 s each, noise ÷ 4)."""
+
+
+# ---------------------------------------------------------------- re-mounted trials in one file
+
+TRIALS = 4
+"""Trials of one unit in one recording (the issue's real file had four)."""
+REMOUNTED = Departure("remounted_trials")
+"""A unit re-mounted between trials: each trial's biases moved (±20 counts accelerometer,
+±5 gyro), K, S and G shared (:func:`canimucal.analysis.simulated.remounted`)."""
+
+
+def trials_recording(
+    case: Case, seed: int, *, label: bool = True, gap_s: float = 0.0
+) -> tuple[Recording, TrialsTruth]:
+    """:data:`TRIALS` re-mounted trials of the case's unit and plan in one short recording.
+
+    10 s a position, the sensor at 100 Hz (:func:`short_recording`'s); ``label``: the file
+    has the ``trial`` column, else only its repeated label sequence (and ``gap_s`` pauses)
+    tell the trials apart.
+    """
+    truth = case_truth(case, seed)
+    plan = plan_of(case.plan, case.tolerance_deg)
+    plan = plan.with_total_seconds(SHORT_POSITIONS_S * len(plan.positions))
+    return simulate_trials_recording(
+        truth, plan, TRIALS, seed=seed, angle_errors=case.tolerance_deg > 0,
+        sample_rate_hz=SHORT_RATE_HZ, label_trials=label, gap_s=gap_s,
+    )  # fmt: skip
+
+
+def trials_errors(case: Case, seed: int) -> tuple[dict[str, float], float]:
+    """(estimate − truth)/σ of K, the tilt and every trial's accelerometer biases from
+    ``solve`` of the case's trials recording (no tolerance header: the scatter estimated),
+    and the pose scatter (degrees) the σ rested on."""
+    rec, units = trials_recording(case, seed)
+    spec = solve_spec(case.plan)
+    choice = ModelChoice(model=spec.accel_k, tilt=True)  # type: ignore[arg-type]
+    solved = solve_recording(rec, choice)
+    joint = solved.solution.joint
+    assert joint is not None and joint.trial_bias is not None and joint.trial_bias_cov is not None
+    true = {n: v for n, v in true_values(units.trials[0]).items() if "bias" not in n}
+    sigma = np.sqrt(np.diag(joint.covariance))
+    out = {
+        n: float((joint.values[k] - true[n]) / sigma[k])
+        for k, n in enumerate(joint.names)
+        if n not in joint.undetermined and n in true
+    }
+    bias_sigma = np.sqrt(np.diagonal(joint.trial_bias_cov, axis1=1, axis2=2))[:, :3]
+    for t, trial in enumerate(joint.trials):
+        for i in range(3):
+            z = (joint.trial_bias[t, i] - units.accel_bias[trial, i]) / bias_sigma[t, i]
+            out[f"trial[{trial}].accel.bias[{i}]"] = float(z)
+    fit = solved.record.fit
+    assert fit is not None and fit.pose_scatter_deg is not None
+    return out, float(fit.pose_scatter_deg)
