@@ -46,7 +46,7 @@ def test_a_plan_table_overrides_the_top_level_limits_for_that_plan_only(tmp_path
     default = AcceptanceLimits()
     vehicle = config.limits("vehicle")
     assert (vehicle.max_bias_sigma_mg, vehicle.max_scale_sigma_ppm) == (15.0, 12000.0)
-    assert vehicle.max_rms_ms2 == default.max_rms_ms2  # keys it does not name: defaults
+    assert vehicle.max_rms_ms2 == 0.1  # keys it does not name: the vehicle plan's own
     for plan in ("recommended", None):
         other = config.limits(plan)
         assert other.max_bias_sigma_mg == 4.0  # the top level
@@ -54,7 +54,7 @@ def test_a_plan_table_overrides_the_top_level_limits_for_that_plan_only(tmp_path
     assert config.limits("five").min_fit_p == 0.001
     assert limits_for(config, "vehicle") == vehicle and limits_for(vehicle, "five") == vehicle
     assert limits_for(None, "five") == default  # nothing given: the built-in limits
-    own = AcceptanceLimits(max_bias_sigma_mg=15.0, max_scale_sigma_ppm=10000.0)
+    own = AcceptanceLimits(max_bias_sigma_mg=15.0, max_scale_sigma_ppm=10000.0, max_rms_ms2=0.1)
     assert limits_for(None, "vehicle") == own  # with the vehicle plan's own (design §3)
 
 
