@@ -187,6 +187,10 @@ class Truth:
 
     @classmethod
     def _parse(cls, d: Any) -> Truth:
+        if isinstance(d, Mapping) and "floor_tilt_deg" in d:  # the contract's name for it
+            if "floor_slope_deg" in d:
+                fail("floor_tilt_deg", "give floor_tilt_deg or floor_slope_deg, not both")
+            d = {("floor_slope_deg" if k == "floor_tilt_deg" else k): v for k, v in d.items()}
         d = read_object(d, "", _TOP_KEYS)
         if d.get("schema", SCHEMA) != SCHEMA:
             fail("schema", f"must be {SCHEMA!r}")

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from canimucal.errors import InputError
+from canimucal.errors import InputError, SchemaError
 from canimucal.model.gravity import normal_gravity
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
 from canimucal.sim.truth import (
@@ -301,3 +301,14 @@ def test_random_truth_round_trips(seed: int) -> None:
     t = Truth.random(np.random.default_rng(seed))
     d = json.loads(json.dumps(t.to_dict()))
     assert _close(Truth.from_dict(d).to_dict(), d)
+
+
+def test_floor_tilt_deg_is_read_as_the_floor_slope() -> None:
+    """DESIGN's truth key ``floor_tilt_deg`` is the same as ``floor_slope_deg``; not both."""
+    doc = Truth.random(np.random.default_rng(1), tilt_max_deg=0.0).to_dict()
+    del doc["base_tilt_deg"]
+    slope = Truth.from_dict({**doc, "floor_slope_deg": [1.5, -0.5]})
+    tilt = Truth.from_dict({**doc, "floor_tilt_deg": [1.5, -0.5]})
+    assert (tilt.alpha0, tilt.beta0) == (slope.alpha0, slope.beta0) != (0.0, 0.0)
+    with pytest.raises(SchemaError, match="not both"):
+        Truth.from_dict({**doc, "floor_tilt_deg": [1.0, 0.0], "floor_slope_deg": [1.0, 0.0]})
