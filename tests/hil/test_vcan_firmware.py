@@ -309,7 +309,10 @@ def test_case3_duplicate_sends_are_not_skew(
     assert run.code == 0, run.err
     print(run.out)
     sent = np.asarray(frames.counters)
-    assert sent.size > 1.1 * np.unique(sent).size  # the node did send samples twice
+    # the node did send samples twice: its event timer restarts at every send, so it fires
+    # only when a data-ready send comes late, and how often depends on the host's jitter
+    # (18 % of samples in CI's VM, 4.6 % in an idle one)
+    assert sent.size > 1.02 * np.unique(sent).size
     found = re.search(r"(\d+) duplicate sends", run.out)
     assert found is not None and int(found.group(1)) > 0, run.out
     assert re.search(r"timer skew [+-]\d+ ppm", run.out) is None, run.out
