@@ -52,12 +52,14 @@ class FirmwareNode:
         self._ready = threading.Condition()
         self._readies = 0
         self._stopping = False
+        self._lock = threading.Lock()  # start and the respawn's check-and-spawn, one at a time
         storage.mkdir(parents=True, exist_ok=True)
 
     def start(self) -> FirmwareNode:
         """Start the process (its storage as left by the last run)."""
-        self._stopping = False
-        self._spawn()
+        with self._lock:
+            self._stopping = False
+            self._spawn()
         return self
 
     def _spawn(self) -> None:
@@ -81,9 +83,11 @@ class FirmwareNode:
                     self._readies += 1
                     self._ready.notify_all()
         code = proc.wait()
-        if self.respawn and not self._stopping and code == 0:
-            self.lines.append("(reset: started again)")
-            self._spawn()
+        with self._lock:  # only the current process is respawned: after a restart (stop,
+            # then start) the old one's reader must not start a second node beside the new
+            if self.respawn and not self._stopping and code == 0 and proc is self.proc:
+                self.lines.append("(reset: started again)")
+                self._spawn()
 
     def wait_ready(self, timeout_s: float, count: int | None = None) -> None:
         """Wait until the node printed its ready line ``count`` times (default: each start)."""
