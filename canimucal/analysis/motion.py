@@ -15,8 +15,9 @@ the cross term between ``e₁`` and ``e₂`` is dropped: with near-equal ``σ_pc
 Position p *moved* when the across part is significant at ``alpha / P`` (Bonferroni over
 the P positions) and the along part is not; it turned by ``θ_p ≈ |s_⊥| T_p / |m_p|`` rad over
 its window of ``T_p`` seconds (``|m_p|`` stands for ``|K f|``; a bias of 2 % of it moves θ by
-as much). Only trends the random-walk test did not take for a wandering bias are read so
-(:mod:`.discrepancy`): a bias walk on an axis across gravity would look alike in one position.
+as much). A bias walk on an axis across gravity looks alike in one position, so the loop
+(:mod:`.discrepancy`) claims motion only when the other positions, taken alone, no longer
+trend: a walk trends in every position.
 """
 
 from __future__ import annotations

@@ -233,8 +233,9 @@ def allowed_move_error_deg(floor_deg: float, start: Pose, target: Pose) -> float
 
     ``floor_deg`` (the configured tolerance), or :data:`MOVE_SIGMAS` × the hypotenuse of the
     poses' largest 1σ when larger: a vehicle turned on the spot (1σ 5° a turn) has a move
-    error of 1σ 7.1°, which a fixed 15° refused on one move in 30 (4 of 30 vehicle sessions
-    refused a good turn); 28° still refuses a turn that was not made (90°) or made twice.
+    error of 1σ 7.1°, which a fixed 15° (2.1σ) refuses on 3.4 % of good moves (an earlier
+    stop saw 4 of 30 vehicle sessions refused; ``benchmarks/floor_sessions.py``: 0 of 20
+    now); 28° still refuses a turn that was not made (90°) or made twice.
     """
     sigma = np.hypot(float(np.max(start.tolerances)), float(np.max(target.tolerances)))
     return max(float(floor_deg), MOVE_SIGMAS * float(np.rad2deg(sigma)))
