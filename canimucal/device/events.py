@@ -218,9 +218,16 @@ class NodeMonitor(can.Listener):
 
     @property
     def state(self) -> str | None:
-        """NMT state name the node reported, or None before any heartbeat."""
+        """NMT state name the node reported, or None before any heartbeat or boot-up.
+
+        A boot-up frame (code 0) says the node has just entered PRE-OPERATIONAL from
+        initialisation (CiA 301's boot-up protocol), so it reads as PRE-OPERATIONAL, not as
+        the INITIALISING the bare code would name; ``state_code`` keeps the 0.
+        """
         if self.state_code is None:
             return None
+        if self.state_code == 0:
+            return "PRE-OPERATIONAL"
         return NMT_STATES.get(self.state_code, f"UNKNOWN {self.state_code}")
 
     def recent_state(self, window_s: float) -> str | None:

@@ -56,12 +56,19 @@ def refused_start(client: ImuClient) -> str | None:
 
 
 def _next_heartbeat_state(client: ImuClient) -> str | None:
-    """Wait for the next heartbeat (:data:`HEARTBEAT_WINDOW_S`); return its state, else None."""
+    """Wait for the next heartbeat (:data:`HEARTBEAT_WINDOW_S`); return its state, else None.
+
+    A boot-up frame is passed over: the state the restarted node settles in comes with the
+    heartbeat after it.
+    """
     before = client.heartbeat.last_time_s
     deadline = time.monotonic() + HEARTBEAT_WINDOW_S
     while time.monotonic() < deadline:
-        if client.heartbeat.last_time_s != before:
-            return client.heartbeat.state
+        now = client.heartbeat.last_time_s
+        if now != before:
+            if client.heartbeat.state_code != 0:
+                return client.heartbeat.state
+            before = now
         time.sleep(POLL_S)
     return None
 
