@@ -9,7 +9,12 @@ the span of the command's imports (numpy, scipy: a Ctrl-C inside a C extension's
 came out as an ImportError, "internal error"). Twice: the second 1–50 ms later. Every run
 must end with exit 130 and the one line ``interrupted`` (a death by SIGINT, status -2, was
 the other way a late second Ctrl-C ended it). Before the entry module runs, the
-interpreter's own start-up is beyond the tool's reach.
+interpreter's own start-up is beyond the tool's reach, and so is the moment between the
+entry module's import and its first line: the signal is sent after the first import the
+entry function makes (it holds the signals before that import), so a descheduled child on a
+busy machine cannot be caught between the two. A run that had already finished its whole
+output when the signal came (the span measured uninterrupted can be longer than this run's)
+interrupts nothing: it must then exit 0 as usual, and at most a third of the runs may.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -34,32 +40,52 @@ ENTRY_LINES = ("| canimucal.cli.entry", "| canimucal.cli.main")
 ARGV = [sys.executable, "-X", "importtime", "-m", "canimucal", "plan", "--plan", "five"]
 
 
+FULL_OUTPUT: list[str] = []
+"""What the uninterrupted run printed on stdout (set by :func:`run_span_s`)."""
+
+
 def run_span_s() -> float:
     """Seconds from the entry module's import to the command's exit, uninterrupted."""
-    proc = subprocess.Popen(
-        ARGV, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
-    )
-    assert proc.stderr is not None
-    start = None
-    for line in proc.stderr:
-        if start is None and line.rstrip().endswith(ENTRY_LINES):
-            start = time.monotonic()
-    assert proc.wait(60.0) == 0 and start is not None
-    return time.monotonic() - start
+    with tempfile.TemporaryFile("w+") as out:
+        proc = subprocess.Popen(ARGV, cwd=ROOT, stdout=out, stderr=subprocess.PIPE, text=True)
+        assert proc.stderr is not None
+        start = None
+        for line in proc.stderr:
+            if start is None and line.rstrip().endswith(ENTRY_LINES):
+                start = time.monotonic()
+        assert proc.wait(60.0) == 0 and start is not None
+        span_s = time.monotonic() - start
+        out.seek(0)
+        FULL_OUTPUT[:] = [out.read()]
+    assert FULL_OUTPUT[0]
+    return span_s
 
 
-def interrupted_start(delay_s: float, gap_s: float | None) -> tuple[int, str]:
-    """Run the command, SIGINT it ``delay_s`` after its entry module (and ``gap_s`` later)."""
+def interrupted_start(delay_s: float, gap_s: float | None) -> tuple[int, str, bool]:
+    """Run the command, SIGINT it ``delay_s`` after its entry (and ``gap_s`` later).
+
+    Returns the exit status, what it said on stderr (import log left out) and whether its
+    stdout was complete (the command had finished when the signal came).
+    """
     argv = ARGV
-    proc = subprocess.Popen(
-        argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
-    )
+    with tempfile.TemporaryFile("w+") as out:
+        proc = subprocess.Popen(argv, cwd=ROOT, stdout=out, stderr=subprocess.PIPE, text=True)
+        code, said = _interrupt(proc, delay_s, gap_s)
+        out.seek(0)
+        finished = out.read() == FULL_OUTPUT[0]
+    return code, said, finished
+
+
+def _interrupt(proc: subprocess.Popen[str], delay_s: float, gap_s: float | None) -> tuple[int, str]:
     assert proc.stderr is not None
     lines = []
+    entered = False
     try:
         for line in proc.stderr:
             lines.append(line)
             if line.rstrip().endswith(ENTRY_LINES):
+                entered = True
+            elif entered and line.startswith("import time:"):  # past the hold
                 time.sleep(delay_s)
                 proc.send_signal(signal.SIGINT)
                 if gap_s is not None:
@@ -84,6 +110,10 @@ def test_ctrl_c_while_the_command_starts_is_one_line_and_130(twice: bool) -> Non
     for _ in range(RUNS):
         delay_s = float(rng.uniform(0.0, 0.6 * span_s))
         gap_s = float(rng.uniform(0.001, 0.05)) if twice else None
-        code, said = interrupted_start(delay_s, gap_s)
-        outcomes.append((round(delay_s, 3), code, said.strip().splitlines()[-1:]))
+        code, said, finished = interrupted_start(delay_s, gap_s)
+        outcomes.append((round(delay_s, 3), code, finished, said.strip().splitlines()[-1:]))
+        if finished and code == 0:
+            assert said == "", outcomes  # done before the signal: nothing to interrupt
+            continue
         assert code == 130 and said == "interrupted\n", outcomes
+    assert sum(o[1] == 0 for o in outcomes) <= RUNS // 3, outcomes
