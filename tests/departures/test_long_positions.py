@@ -9,11 +9,13 @@ combination below 1e-10 of the best-determined parameter once the means' noise s
 beside the pose term) and `analyze` exited 2, at 200 Hz and at 50 Hz alike; the fit's rank
 is now judged at each parameter's own precision (:func:`canimucal.model.joint.rank_scales`).
 
-Not yet right: on these files the pose scatter's first estimate, on the tilt-free
-linearisation, runs to its 10° bound (the tilt's second order, 0.25 counts a position, has
-no other term to go to once the means are that precise), and nothing is named although
-the unit has a tilt and cross-axis terms (at 30 s positions both are named). Fitted exactly
-from τ = 0, τ̂ is 0.059°. The test holds what is done: no exit 2, and a wrong cause never.
+The pose scatter the selection whitens by is that of the model holding every candidate,
+fitted exactly (:func:`canimucal.analysis.discrepancy._full_model_scatter`), and no smaller
+model's REML may exceed its 95 % interval. Before, the first estimate came from the tilt-free
+linearisation, where the tilt's second order (0.25 counts a position) has no other term to go
+to once the means are this precise: τ ran to its 10° bound, every test was whitened at 10°,
+and nothing was named although the unit has a tilt and cross-axis terms (named at 30 s
+positions). Here both must be named, nothing else, with the scatter where the poses put it.
 """
 
 from __future__ import annotations
@@ -40,4 +42,6 @@ def test_long_positions_analyse_and_replay() -> None:
     rows = replay(a)
     assert rows, "the replay ran"
     named = {f.effect for f in a.result.findings}
-    assert named <= TRUE_CAUSES, named
+    assert named == TRUE_CAUSES, named
+    assert a.result.noise is not None
+    assert a.result.noise.pose_scatter.value_deg < 0.5, a.result.noise.pose_scatter
