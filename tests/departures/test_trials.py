@@ -38,6 +38,9 @@ from canimucal.analysis.solve import solve_recording
 from canimucal.io.calibration import Calibration, Device
 from canimucal.io.grouping import detect_trials
 from canimucal.io.recording_writer import write_recording
+from canimucal.model.positions import PlannedPosition
+from canimucal.model.vocabulary.plans import FIVE
+from canimucal.sim.averages import simulate_averages
 from tests.departures.conftest import CliRun
 from tests.support import departures as dep
 from tests.support.chi2_band import chi2_ratio_band
@@ -262,3 +265,31 @@ def test_gyro_s_from_the_moves_of_trials_means_what_its_sigma_says() -> None:
     assert np.all(np.abs(errors) < 4.5), np.round(errors, 2)
     low, high = chi2_ratio_band(errors.size)
     assert low <= float(np.mean(errors**2)) <= high, (float(np.mean(errors**2)), low, high)
+
+
+def test_the_plan_check_gives_each_trial_its_own_biases() -> None:
+    """The plan's correlations beside every trial's own biases, as the fit has them.
+
+    The five-position plan, then a second mounting set on its side twice (beta 90°, psi 0°
+    and 180°). With one bias for both the second trial's poses tell bias z from beta0 and
+    the plan check saw nothing; but they are a trial of their own, whose biases are its own,
+    and beside them the pair stays correlated −0.9993 (the five plan's own −0.9996).
+    """
+    side = [PlannedPosition(0.0, np.pi / 2, psi, np.deg2rad(0.1), 30.0) for psi in (0.0, np.pi)]
+    positions = [*FIVE.positions, *side]
+    truth = dep.case_truth(dep.Case(dep.REMOUNTED, "five", 0.0), 0)
+    averages = simulate_averages(
+        positions, truth.accel.params(), np.random.default_rng(0), g=truth.g, angle_errors=False
+    )
+    trials = [replace(a, trial=0 if k < len(FIVE.positions) else 1) for k, a in enumerate(averages)]
+    site = SiteConditions(g=truth.g, accel_lsb=truth.accel.nominal_lsb)
+    spec = dep.solve_spec("five")
+
+    def named(solution_warnings: tuple[str, ...]) -> bool:
+        return any(
+            "accel.bias[2] and base_tilt.beta0" in w and "in this plan" in w
+            for w in solution_warnings
+        )
+
+    assert not named(solve_positions(averages, spec, site, Device(serial=0)).warnings)
+    assert named(solve_positions(trials, spec, site, Device(serial=0)).warnings)
