@@ -135,8 +135,9 @@ def _pose_rows(
     by_key = {c.key: c.columns.reshape(k, m, -1) for c in cands}
     s_matrix = gyro.S if gyro is not None else np.eye(3) / data.gyro_lsb
     earth = free_earth_rate(angles, s_matrix, m).reshape(k, m, 3)
-    extra = np.stack([_nuisance_rows(name, earth, nuisance) for name in nuisance], axis=2)
-    extra = extra if nuisance else np.zeros((k, m, 0))
+    extra = np.zeros((k, m, 0))
+    if nuisance:
+        extra = np.stack([_nuisance_rows(name, earth, nuisance) for name in nuisance], axis=2)
     rows = np.concatenate([pred.d_theta, extra] + [by_key[t] for t in keys], axis=2)
     within = np.zeros((m, m))
     for a in data.averages:

@@ -293,3 +293,17 @@ def test_the_plan_check_gives_each_trial_its_own_biases() -> None:
 
     assert not named(solve_positions(averages, spec, site, Device(serial=0)).warnings)
     assert named(solve_positions(trials, spec, site, Device(serial=0)).warnings)
+
+
+def test_an_ambiguous_pair_in_trials_gets_its_separating_position() -> None:
+    """The five plan cannot tell a cross-axis entry from a quadratic (seed 0, four trials):
+    the position that would separate them is searched with the trials' offsets in the base
+    model, the added pose set in the first trial (``separation._nuisance_rows``)."""
+    case = dep.Case(dep.CROSS_AXIS, "five", 0.0)
+    rec, _units = dep.trials_recording(case, 0)
+    result = analyze(rec).result
+    assert result.trials == dep.TRIALS and not result.findings
+    (pair,) = result.ambiguous
+    assert set(pair.candidates) == {"cross_axis", "scale_nonlinearity"}
+    assert pair.separating is not None
+    assert pair.separating.correlation_after < pair.correlation
