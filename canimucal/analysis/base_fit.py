@@ -6,6 +6,12 @@ model "6" (bias + diagonal K), and the gyro bias. Each gives the raw residuals, 
 Jacobian of the prediction, the covariance of the residual vector (within-position scatter,
 angle tolerances, and a random-walk term when drift was found) and the candidates' columns.
 
+Trials (several mountings of the unit in one file, docs/design.md §5 Trials): the known-
+position base model gives each trial its own accelerometer and gyro biases, as ``solve``
+does, the shared biases the trials' mean and ``T − 1`` offsets per bias channel among the
+base parameters (:func:`trial_offsets`); K, the gyro's scale and every candidate stay
+shared. Without it the trials' bias steps were the misfit, and named (``bias_drift``).
+
 The Earth rate is part of the gyro's base model even when the site is unknown, because
 leaving it out fakes g-sensitivity (docs/design.md §6: its part along gravity *is* an isotropic G,
 ``ω_up = Ω sin φ · f/|f|``, and a consumer MEMS gyro sees it at 1-2σ of a 10-30 s mean).
@@ -45,7 +51,7 @@ from canimucal.analysis.candidates import (
 from canimucal.analysis.data import SessionData
 from canimucal.model.dcm_stack import dcm_stack
 from canimucal.model.frames import EARTH_RATE_RAD_S
-from canimucal.model.joint import JointResult, solve_joint
+from canimucal.model.joint import JointResult, solve_joint, trial_contrast
 from canimucal.model.layout import (
     GyroSpec,
     JointSpec,
@@ -54,6 +60,7 @@ from canimucal.model.layout import (
     angle_error_moments,
     predict,
 )
+from canimucal.model.positions import PositionAverage
 from canimucal.model.scalar import ScalarFit, fit_scalar_averages
 from canimucal.model.vocabulary.effects import ScalarInputs
 
@@ -154,6 +161,8 @@ def fit_known(data: SessionData) -> tuple[PreparedBase, JointResult]:
         block_covariance(data, unit_angle_covariance(layout, res.values, angles, ctx), False),
         float(np.max(tol)),
     )  # fmt: skip
+    if data.trials:
+        prepared = with_trial_offsets(prepared, res, data)
     if m == 6 and earth_rate_visible(data):
         # the heading is never trusted (a session's default is 0; wrong by 90°, it faked G
         # and temperature terms on 12 and 9 of 30 clean sessions): the horizontal part is
@@ -163,6 +172,59 @@ def fit_known(data: SessionData) -> tuple[PreparedBase, JointResult]:
         names = tuple(EARTH_RATE_NAMES[i] for i in axes)
         prepared = with_nuisance(prepared, columns, names, ctx.w_level[axes])
     return prepared, res
+
+
+TRIAL_OFFSET_PREFIX = "trial_offset"
+"""Names of the trials' bias offsets in a known-position base fit:
+``trial_offset[t].accel.bias[i]`` (and ``.gyro.bias[i]``)."""
+
+
+def trial_offsets(
+    averages: tuple[PositionAverage, ...] | list[PositionAverage], m: int
+) -> tuple[tuple[str, ...], Array]:
+    """Names and raw columns ``(n·m, (T − 1)·m)`` of the trials' bias offsets.
+
+    The parametrisation ``solve`` uses (:mod:`canimucal.model.joint`): the biases of the base
+    model are the trials' mean, trial ``t < T`` adds its offset ``δ_t`` and the last trial
+    ``−Σ δ_t``; the offsets are linear, so their columns are the contrast on each bias
+    channel. Empty with fewer than two trials.
+    """
+    ids, contrast = trial_contrast(averages)
+    if not ids:
+        return (), np.zeros((len(averages) * m, 0))
+    n, t = contrast.shape
+    columns = np.einsum("nj,cd->ncjd", contrast, np.eye(m)).reshape(n * m, t * m)
+    channels = [f"accel.bias[{i}]" for i in range(3)] + [f"gyro.bias[{i}]" for i in range(m - 3)]
+    names = tuple(f"{TRIAL_OFFSET_PREFIX}[{ids[j]}].{c}" for j in range(t) for c in channels)
+    return names, columns
+
+
+def with_trial_offsets(prepared: PreparedBase, res: JointResult, data: SessionData) -> PreparedBase:
+    """Return ``prepared`` with the trials' bias offsets among its base parameters.
+
+    ``res`` was fitted with them (its residuals are net of the offsets); their values are
+    each trial's biases less the shared ones, their σ from the base fit's whitened design.
+    """
+    m = prepared.residual_table.shape[1]
+    names, columns = trial_offsets(data.averages, m)
+    assert res.trial_bias is not None
+    shared = np.array([res.value(c.split(".", 1)[1]) for c in names[:m]])
+    offsets = (res.trial_bias[:-1] - shared).ravel()
+    design = np.hstack([prepared.jacobian, columns])
+    chol = np.asarray(
+        np.linalg.cholesky(0.5 * (prepared.covariance + prepared.covariance.T)), dtype=float
+    )
+    white = _solve_lower(chol, design)
+    cov = np.linalg.pinv(white.T @ white, hermitian=True)
+    p = prepared.jacobian.shape[1]
+    sigmas = np.sqrt(np.abs(np.diag(cov)))[p:]
+    return dataclasses.replace(
+        prepared,
+        jacobian=design,
+        names=prepared.names + names,
+        values=np.concatenate([prepared.values, offsets]),
+        sigmas=np.concatenate([prepared.sigmas, sigmas]),
+    )
 
 
 def earth_rate_visible(data: SessionData) -> bool:

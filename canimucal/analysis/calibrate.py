@@ -291,7 +291,9 @@ def _plan_warnings(
 
     The fit's own correlations include the angle tolerances, which can mask a combination
     the plan itself barely separates (bias z against beta0 in the paper's five positions,
-    -0.9996 in ``canimucal plan``); this names it too.
+    -0.9996 in ``canimucal plan``); this names it too. With trials the plan's information
+    gives each trial its own biases (their offsets marginalised, as the fit does), so what
+    is named is what these positions separate beside every trial's biases.
     """
     plan = Plan(
         "recorded",
@@ -314,6 +316,7 @@ def _plan_warnings(
         g=site.g,
         latitude=latitude,
         gyro_lsb=site.gyro_lsb,
+        trials=[a.trial for a in averages] if any(a.trial is not None for a in averages) else None,
     )
     out = []
     for f in table.separability.findings:

@@ -10,6 +10,7 @@ from numpy.typing import NDArray
 
 from canimucal.analysis.noise_model import ScatterEstimate
 from canimucal.analysis.settling import Settling
+from canimucal.model.joint import trial_contrast
 from canimucal.model.positions import PositionAverage
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
 
@@ -66,6 +67,11 @@ class SessionData:
     def has_gyro(self) -> bool:
         """Every position has gyro data."""
         return all(a.mean_gyro is not None and a.cov_gyro is not None for a in self.averages)
+
+    @property
+    def trials(self) -> tuple[int, ...]:
+        """The trials the positions belong to, ascending (empty: one trial, or none)."""
+        return trial_contrast(self.averages)[0]
 
 
 @dataclass(frozen=True)
@@ -225,5 +231,7 @@ class DiscrepancyResult:
     warnings: tuple[str, ...] = ()
     ambiguous: tuple[Ambiguity, ...] = ()
     earth_rate_horizontal: ScatterEstimate | None = None
+    trials: int = 0
+    """How many trials the base model gave their own biases (0: one trial, or none)."""
     """Scalar fits of a gyro of unknown scale: the horizontal Earth rate (counts) estimated as
     a variance component (REML, 95 % interval); None where the model sizes it or leaves it."""

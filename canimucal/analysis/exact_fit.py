@@ -26,7 +26,8 @@ re-derived at the tilted poses too,
 
 (:mod:`.noise_model` eq. 1), so the directions along gravity stay free of pose scatter;
 K's cross-axis terms and the Earth rate stay as the base fit had them
-(:func:`_without_cross_axis`).
+(:func:`_without_cross_axis`). The trials' bias offsets (:func:`.base_fit.trial_offsets`)
+are linear: they add to ``U(p)`` and their columns are the same at every ``p``.
 Iterations stop when no parameter moves by more than :data:`STEP_SIGMAS` of its σ (two or
 three at a 3° tilt).
 """
@@ -44,6 +45,7 @@ from canimucal.analysis.base_fit import (
     PreparedBase,
     block_covariance,
     temperature_status,
+    trial_offsets,
     unit_angle_covariance,
 )
 from canimucal.analysis.candidates import candidates_at_inputs
@@ -102,6 +104,8 @@ def relinearised(
         w_level[EARTH_RATE_NAMES.index(name)] = named[name]
     ctx = dataclasses.replace(ctx, w_level=w_level)
     pred = predict(layout, theta, angles, ctx)
+    offset_names, offset_columns = trial_offsets(data.averages, m)
+    offset_values = np.array([named[name] for name in offset_names], dtype=float)
     par = layout.unpack(theta, ctx.gyro_lsb)
     c, _, _ = dcm_stack(angles, float(tilt[0]), float(tilt[1]), "rigid")
     temps, _ = temperature_status(data)
@@ -118,7 +122,7 @@ def relinearised(
             cand = dataclasses.replace(cand, columns=tilt_cols.reshape(n * m, 2))
         cands.append(cand)
     by_key = {cand.key: cand.columns for cand in cands}
-    mean = pred.mean.ravel()
+    mean = pred.mean.ravel() + offset_columns @ offset_values  # each trial's own biases
     for key, gamma in coefs.items():
         if key not in (TILT, CROSS):  # linear in their entries (eq. 1)
             mean = mean + by_key[key] @ gamma
@@ -131,6 +135,8 @@ def relinearised(
             cols = np.zeros((n, m))
             cols[:, 3:] = (par.S @ c)[:, :, axis]
             jac[:, k] = cols.ravel()
+        elif name in offset_names:  # linear: the trials' contrast on its bias channel
+            jac[:, k] = offset_columns[:, offset_names.index(name)]
         else:
             jac[:, k] = pred.d_theta[:, :, layout.index(name)].ravel()
     keep = {cand.key for cand in base.candidates}

@@ -22,6 +22,7 @@ from canimucal.model.frames import position_dcm
 from canimucal.model.moves import (
     AXES,
     Move,
+    PositionKey,
     Shared,
     attitude_covariance,
     path_turn,
@@ -83,8 +84,10 @@ def plan_shared(plan: Plan, noise_counts: NDArray[np.float64], sample_rate_hz: f
     ``seconds · sample_rate_hz`` samples of white noise ``noise_counts`` (counts per sample).
     """
     positions = plan.positions
-    attitude = {i: attitude_covariance(p.angles, p.tolerances) for i, p in enumerate(positions)}
-    mean_gyro = {
+    attitude: dict[PositionKey, Array] = {
+        i: attitude_covariance(p.angles, p.tolerances) for i, p in enumerate(positions)
+    }
+    mean_gyro: dict[PositionKey, Array] = {
         i: np.diag(noise_counts**2) / max(p.seconds * sample_rate_hz, 1.0)
         for i, p in enumerate(plan.positions)
     }

@@ -16,6 +16,11 @@ Moves come from two sources:
   the still sample on each side, the known angle about the fixed axis, uncertain by the
   same ``√2 · tolerance``.
 
+In a recording of several trials (its ``trial`` column, docs/design.md §5 Trials) the
+positions are keyed by (trial, label): a move's two positions and their gyro means are its
+own trial's, so each move is integrated with its trial's own bias, and the step from one
+trial's last position to the next trial's first (the unit re-mounted) is no move.
+
 The gyro bias is the one the static fit found. Around a move between positions, the local
 bias is the mean of the two positions' gyro means (drift removed), less the Earth rate each
 pose sees when the latitude is known; the Earth rate is then removed in the integration
@@ -41,6 +46,7 @@ from canimucal.model.moves import (
     AXES,
     Move,
     MovesFit,
+    PositionKey,
     Shared,
     attitude_covariance,
     pose_move,
@@ -111,19 +117,21 @@ def recording_moves(
     *,
     tolerance_deg: float = 0.1,
     pose_moves: bool = True,
-    pose_sigmas: Mapping[int, float | Sequence[float]] | None = None,
+    pose_sigmas: Mapping[PositionKey, float | Sequence[float]] | None = None,
     g_sensitivity: GSensitivity | None = None,
     trim: Array | None = None,
 ) -> RecordingMoves:
     """Collect the moves of ``rec`` (module doc); ``pose_moves`` false keeps known turns only.
 
-    ``pose_sigmas`` (label → 1σ in rad of that position's angles, one for all three or
+    ``pose_sigmas`` (a position's key, its label or ``(trial, label)`` → 1σ in rad of that
+    position's angles, one for all three or
     ``(alpha, beta, psi)``) replaces ``tolerance_deg`` for the positions it names (a known
     turn keeps ``√2 · tolerance``). ``g_sensitivity`` removes ``G f`` from the moves between
     positions (:func:`move_between`); ``trim`` is the mounting trim the accelerometer fit
     found (the poses' rotations as the unit saw them, :func:`move_between`).
     """
     runs = _position_runs(rec)
+    keys = [_key(rec, label, first) for label, first, _ in runs]
     if not runs:
         raise InputError(f"{rec.source or 'recording'}: gyro moves need labelled positions")
     fs = rec.sample_rate_hz
@@ -135,8 +143,8 @@ def recording_moves(
     biases: list[Array] = []
     notes: list[str] = []
     sigma_pose = float(np.sqrt(2.0) * np.deg2rad(tolerance_deg))
-    attitude: dict[int, Array] = {}
-    mean_gyro: dict[int, Array] = {}
+    attitude: dict[PositionKey, Array] = {}
+    mean_gyro: dict[PositionKey, Array] = {}
     for turn in rec.turns:
         start, stop = max(turn.start - 1, 0), min(turn.stop + 1, rec.n_rows)
         rows = uniform_rows(rec, start, stop, turn.label, notes)
@@ -147,16 +155,19 @@ def recording_moves(
         )
         biases.append(static.mean(axis=0))  # imucal's bias: all static samples stacked
     if pose_moves:
-        for (la, _, a_end), (lb, b_start, _) in zip(runs, runs[1:], strict=False):
-            label = f"position {la} → {lb}"
+        for k, ((la, _, a_end), (lb, b_start, _)) in enumerate(zip(runs, runs[1:], strict=False)):
+            ka, kb = keys[k], keys[k + 1]
+            if _trial_of(ka) != _trial_of(kb):  # the unit re-mounted between trials: no move
+                continue
+            label = f"position {la} → {lb}" + _in_trial(ka)
             pair = _pose_move(
-                rec, site, s0, (la, a_end), (lb, b_start), label, notes, g_sensitivity, trim
+                rec, site, s0, (ka, a_end), (kb, b_start), label, notes, g_sensitivity, trim
             )
             if pair is None:
                 continue
             moves.append(pair[0])
             biases.append(pair[1])
-            for key, row in ((la, a_end), (lb, b_start)):
+            for key, row in ((ka, a_end), (kb, b_start)):
                 if key in attitude:
                     continue
                 tol = np.deg2rad(tolerance_deg)
@@ -164,7 +175,7 @@ def recording_moves(
                     tol = np.asarray(pose_sigmas[key], dtype=float)
                 angles = np.deg2rad(_angles_deg(rec, row))
                 attitude[key] = attitude_covariance(angles, tol)
-                rows_k = np.asarray(rec.gyro[rec.position == key], dtype=np.float64)
+                rows_k = np.asarray(rec.gyro[_rows_of(rec, key)], dtype=np.float64)
                 mean_gyro[key] = mean_covariance(rows_k)
     shared = Shared(attitude, mean_gyro) if attitude else None
     return RecordingMoves(tuple(moves), tuple(biases), sigma, tuple(notes), shared)
@@ -178,10 +189,41 @@ def mean_covariance(rows: Array) -> Array:
     return np.asarray(np.cov(finite.T) / finite.shape[0], dtype=np.float64)
 
 
+def _key(rec: Recording, label: int, row: int) -> PositionKey:
+    """Return the key of the position of ``label`` at ``row`` (``(trial, label)`` with trials)."""
+    if rec.trial is None:
+        return label
+    return (max(int(rec.trial[row]), -1), label)
+
+
+def _trial_of(key: PositionKey) -> int | None:
+    """Return the trial of a position's key (None: the recording has no trials)."""
+    return key[0] if isinstance(key, tuple) else None
+
+
+def _in_trial(key: PositionKey) -> str:
+    return "" if not isinstance(key, tuple) else f" (trial {key[0]})"
+
+
+def _rows_of(rec: Recording, key: PositionKey) -> NDArray[np.bool_]:
+    """Rows of the position ``key``: its label's, of its own trial when there are trials.
+
+    Each trial is a mounting of its own (its own gyro bias): a move's bias is its trial's.
+    """
+    if not isinstance(key, tuple):
+        return np.asarray(rec.position == key)
+    assert rec.trial is not None
+    trial, label = key
+    return np.asarray((rec.position == label) & (np.maximum(rec.trial, -1) == trial))
+
+
 def _position_runs(rec: Recording) -> list[tuple[int, int, int]]:
-    """``(label, first_row, last_row)`` of each unbroken run of one position label."""
+    """``(label, first_row, last_row)`` of each unbroken run of one position label (and trial)."""
     pos = rec.position
-    change = np.flatnonzero(np.diff(pos) != 0) + 1
+    turned = np.diff(pos) != 0
+    if rec.trial is not None:
+        turned |= np.diff(rec.trial) != 0
+    change = np.flatnonzero(turned) + 1
     starts = np.concatenate([[0], change])
     stops = np.concatenate([change, [pos.size]])
     return [
@@ -255,8 +297,8 @@ def _pose_move(
     rec: Recording,
     site: SiteConditions,
     s0: Array,
-    start: tuple[int, int],
-    end: tuple[int, int],
+    start: tuple[PositionKey, int],
+    end: tuple[PositionKey, int],
     label: str,
     notes: list[str],
     g_sensitivity: GSensitivity | None = None,
@@ -270,8 +312,8 @@ def _pose_move(
     rows = uniform_rows(rec, a_end, b_start + 1, label, notes)
     if rows is None:
         return None
-    mean_a = np.nanmean(_f64(rec.gyro[rec.position == la]), axis=0)
-    mean_b = np.nanmean(_f64(rec.gyro[rec.position == lb]), axis=0)
+    mean_a = np.nanmean(_f64(rec.gyro[_rows_of(rec, la)]), axis=0)
+    mean_b = np.nanmean(_f64(rec.gyro[_rows_of(rec, lb)]), axis=0)
     force = None
     if g_sensitivity is not None:
         accel = uniform_rows(rec, a_end, b_start + 1, label, [], accel=True)
@@ -292,7 +334,7 @@ def move_between(
     label: str,
     g_sensitivity: GSensitivity | None = None,
     force: Array | None = None,
-    positions: tuple[int, int] | None = None,
+    positions: tuple[PositionKey, PositionKey] | None = None,
     trim: Array | None = None,
 ) -> tuple[Move, Array]:
     """Build the move from one still position to the next and its bias (counts).
@@ -388,7 +430,7 @@ def solve_gyro_moves(
     site: SiteConditions,
     *,
     pose_moves: bool = True,
-    pose_sigmas: Mapping[int, float | Sequence[float]] | None = None,
+    pose_sigmas: Mapping[PositionKey, float | Sequence[float]] | None = None,
 ) -> tuple[Solution, MovesFit]:
     """Estimate S from the recording's moves and put it in the solution's record.
 

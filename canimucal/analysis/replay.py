@@ -11,7 +11,8 @@ the rate that gives its longest position ``REPLAY_SAMPLES_PER_POSITION`` samples
 measured rate when lower). Every noise term of the simulator is continuous-time (white
 density, random walk, Gauss–Markov time constants, temperature in seconds), so each
 position's mean and its covariance have the same statistics as at the measured rate, and the
-replay's cost is bounded whatever the recording's length.
+replay's cost is bounded whatever the recording's length. A session of several trials is
+replayed with its trials (:func:`with_trials_of`), so its base fit is the measured one's.
 """
 
 from __future__ import annotations
@@ -24,9 +25,11 @@ from typing import Any
 import numpy as np
 
 from canimucal.analysis.base_fit import fit_known
+from canimucal.analysis.data import SessionData
 from canimucal.analysis.report import Analysis, extended_truth, observed_poses
 from canimucal.analysis.session import session_from_recording
 from canimucal.analysis.simulated import simulate_plan_recording
+from canimucal.io.recording import Recording
 from canimucal.sim.truth import Truth
 
 REPLAY_SAMPLES_PER_POSITION = 4000
@@ -73,12 +76,29 @@ def _base_fit_row(label: str, a: Analysis, truth_doc: dict[str, Any], seed: int)
     truth = Truth.from_dict(truth_doc)
     rate = replay_rate_hz([p.seconds for p in plan.positions], truth.sample_rate_hz)
     rec = simulate_plan_recording(truth, plan, seed=seed, sample_rate_hz=rate)
+    rec = with_trials_of(rec, a.session)
     session = session_from_recording(
         rec, g=a.session.g, latitude=a.session.latitude, heading=a.session.heading,
         tolerance_deg=_scatter_deg(a),
     )  # fmt: skip
     prepared, res = fit_known(session)
     return ReplayRow(label, res.rms_accel_ms2, prepared.chi2 / max(prepared.dof, 1))
+
+
+def with_trials_of(rec: Recording, session: SessionData) -> Recording:
+    """Give a replay of ``session``'s observed poses the session's trials (its ``trial`` column).
+
+    The replay runs one position per average, labelled by its index; each row takes the trial
+    of its position (a move's rows, the one before it). The replay's base fit then has the
+    measured one's trial offsets and dof: a bias step between trials is absorbed by them
+    exactly (the fit is linear in the offsets), so the replay need not simulate the steps.
+    """
+    if not session.trials:
+        return rec
+    trials = np.array([-1 if x.trial is None else x.trial for x in session.averages])
+    held = np.maximum.accumulate(np.where(rec.position >= 0, np.arange(rec.n_rows), 0))
+    index = np.maximum(rec.position[held], 0)
+    return dataclasses.replace(rec, trial=trials[index].astype(np.int64))
 
 
 def _scatter_deg(a: Analysis) -> float:

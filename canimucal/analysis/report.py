@@ -117,17 +117,16 @@ def analyze(
     )
 
 
-def _trials_note(recording: Recording) -> tuple[str, ...]:
-    """Say so when the file holds several trials: ``analyze`` does not model them yet."""
-    found, _why = detect_trials(recording) if has_angles(recording) else (recording, None)
-    if found.trial is None:
+def _scalar_trials_note(recording: Recording) -> tuple[str, ...]:
+    """Say so when a file without angles holds several trials: its |f| = g fit has one bias."""
+    if recording.trial is None or has_angles(recording):
         return ()
-    count = int(np.unique(found.trial[found.position >= 0]).size)
+    count = int(np.unique(recording.trial[recording.position >= 0]).size)
     if count < 2:
         return ()
     return (
-        f"{count} trials in this file: analyze fits one bias for all of them (its causes may be "
-        "the trials' bias steps); solve gives each trial its own bias",
+        f"{count} trials in this file without angles: the |f| = g fit has one bias for all "
+        "of them (with angles each trial gets its own)",
     )
 
 
@@ -146,8 +145,13 @@ def analyse_recording(
     ``tolerance_deg`` fixes the pose-setting scatter; None takes the recording's
     ``tolerance_deg`` header, else estimates it from the data. ``rec`` is taken as it is:
     held repeats are removed before (:func:`.repeats.unique_samples`, whose line goes in
-    ``notes``). A file with several trials gets a note: the loop fits one bias for all.
+    ``notes``). Several trials (the ``trial`` column, else found as ``solve`` finds them:
+    :func:`~canimucal.io.grouping.detect_trials`, its line in the notes) give each trial its
+    own biases in the base model and every candidate's (:mod:`.base_fit`).
     """
+    if has_angles(rec):  # several trials in one file without a trial column
+        rec, found = detect_trials(rec)
+        notes += () if found is None else (found,)
     session = session_from_recording(
         rec, g=g, latitude=latitude, heading=heading, tolerance_deg=tolerance_deg
     )
@@ -159,7 +163,7 @@ def analyse_recording(
     allan = {"accel": _allan(rec, longest.accel)}
     if session.has_gyro and longest.gyro is not None:
         allan["gyro"] = _allan(rec, longest.gyro)
-    return Analysis(rec, session, result, allan, g_source, notes + _trials_note(rec))
+    return Analysis(rec, session, result, allan, g_source, notes + _scalar_trials_note(rec))
 
 
 def _allan(rec: Recording, x: Array) -> AllanCheck:
@@ -296,13 +300,16 @@ def base_fit_summary(result: DiscrepancyResult) -> dict[str, Any]:
                 f"no cause named; the base model is rejected, χ²/dof {ratio:.4g}: the misfit "
                 "is not one of the candidates"
             )
-    return {
+    out: dict[str, Any] = {
         "chi2": chi2,
         "dof": dof,
         "p_value": _finite(p),
         "rejected": rejected,
         "summary": summary,
     }
+    if result.trials:
+        out["trials"] = result.trials
+    return out
 
 
 def _finite(x: float) -> float | None:

@@ -9,7 +9,8 @@ the term ``a`` and its rival ``b``) is
 
 with ``D`` the recording's whitened design at its estimated noise model, ``R_x`` the raw
 rows of the added pose (the base Jacobian and every candidate's columns at ``x``, linearised
-at the base fit) and ``V_x = C̄ + τ̂² J_x J_xᵀ`` its mean's covariance: the mean
+at the base fit; with trials the pose is added to the first) and ``V_x = C̄ + τ̂² J_x J_xᵀ``
+its mean's covariance: the mean
 within-position covariance of the recording's positions plus the pose-setting scatter
 through the angle derivatives ``J_x`` (noise_model eq. 1). With ``Σ(x) = F(x)⁻¹`` the
 correlation of the pair's estimates is the largest canonical correlation between the two
@@ -48,7 +49,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from canimucal.analysis.base_fit import EARTH_RATE_NAMES, free_earth_rate
+from canimucal.analysis.base_fit import EARTH_RATE_NAMES, TRIAL_OFFSET_PREFIX, free_earth_rate
 from canimucal.analysis.candidates import candidates_at_angles
 from canimucal.analysis.data import SeparatingPosition, SessionData
 from canimucal.analysis.significance import LinearProblem, canonical_correlation, fit_terms
@@ -134,7 +135,9 @@ def _pose_rows(
     by_key = {c.key: c.columns.reshape(k, m, -1) for c in cands}
     s_matrix = gyro.S if gyro is not None else np.eye(3) / data.gyro_lsb
     earth = free_earth_rate(angles, s_matrix, m).reshape(k, m, 3)
-    extra = earth[:, :, [EARTH_RATE_NAMES.index(n) for n in nuisance]]
+    extra = np.zeros((k, m, 0))
+    if nuisance:
+        extra = np.stack([_nuisance_rows(name, earth, nuisance) for name in nuisance], axis=2)
     rows = np.concatenate([pred.d_theta, extra] + [by_key[t] for t in keys], axis=2)
     within = np.zeros((m, m))
     for a in data.averages:
@@ -143,6 +146,24 @@ def _pose_rows(
             within[3:, 3:] += a.cov_gyro / len(data.averages)
     cov = within + tau * tau * np.einsum("kia,kja->kij", pred.d_angles, pred.d_angles)
     return rows, cov
+
+
+def _nuisance_rows(name: str, earth: Array, nuisance: Sequence[str]) -> Array:
+    """Return the added pose's ``(k, m)`` rows of one base parameter beyond the joint fit's.
+
+    An Earth-rate component (:mod:`.base_fit`), or a trial's bias offset: the added pose is
+    set in the first trial (its biases, the shared ones plus that trial's offsets), so the
+    first trial's offsets reach its own channel and the others nothing.
+    """
+    if name in EARTH_RATE_NAMES:
+        return np.asarray(earth[:, :, EARTH_RATE_NAMES.index(name)], dtype=float)
+    rows = np.zeros(earth.shape[:2])
+    offsets = [n for n in nuisance if n.startswith(TRIAL_OFFSET_PREFIX)]
+    first = offsets[0].split(".", 1)[0]
+    if name.split(".", 1)[0] == first:
+        sensor, axis = name.split(".", 1)[1], int(name[-2])
+        rows[:, axis + (3 if sensor.startswith("gyro") else 0)] = 1.0
+    return rows
 
 
 def _entry_slices(

@@ -2,11 +2,15 @@
 
 Labelled positions are used as they are (with their angles when every one has them); a
 recording without labels is cut into static intervals (:mod:`canimucal.model.static`), whose
-orientations are unknown, so only the scalar ``|f| = g`` fit applies.
+orientations are unknown, so only the scalar ``|f| = g`` fit applies. A recording of
+several trials (its ``trial`` column, or the trials :func:`~canimucal.io.grouping.detect_trials`
+found) with known angles gives one position per trial and label, each carrying its trial,
+as ``solve`` groups it: the base fit then gives each trial its own biases (:mod:`.base_fit`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from typing import Any
 
@@ -18,7 +22,7 @@ from canimucal.analysis.pose_scatter import header_tolerance_deg
 from canimucal.analysis.separation import plan_tilt_limit_deg
 from canimucal.analysis.settling import fit_settling, trim_mask
 from canimucal.errors import InputError
-from canimucal.io.grouping import has_angles, position_rows
+from canimucal.io.grouping import has_angles, position_rows, trial_label_rows
 from canimucal.io.recording import Recording
 from canimucal.model.positions import Pose, PositionAverage, average_position
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
@@ -62,26 +66,32 @@ def session_from_recording(
     recording's ``tolerance_deg`` header (``header``), else left to be estimated from the
     data (``estimated``: the poses carry no tolerance). A settling transient after each move
     (:mod:`.settling`, fitted per sensor) is trimmed from every position before averaging,
-    each by the longer of the two sensors' trims.
+    each by the longer of the two sensors' trims. With known angles and two or more trials
+    in the ``trial`` column the positions are keyed by (trial, label) (module doc).
     """
     tolerance_deg, source = scatter_source(rec, tolerance_deg)
     groups, labelled = position_rows(rec)
     known = labelled and has_angles(rec)
+    trials: list[int | None] = [None] * len(groups)
+    if known and rec.trial is not None and _trial_count(rec) >= 2:
+        keyed = trial_label_rows(rec.position, rec.trial)
+        groups, trials = [rows for _t, _l, rows in keyed], [t for t, _l, _r in keyed]
     gyro_ok = bool(np.isfinite(rec.gyro).any())
     temp_ok = bool(np.isfinite(rec.temp_c).any())
     tol = float(np.deg2rad(tolerance_deg))
-    kept = []
-    for rows in groups:
+    kept, kept_trials = [], []
+    for rows, trial in zip(groups, trials, strict=True):
         keep = rows[np.all(np.isfinite(rec.accel[rows]), axis=1)]
         if keep.size >= MIN_POSITION_SAMPLES:
             kept.append(keep)
+            kept_trials.append(trial)
     settling = {"accel": fit_settling([(_take(rec.t, k), _take(rec.accel, k)) for k in kept])}
     if gyro_ok:
         settling["gyro"] = fit_settling([(_take(rec.t, k), _take(rec.gyro, k)) for k in kept])
     trim_s = np.max([s.trim_s for s in settling.values()], axis=0)
     averages: list[PositionAverage] = []
     windows: list[Window] = []
-    for rows, trim in zip(kept, trim_s, strict=True):
+    for rows, trim, trial in zip(kept, trim_s, kept_trials, strict=True):
         keep = rows[trim_mask(rec.t[rows], float(trim))]
         first = keep[0]
         angles = [
@@ -94,12 +104,11 @@ def session_from_recording(
         temp = np.asarray(rec.temp_c[keep], dtype=np.float64) if temp_ok else None
         gyro = np.asarray(rec.gyro[keep], dtype=np.float64) if gyro_ok else None
         accel = np.asarray(rec.accel[keep], dtype=np.float64)
-        averages.append(
-            average_position(
-                pose, accel, gyro, rec.sample_rate_hz,
-                float(np.nanmean(temp)) if temp is not None else None,
-            )
+        average = average_position(
+            pose, accel, gyro, rec.sample_rate_hz,
+            float(np.nanmean(temp)) if temp is not None else None,
         )  # fmt: skip
+        averages.append(average if trial is None else dataclasses.replace(average, trial=trial))
         windows.append(Window(rec.t[keep], accel, gyro, temp))
     if len(averages) < 3:
         raise InputError(f"{rec.source or 'recording'}: found {len(averages)} positions, need 3")
@@ -117,6 +126,14 @@ def session_from_recording(
         tilt_limit_deg=plan_tilt_limit_deg(rec.header.get("plan")),
         gyro_lsb_known=known or "gyro_lsb" in rec.header,
     )
+
+
+def _trial_count(rec: Recording) -> int:
+    """How many trials the labelled rows of ``rec`` hold (its ``trial`` column)."""
+    if rec.trial is None:
+        return 0
+    keyed = np.where(rec.trial < 0, -1, rec.trial)
+    return int(np.unique(keyed[rec.position >= 0]).size)
 
 
 def scatter_source(rec: Recording, tolerance_deg: float | None) -> tuple[float, str]:

@@ -49,9 +49,11 @@ from canimucal.io.grouping import (
     position_averages,
     position_labels,
     position_rows,
+    trial_label_rows,
 )
 from canimucal.io.recording import Recording
 from canimucal.model.layout import JointSpec
+from canimucal.model.moves import PositionKey
 from canimucal.model.positions import PositionAverage
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, STANDARD_GRAVITY
 
@@ -185,17 +187,22 @@ def by_trial(averages: Sequence[PositionAverage]) -> list[list[PositionAverage]]
 
 def _pose_sigmas(
     rec: Recording, averages: Sequence[PositionAverage]
-) -> dict[int, tuple[float, ...]] | None:
-    """Return label → 1σ (rad) of each position's angles ``(alpha, beta, psi)``.
+) -> dict[PositionKey, tuple[float, ...]] | None:
+    """Return each position's key → 1σ (rad) of its angles ``(alpha, beta, psi)``.
 
+    The key is the label, ``(trial, label)`` with trials (:mod:`.gyro_moves`).
     The procedure weighs its moves so (:mod:`canimucal.procedure.gyro_fit`); None when the
-    averages are not one per label.
+    averages are not one per key.
     """
-    labels = [int(k) for k in position_labels(rec)]
-    if len(labels) != len(averages):
+    keys: list[PositionKey]
+    if rec.trial is None:
+        keys = [int(k) for k in position_labels(rec)]
+    else:
+        keys = [(t, label) for t, label, _rows in trial_label_rows(rec.position, rec.trial)]
+    if len(keys) != len(averages):
         return None
     return {
-        k: tuple(float(t) for t in a.pose.tolerances) for k, a in zip(labels, averages, strict=True)
+        k: tuple(float(t) for t in a.pose.tolerances) for k, a in zip(keys, averages, strict=True)
     }
 
 

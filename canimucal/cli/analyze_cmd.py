@@ -208,6 +208,8 @@ def report_text(a: Analysis, reference: Reference | None, replayed: list[ReplayR
     r = a.result
     n = len(a.session.averages)
     kind = "known angles: joint model" if a.session.known_positions else "no angles: |f| = g fit"
+    if r.trials:
+        kind += f", {r.trials} trials: one bias each, K shared"
     lines = [
         f"{n} static positions ({kind}); g = {a.session.g:.5f} m/s² ({a.g_source})",
         *(f"note: {note}" for note in a.notes),

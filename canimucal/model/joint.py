@@ -54,7 +54,12 @@ from canimucal.model.layout import (
     nominal_theta,
     predict,
 )
-from canimucal.model.plan import NOT_IDENTIFIABLE_RATIO, Separability, analyse_information
+from canimucal.model.plan import (
+    NOT_IDENTIFIABLE_RATIO,
+    Separability,
+    analyse_information,
+    offset_contrast,
+)
 from canimucal.model.positions import PositionAverage
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, AccelParams, GyroParams
 
@@ -326,17 +331,10 @@ def trial_contrast(averages: Sequence[PositionAverage]) -> tuple[tuple[int, ...]
     """Return the trials of ``averages`` and the contrast of their offsets (module doc).
 
     Trials ascending (a position without one is trial -1); the ``(n, T − 1)`` contrast maps
-    the offsets to positions. ``((), (n, 0))`` with fewer than two trials.
+    the offsets to positions (:func:`~canimucal.model.plan.offset_contrast`). ``((), (n, 0))``
+    with fewer than two trials.
     """
-    keys = [-1 if a.trial is None else int(a.trial) for a in averages]
-    ids = tuple(sorted(set(keys)))
-    if len(ids) < 2:
-        return (), np.zeros((len(averages), 0))
-    contrast = np.zeros((len(averages), len(ids) - 1))
-    for k, key in enumerate(keys):
-        t = ids.index(key)
-        contrast[k] = -1.0 if t == len(ids) - 1 else np.eye(len(ids) - 1)[t]
-    return ids, contrast
+    return offset_contrast([a.trial for a in averages])
 
 
 def _checked(k: int, what: str, mean: object, cov: object) -> tuple[Array, Array]:

@@ -62,6 +62,9 @@ from canimucal.model.frames import position_dcm
 
 Array = NDArray[np.float64]
 
+PositionKey = int | tuple[int, int]
+"""A still position's key: its label, or ``(trial, label)`` in a recording of several trials."""
+
 AXES = "xyz"
 S_NAMES = tuple(f"S_{AXES[i]}{AXES[j]}" for i in range(3) for j in range(3))
 """Names of S's entries in row-major order: ``S_xy`` is axis x's response to a rate about y."""
@@ -233,7 +236,7 @@ class Move:
     earth_rate_body: Array | None = None
     specific_force: Array | None = None
     fixed_axis: bool = False
-    positions: tuple[int, int] | None = None
+    positions: tuple[PositionKey, PositionKey] | None = None
 
     @property
     def duration_s(self) -> float:
@@ -249,7 +252,7 @@ def pose_move(
     sigma_rad: float,
     label: str = "",
     earth_rate_body: ArrayLike | None = None,
-    positions: tuple[int, int] | None = None,
+    positions: tuple[PositionKey, PositionKey] | None = None,
 ) -> Move:
     """Build the move between two positions with direction cosine matrices body ← L.
 
@@ -280,8 +283,8 @@ class Shared:
     A key missing from either map contributes nothing.
     """
 
-    attitude: Mapping[int, Array]
-    mean_gyro: Mapping[int, Array]
+    attitude: Mapping[PositionKey, Array]
+    mean_gyro: Mapping[PositionKey, Array]
 
 
 def attitude_covariance(angles: ArrayLike, tolerances: ArrayLike) -> Array:
@@ -653,7 +656,7 @@ def residual_covariance(
     cov = np.asarray(np.kron(np.diag(np.asarray(sigmas, dtype=float) ** 2), np.eye(3)), float)
     if shared is None:
         return cov
-    touches: dict[int, list[tuple[int, Array, Array]]] = {}
+    touches: dict[PositionKey, list[tuple[int, Array, Array]]] = {}
     for k, (move, jb) in enumerate(zip(moves, bias_jacobians, strict=True)):
         if move.positions is None:
             continue

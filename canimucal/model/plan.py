@@ -270,6 +270,7 @@ def fisher_information(
     include_tolerance: bool = False,
     at: ModelParams | None = None,
     prior_sigma: Mapping[str, float] | None = None,
+    trials: Sequence[int | None] | None = None,
 ) -> Array:
     """Fisher information of ``plan`` for the parameters of ``spec`` (in their own units).
 
@@ -279,7 +280,11 @@ def fisher_information(
     in variables). Latitude and heading in radians. ``at`` moves the point of evaluation away
     from docs/design.md §3's nominal one (K = k·I, zero tilt, nominal S, zero biases and G).
     ``prior_sigma`` adds a Gaussian prior's information ``1/σ²`` to the parameters it names
-    (the pseudo-observations of :func:`canimucal.model.joint.solve_joint`).
+    (the pseudo-observations of :func:`canimucal.model.joint.solve_joint`). ``trials`` (one
+    per position, None: no trial) gives each trial its own biases as the joint fit does:
+    the trials' ``T − 1`` bias offsets (:func:`offset_contrast`) are marginalised, so the
+    biases are the trials' mean and K, the tilt and the gyro terms what the positions tell
+    beside every trial's own biases.
     """
     if not plan.positions:
         raise ModelError("the plan has no positions")
@@ -299,14 +304,45 @@ def fisher_information(
     if include_tolerance:
         tol = np.array([p.tolerances for p in plan.positions], dtype=float)
         base = base + angle_error_moments(layout, theta, angles, ctx, tol).covariance
-    weighted = np.linalg.solve(base, pred.d_theta)
-    fisher = np.einsum("nip,niq->pq", pred.d_theta, weighted)
+    if trials is not None and len(trials) != len(angles):
+        raise ModelError(f"{len(trials)} trials given for {len(angles)} positions")
+    design = pred.d_theta
+    _ids, contrast = offset_contrast(list(trials) if trials is not None else [None] * len(angles))
+    if contrast.shape[1]:
+        m = spec.channels
+        offsets = np.einsum("nj,cd->ncjd", contrast, np.eye(m)).reshape(len(angles), m, -1)
+        design = np.concatenate([design, offsets], axis=2)
+    weighted = np.linalg.solve(base, design)
+    fisher = np.einsum("nip,niq->pq", design, weighted)
+    p = layout.size
+    if fisher.shape[0] > p:  # the trials' offsets marginalised (Schur complement)
+        own, cross = fisher[:p, :p], fisher[:p, p:]
+        fisher = own - cross @ np.linalg.pinv(fisher[p:, p:], hermitian=True) @ cross.T
     for name, sigma in (prior_sigma or {}).items():
         if not (np.isfinite(sigma) and sigma > 0):
             raise ModelError(f"prior σ of {name} must be finite and > 0, got {sigma}")
         j = layout.index(name)
         fisher[j, j] += 1.0 / sigma**2
     return np.asarray(fisher)
+
+
+def offset_contrast(keys: Sequence[int | None]) -> tuple[tuple[int, ...], Array]:
+    """Return the trials of ``keys`` (one per position) and the contrast of their offsets.
+
+    Trials ascending (None and negative are trial -1); the ``(n, T − 1)`` contrast maps the
+    offsets ``δ_t`` of the first ``T − 1`` trials to the positions, the last trial's being
+    ``−Σ δ_t`` (offsets summing to zero: the biases are the trials' mean). ``((), (n, 0))``
+    with fewer than two trials.
+    """
+    keyed = [-1 if k is None or int(k) < 0 else int(k) for k in keys]
+    ids = tuple(sorted(set(keyed)))
+    if len(ids) < 2:
+        return (), np.zeros((len(keyed), 0))
+    contrast = np.zeros((len(keyed), len(ids) - 1))
+    for k, key in enumerate(keyed):
+        t = ids.index(key)
+        contrast[k] = -1.0 if t == len(ids) - 1 else np.eye(len(ids) - 1)[t]
+    return ids, contrast
 
 
 @dataclass(frozen=True)
@@ -366,6 +402,7 @@ def cramer_rao(
     include_tolerance: bool = False,
     at: ModelParams | None = None,
     prior_sigma: Mapping[str, float] | None = None,
+    trials: Sequence[int | None] | None = None,
     **kwargs: float,
 ) -> BoundTable:
     """Cramér–Rao bounds of ``plan`` for ``spec`` (default: bias + diagonal K + rigid tilt).
@@ -373,8 +410,9 @@ def cramer_rao(
     Each parameter's σ and its effect at 1 g in counts (σ_b, g·σ_Kij, |k|·g·σ_angle); the
     identifiability analysis of :func:`analyse_information`. ``prior_sigma``: the σ of a
     Gaussian prior per parameter name (default: the plan's own prior, :func:`plan_prior`,
-    at ``k_nominal``). ``at`` and the extra keywords
-    go to :func:`fisher_information` (``gyro_noise_density``, ``heading``, ``gyro_lsb``).
+    at ``k_nominal``). ``at``, ``trials`` (each position's, :func:`fisher_information`) and
+    the extra keywords go to :func:`fisher_information` (``gyro_noise_density``, ``heading``,
+    ``gyro_lsb``).
     """
     spec = spec or JointSpec()
     layout = ParameterLayout.of(spec)
@@ -391,6 +429,7 @@ def cramer_rao(
         include_tolerance=include_tolerance,
         at=at,
         prior_sigma=prior_sigma,
+        trials=trials,
         **kwargs,
     )
     scales = layout.effect_scales(g, k_nominal_counts_per_ms2)

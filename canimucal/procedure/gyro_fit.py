@@ -37,7 +37,7 @@ from canimucal.analysis.gyro_moves import (
     with_moves,
 )
 from canimucal.errors import InputError
-from canimucal.model.moves import Move, Shared, attitude_covariance
+from canimucal.model.moves import Move, PositionKey, Shared, attitude_covariance
 from canimucal.model.positions import Pose, PositionAverage
 
 Array = NDArray[np.float64]
@@ -90,8 +90,8 @@ def build_moves(
     moves: list[Move] = []
     biases: list[Array] = []
     notes: list[str] = []
-    attitude: dict[int, Array] = {}
-    mean_gyro: dict[int, Array] = {}
+    attitude: dict[PositionKey, Array] = {}
+    mean_gyro: dict[PositionKey, Array] = {}
     for m in confirmed:
         if np.all(np.isfinite(m.counter)):
             clock = sample_clock(m.counter)
