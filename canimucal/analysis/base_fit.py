@@ -430,7 +430,7 @@ def _position_temperatures(data: SessionData) -> Array | None:
     for w in data.windows:
         if w.temp_c is None or not np.any(np.isfinite(w.temp_c)):
             return None
-        temps.append(float(np.nanmean(w.temp_c)))
+        temps.append(float(np.nanmean(np.asarray(w.temp_c, dtype=np.float64))))
     return np.array(temps)
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -15,6 +16,8 @@ from canimucal.model.positions import PositionAverage
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
 
 Array = NDArray[np.float64]
+Samples = NDArray[np.floating[Any]]
+"""A window's samples: float32 or float64 (:class:`Window`)."""
 
 FAMILY_ALPHA = 0.01
 """Family-wise error rate of the candidate tests (Holm)."""
@@ -25,12 +28,19 @@ AXIS_SIGN_SIGMAS = 5.0
 
 @dataclass(frozen=True)
 class Window:
-    """The samples of one static position: times (s), counts ``(n, 3)``, temperature (°C)."""
+    """The samples of one static position: times (s), counts ``(n, 3)``, temperature (°C).
+
+    The sample arrays keep the recording's column type (float32 while its values fit it
+    exactly, docs/performance.md) and are views of its columns when the position is one run
+    of rows, so the windows of a long session cost no memory of their own. Readers convert
+    one window at a time to float64 *before* reducing it (numpy's buffered float32 → float64
+    reductions sum in another order: the figures would move in the 12th digit).
+    """
 
     t_s: Array
-    accel: Array
-    gyro: Array | None = None
-    temp_c: Array | None = None
+    accel: Samples
+    gyro: Samples | None = None
+    temp_c: Samples | None = None
 
 
 @dataclass(frozen=True)

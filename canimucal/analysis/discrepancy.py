@@ -56,6 +56,7 @@ from canimucal.analysis.data import (
     ExtendedParams,
     Finding,
     NoiseSummary,
+    Samples,
     SensorScore,
     SessionData,
     TestRecord,
@@ -577,7 +578,7 @@ def _walk_like(drift: DriftTest, data: SessionData, sensor: str) -> bool:
     return walk_consistent(drift, bound)
 
 
-def _sensor_windows(data: SessionData, sensor: str) -> list[tuple[Array, Array]]:
+def _sensor_windows(data: SessionData, sensor: str) -> list[tuple[Array, Samples]]:
     if sensor == "accel":
         return [(w.t_s, w.accel) for w in data.windows]
     return [(w.t_s, np.asarray(w.gyro)) for w in data.windows if w.gyro is not None]
@@ -634,9 +635,10 @@ def _drift_warnings(
     return tuple(out)
 
 
-def _temp_rate(t: Array, temp: Array | None) -> float:
-    if temp is None:
+def _temp_rate(t: Array, temp_c: Samples | None) -> float:
+    if temp_c is None:
         return 0.0
+    temp = np.asarray(temp_c, dtype=np.float64)  # a float32 window: converted before fitting
     keep = np.isfinite(temp)
     if keep.sum() < 2:
         return 0.0

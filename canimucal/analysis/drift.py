@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from canimucal.analysis.data import Samples
 from canimucal.model.noise import DEFAULT_MAX_GAP_SAMPLES, allan_deviation
 
 Array = NDArray[np.float64]
@@ -70,15 +71,18 @@ def slope(t: Array, x: Array) -> tuple[Array, Array]:
 
 
 def drift_test(
-    windows: Sequence[tuple[Array, Array]], temperature_rates: Array | None = None
+    windows: Sequence[tuple[Array, Samples]], temperature_rates: Array | None = None
 ) -> DriftTest:
     """Test the samples ``(t_s (n,), x (n, 3))`` of each position for trends.
+
+    ``x`` may be float32 (a session's window); each is converted to float64 before summing.
 
     ``temperature_rates`` ``(n_positions,)`` °C/s, or None when the temperature is unknown
     or constant.
     """
     slopes, sigmas, lengths = [], [], []
-    for t, x in windows:
+    for t, samples in windows:
+        x = np.asarray(samples, dtype=np.float64)  # before any sum (float32 windows)
         keep = np.all(np.isfinite(x), axis=1)
         s, e = slope(t[keep], x[keep])
         slopes.append(s)
@@ -135,7 +139,7 @@ WALK_FACTOR = 2.0
 """A slope-based random walk is named only up to this factor over the Allan bound."""
 
 
-def allan_walk_upper(windows: Sequence[tuple[Array, Array]]) -> Array:
+def allan_walk_upper(windows: Sequence[tuple[Array, Samples]]) -> Array:
     """95 % upper bound (per axis, units/√s) of a random walk from the windows' Allan deviation.
 
     Every term of ``σ²(τ) = N²/τ + B² + q²τ/3`` is non-negative, so ``q² ≤ 3σ²(τ)/τ`` at every
@@ -147,7 +151,8 @@ def allan_walk_upper(windows: Sequence[tuple[Array, Array]]) -> Array:
     """
     parts, dts = [], []
     gap = np.full((DEFAULT_MAX_GAP_SAMPLES + 1, 3), np.nan)
-    for t, x in windows:
+    for t, samples in windows:
+        x = np.asarray(samples, dtype=np.float64)  # before any sum (float32 windows)
         keep = np.all(np.isfinite(x), axis=1)
         if keep.sum() < 8:
             continue

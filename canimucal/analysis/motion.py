@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from canimucal.analysis.data import Samples
 from canimucal.analysis.drift import slope
 
 Array = NDArray[np.float64]
@@ -61,7 +62,7 @@ def _across(u: Array) -> tuple[Array, Array]:
 
 
 def positions_that_moved(
-    windows: Sequence[tuple[Array, Array]], alpha: float
+    windows: Sequence[tuple[Array, Samples]], alpha: float
 ) -> tuple[PositionMotion, ...]:
     """Return the positions whose accelerometer direction turned (module doc).
 
@@ -72,7 +73,8 @@ def positions_that_moved(
 
     level = alpha / max(len(windows), 1)
     moved = []
-    for i, (t, x) in enumerate(windows):
+    for i, (t, samples) in enumerate(windows):
+        x = np.asarray(samples, dtype=np.float64)  # before any sum (float32 windows)
         keep = np.all(np.isfinite(x), axis=1)
         if keep.sum() < 8:
             continue

@@ -18,7 +18,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.analysis.conditions import recording_conditions
-from canimucal.analysis.data import FAMILY_ALPHA, Ambiguity, DiscrepancyResult, SessionData
+from canimucal.analysis.data import (
+    FAMILY_ALPHA,
+    Ambiguity,
+    DiscrepancyResult,
+    Samples,
+    SessionData,
+)
 from canimucal.analysis.discrepancy import analyse_discrepancy
 from canimucal.analysis.repeats import unique_samples
 from canimucal.analysis.session import session_from_recording
@@ -166,8 +172,11 @@ def analyse_recording(
     return Analysis(rec, session, result, allan, g_source, notes + _scalar_trials_note(rec))
 
 
-def _allan(rec: Recording, x: Array) -> AllanCheck:
-    """Allan deviation of the samples of the longest position (settling trimmed)."""
+def _allan(rec: Recording, x: Samples) -> AllanCheck:
+    """Allan deviation of the samples of the longest position (settling trimmed).
+
+    ``allan_deviation`` converts a float32 window to float64 before its sums.
+    """
     fs = rec.sample_rate_hz
     res = allan_deviation(x, fs)
     terms = fit_noise(res)
@@ -389,17 +398,42 @@ def extended_truth(a: Analysis) -> dict[str, Any]:
     return doc
 
 
-def _whole_counts(samples: Array) -> bool:
-    finite = samples[np.isfinite(samples)]
-    return bool(finite.size) and bool(np.all(finite == np.round(finite)))
+FACT_CHUNK_ROWS = 1 << 20
+"""Rows a whole-column check reads at once (no temporaries the size of the recording)."""
 
 
-def _step(samples: Array, scale: float = 1.0) -> float:
+@dataclass(frozen=True)
+class _CountFacts:
+    """Of a column's finite samples: any at all, all whole counts, the largest |x|."""
+
+    any_finite: bool
+    whole: bool
+    largest: float
+
+
+def _count_facts(samples: Samples) -> _CountFacts:
+    """Read ``samples`` in chunks of :data:`FACT_CHUNK_ROWS` rows (the same answer as at once)."""
+    any_finite, whole, largest = False, True, 0.0
+    for start in range(0, samples.shape[0], FACT_CHUNK_ROWS):
+        chunk = samples[start : start + FACT_CHUNK_ROWS]
+        finite = chunk[np.isfinite(chunk)]
+        if finite.size:
+            any_finite = True
+            whole = whole and bool(np.all(finite == np.round(finite)))
+            largest = max(largest, float(np.abs(finite).max()))
+    return _CountFacts(any_finite, any_finite and whole, largest)
+
+
+def _whole_counts(samples: Samples) -> bool:
+    return _count_facts(samples).whole
+
+
+def _step(samples: Samples, scale: float = 1.0) -> float:
     """1 (INT16 rounding) when the data are whole counts or rescaled to counts, else 0."""
     return 1.0 if scale != 1.0 or _whole_counts(samples) else 0.0
 
 
-def _count_scale(samples: Array) -> float:
+def _count_scale(samples: Samples) -> float:
     """Return counts of the simulated unit per unit of the data (1 for whole counts).
 
     Data in physical units (an importer's ``accel_lsb: 1``, floats) cannot travel as INT16
@@ -407,10 +441,10 @@ def _count_scale(samples: Array) -> float:
     the finest power-of-two count whose INT16 range still holds the data's largest value
     (:data:`INT16_HEADROOM`); the input-referred noise densities are unchanged.
     """
-    finite = np.abs(samples[np.isfinite(samples)])
-    if _whole_counts(samples) or not finite.size or float(finite.max()) == 0.0:
+    facts = _count_facts(samples)
+    if facts.whole or not facts.any_finite or facts.largest == 0.0:
         return 1.0
-    return float(2.0 ** np.floor(np.log2(INT16_HEADROOM / float(finite.max()))))
+    return float(2.0 ** np.floor(np.log2(INT16_HEADROOM / facts.largest)))
 
 
 def _temperature_profile(a: Analysis) -> tuple[list[tuple[float, float]], float]:
@@ -420,7 +454,8 @@ def _temperature_profile(a: Analysis) -> tuple[list[tuple[float, float]], float]
     for w in a.session.windows:
         if w.temp_c is None or not np.any(np.isfinite(w.temp_c)):
             return [], t0
-        out.append((float(np.mean(w.t_s)), float(np.nanmean(w.temp_c))))
+        temp = np.asarray(w.temp_c, dtype=np.float64)  # before summing (float32 windows)
+        out.append((float(np.mean(w.t_s)), float(np.nanmean(temp))))
     return out, t0
 
 

@@ -22,7 +22,14 @@ from canimucal.analysis.pose_scatter import header_tolerance_deg
 from canimucal.analysis.separation import plan_tilt_limit_deg
 from canimucal.analysis.settling import fit_settling, trim_mask
 from canimucal.errors import InputError
-from canimucal.io.grouping import has_angles, position_rows, trial_label_rows
+from canimucal.io.grouping import (
+    Rows,
+    has_angles,
+    position_parts,
+    rows_count,
+    rows_where,
+    trial_label_rows,
+)
 from canimucal.io.recording import Recording
 from canimucal.model.positions import Pose, PositionAverage, average_position
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB
@@ -42,13 +49,12 @@ def _lsb(rec: Recording, key: str, default: float) -> float:
     return default
 
 
-def _take(values: NDArray[Any], rows: NDArray[np.intp]) -> NDArray[Any]:
-    """Return ``values[rows]``, a view when the rows are one run.
+def _take(values: NDArray[Any], rows: Rows) -> NDArray[Any]:
+    """Return ``values[rows]``, a view when the rows are one run (a slice).
 
-    The settling fit reads a window's ends only: a long position is not copied whole.
+    The settling fit reads a window's ends only, and the windows are kept for the whole
+    analysis: a long position is not copied.
     """
-    if rows.size and int(rows[-1]) - int(rows[0]) + 1 == rows.size:
-        return values[int(rows[0]) : int(rows[-1]) + 1]
     return values[rows]
 
 
@@ -70,7 +76,7 @@ def session_from_recording(
     in the ``trial`` column the positions are keyed by (trial, label) (module doc).
     """
     tolerance_deg, source = scatter_source(rec, tolerance_deg)
-    groups, labelled = position_rows(rec)
+    groups, labelled = position_parts(rec)
     known = labelled and has_angles(rec)
     trials: list[int | None] = [None] * len(groups)
     if known and rec.trial is not None and _trial_count(rec) >= 2:
@@ -81,8 +87,8 @@ def session_from_recording(
     tol = float(np.deg2rad(tolerance_deg))
     kept, kept_trials = [], []
     for rows, trial in zip(groups, trials, strict=True):
-        keep = rows[np.all(np.isfinite(rec.accel[rows]), axis=1)]
-        if keep.size >= MIN_POSITION_SAMPLES:
+        keep = rows_where(rows, np.all(np.isfinite(_take(rec.accel, rows)), axis=1))
+        if rows_count(keep) >= MIN_POSITION_SAMPLES:
             kept.append(keep)
             kept_trials.append(trial)
     settling = {"accel": fit_settling([(_take(rec.t, k), _take(rec.accel, k)) for k in kept])}
@@ -92,8 +98,8 @@ def session_from_recording(
     averages: list[PositionAverage] = []
     windows: list[Window] = []
     for rows, trim, trial in zip(kept, trim_s, kept_trials, strict=True):
-        keep = rows[trim_mask(rec.t[rows], float(trim))]
-        first = keep[0]
+        keep = rows_where(rows, trim_mask(_take(rec.t, rows), float(trim)))
+        first = keep.start if isinstance(keep, slice) else int(keep[0])
         angles = [
             float(rec.alpha_deg[first]),
             float(rec.beta_deg[first]),
@@ -101,15 +107,17 @@ def session_from_recording(
         ]
         a, b, p = (float(x) for x in np.deg2rad(angles))
         pose = Pose(a, b, p, tolerance=tol) if known else Pose(np.nan, np.nan)
-        temp = np.asarray(rec.temp_c[keep], dtype=np.float64) if temp_ok else None
-        gyro = np.asarray(rec.gyro[keep], dtype=np.float64) if gyro_ok else None
-        accel = np.asarray(rec.accel[keep], dtype=np.float64)
+        # the windows keep the recording's column types, as views when the rows are one run
+        # (Window's doc); the averages convert to float64 before summing
+        temp = _take(rec.temp_c, keep) if temp_ok else None
+        gyro = _take(rec.gyro, keep) if gyro_ok else None
+        accel = _take(rec.accel, keep)
         average = average_position(
             pose, accel, gyro, rec.sample_rate_hz,
-            float(np.nanmean(temp)) if temp is not None else None,
+            float(np.nanmean(np.asarray(temp, dtype=np.float64))) if temp is not None else None,
         )  # fmt: skip
         averages.append(average if trial is None else dataclasses.replace(average, trial=trial))
-        windows.append(Window(rec.t[keep], accel, gyro, temp))
+        windows.append(Window(_take(rec.t, keep), accel, gyro, temp))
     if len(averages) < 3:
         raise InputError(f"{rec.source or 'recording'}: found {len(averages)} positions, need 3")
     return SessionData(

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections.abc import Iterator
 
 import numpy as np
 from numpy.typing import NDArray
@@ -81,6 +82,50 @@ def position_rows(recording: Recording) -> tuple[list[NDArray[np.intp]], bool]:
     found = detect_static_intervals(recording.accel, recording.sample_rate_hz, gyro=gyro)
     logger.info("no position labels: %d static intervals detected", len(found))
     return [np.arange(s.start, s.stop) for s in found], False
+
+
+Rows = slice | NDArray[np.intp]
+"""The rows of one position: a slice when they are one run (views of the columns, no index
+array), else their indices, increasing."""
+
+
+def position_parts(recording: Recording) -> tuple[list[Rows], bool]:
+    """As :func:`position_rows`, each position a slice when its rows are one run.
+
+    A session's positions are one run each: a long recording's grouping then holds no index
+    array of its rows (76 MiB at 10⁷ rows) and its windows are views (issue 23).
+    """
+    runs = label_runs(recording.position)
+    if not runs:
+        found, _ = position_rows(recording)  # static intervals: each one run
+        return [slice(int(r[0]), int(r[-1]) + 1) if r.size else r for r in found], False
+    parts: list[Rows] = []
+    for spans in runs.values():
+        if len(spans) == 1:
+            parts.append(slice(*spans[0]))
+        else:
+            parts.append(np.concatenate([np.arange(a, b, dtype=np.intp) for a, b in spans]))
+    return parts, True
+
+
+def rows_count(rows: Rows) -> int:
+    """Return the number of rows in ``rows``."""
+    if isinstance(rows, slice):
+        return int(rows.stop - rows.start)
+    return int(rows.size)
+
+
+def rows_where(rows: Rows, mask: NDArray[np.bool_]) -> Rows:
+    """Return the rows of ``rows`` where ``mask`` (one entry a row) holds, a slice if one run."""
+    if isinstance(rows, slice):
+        if bool(mask.all()):
+            return rows
+        picked = np.flatnonzero(mask) + rows.start
+    else:
+        picked = rows[mask]
+    if picked.size and int(picked[-1]) - int(picked[0]) + 1 == picked.size:
+        return slice(int(picked[0]), int(picked[-1]) + 1)
+    return picked
 
 
 def average_rows(recording: Recording, rows: NDArray[np.intp]) -> PositionAverage:
@@ -256,23 +301,23 @@ def detect_trials(recording: Recording) -> tuple[Recording, str | None]:
     """
     if recording.trial is not None:
         return recording, None
-    labelled = np.flatnonzero(recording.position >= 0)
-    if labelled.size < 4:
+    labels, firsts, n_labelled = _labelled_runs(recording.position)
+    if n_labelled < 4:
         return recording, None
-    repeats, chunks = _label_chunks(recording.position[labelled])
+    repeats, chunks = _label_chunks(labels)
     repeated = len(chunks) > 1 and all(
         len(c) >= 2
         and c == chunks[0][: len(c)]
         and (len(c) == len(chunks[0]) or k == len(chunks) - 1)
         for k, c in enumerate(chunks)
     )
-    starts = {int(labelled[k]) for k in repeats} if repeated else set()
+    starts = {firsts[k] for k in repeats} if repeated else set()
     gap_starts = _pauses(recording.t)
     edges = sorted(starts | gap_starts)
-    found = _trials_of(recording, labelled, edges)
+    found = _trials_of(recording, edges)
     if found is None:
         if repeats:
-            first = int(recording.position[labelled[repeats[0]]])
+            first = labels[repeats[0]]
             return recording, (
                 f"position {first} recurs in time order, not as a repeated plan: its rows are "
                 "averaged as one position (a trial column tells trials apart)"
@@ -290,42 +335,92 @@ def detect_trials(recording: Recording) -> tuple[Recording, str | None]:
     return dataclasses.replace(recording, trial=found), note
 
 
-def _label_chunks(labels: NDArray[np.int64]) -> tuple[list[int], list[list[int]]]:
+def _labelled_runs(position: NDArray[np.int64]) -> tuple[list[int], list[int], int]:
+    """Return the runs of the labelled rows' labels, rows without a label left out.
+
+    Each run's label and first row (file order), and the number of labelled rows; two runs
+    of one label with only unlabelled rows between are one run. From the label changes
+    (:func:`label_runs`' comparison), never an index array of the labelled rows (issue 23).
+    """
+    n = position.shape[0]
+    if n == 0:
+        return [], [], 0
+    change = np.flatnonzero(position[1:] != position[:-1]) + 1
+    starts = np.concatenate([[0], change])
+    stops = np.concatenate([change, [n]])
+    run_labels = position[starts]
+    keep = run_labels >= 0
+    labels: list[int] = []
+    firsts: list[int] = []
+    for label, first in zip(run_labels[keep].tolist(), starts[keep].tolist(), strict=True):
+        if not labels or labels[-1] != label:
+            labels.append(int(label))
+            firsts.append(int(first))
+    return labels, firsts, int(np.sum(stops[keep] - starts[keep]))
+
+
+def _label_chunks(labels: list[int]) -> tuple[list[int], list[list[int]]]:
     """Split the labels' run sequence where a label comes back.
 
-    Returns the split points (indices into ``labels``) and each chunk's labels in order.
+    ``labels`` one a run (:func:`_labelled_runs`). Returns the split points (indices into
+    ``labels``) and each chunk's labels in order.
     """
-    change = np.concatenate([[0], np.flatnonzero(np.diff(labels)) + 1])
     splits: list[int] = []
     chunks: list[list[int]] = [[]]
-    for k in change.tolist():
-        label = int(labels[k])
+    for k, label in enumerate(labels):
         if label in chunks[-1]:
-            splits.append(int(k))
+            splits.append(k)
             chunks.append([])
         chunks[-1].append(label)
     return splits, chunks
 
 
+PAUSE_CHUNK_ROWS = 1 << 20
+"""Steps of ``t`` the pause search reads at once (no temporaries the size of the file)."""
+
+
 def _pauses(t: NDArray[np.float64]) -> set[int]:
-    """Rows after a step in ``t`` over :data:`TRIAL_GAP_S` and 100 typical steps."""
+    """Rows after a step in ``t`` over :data:`TRIAL_GAP_S` and 100 typical steps.
+
+    The typical step is the median of the finite positive steps. It moves the threshold only
+    when 100 of it exceed :data:`TRIAL_GAP_S`; a first pass in chunks counts the steps that
+    cannot (``100·dt ≤ TRIAL_GAP_S``): when more than half do, the median cannot either and
+    the threshold is :data:`TRIAL_GAP_S`, with no array of the steps built (issue 23).
+    Otherwise (steps of 0.6 s and more: short files) the median is taken as before.
+    """
     if t.size < 2:
         return set()
-    dt = np.diff(t)
-    finite = dt[np.isfinite(dt) & (dt > 0)]
-    typical = float(np.median(finite)) if finite.size else 0.0
-    return {int(g) + 1 for g in np.flatnonzero(dt > max(TRIAL_GAP_S, 100.0 * typical)).tolist()}
+    positive = short = 0
+    for dt in _steps(t):
+        ok = np.isfinite(dt) & (dt > 0)
+        positive += int(np.count_nonzero(ok))
+        short += int(np.count_nonzero(ok & (100.0 * dt <= TRIAL_GAP_S)))
+    if positive == 0 or short >= positive // 2 + 1:
+        threshold = TRIAL_GAP_S
+    else:
+        steps = np.diff(t)
+        typical = float(np.median(steps[np.isfinite(steps) & (steps > 0)]))
+        threshold = max(TRIAL_GAP_S, 100.0 * typical)
+    found: set[int] = set()
+    for start, dt in zip(range(0, t.size - 1, PAUSE_CHUNK_ROWS), _steps(t), strict=True):
+        found.update((np.flatnonzero(dt > threshold) + start + 1).tolist())
+    return found
 
 
-def _trials_of(
-    recording: Recording, labelled: NDArray[np.intp], edges: list[int]
-) -> NDArray[np.int64] | None:
+def _steps(t: NDArray[np.float64]) -> Iterator[NDArray[np.float64]]:
+    """Yield ``np.diff(t)`` in chunks of :data:`PAUSE_CHUNK_ROWS` steps, in order."""
+    for start in range(0, t.size - 1, PAUSE_CHUNK_ROWS):
+        yield np.diff(t[start : start + PAUSE_CHUNK_ROWS + 1])
+
+
+def _trials_of(recording: Recording, edges: list[int]) -> NDArray[np.int64] | None:
     """Return the trial of every row split at ``edges``.
 
     None unless two or more pieces each hold two labelled positions or more.
     """
     if not edges:
         return None
+    labelled = np.flatnonzero(recording.position >= 0)
     trial = np.searchsorted(np.array(edges), np.arange(recording.n_rows), side="right")
     pieces = [
         np.unique(recording.position[labelled][trial[labelled] == t]) for t in range(len(edges) + 1)

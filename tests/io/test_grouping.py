@@ -2,11 +2,21 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from canimucal.errors import InputError
-from canimucal.io.grouping import has_angles, position_averages, position_labels
+from canimucal.io.grouping import (
+    has_angles,
+    position_averages,
+    position_labels,
+    position_parts,
+    position_rows,
+    rows_count,
+    rows_where,
+)
 from canimucal.io.recording import Recording, recording_from_columns
 from canimucal.model.frames import position_dcm, specific_force_level
 from canimucal.model.sensor import AccelParams
@@ -164,3 +174,31 @@ def test_bad_tolerance() -> None:
     rec = _static_recording(np.random.default_rng(1), per_position=10)
     with pytest.raises(InputError, match="tolerance_deg"):
         position_averages(rec, tolerance_deg=-1.0)
+
+
+def test_position_parts_are_slices_of_one_run_else_the_rows() -> None:
+    rec = _static_recording(np.random.default_rng(3))
+    every = np.arange(rec.n_rows)
+    parts, labelled = position_parts(rec)
+    rows, _ = position_rows(rec)
+    assert labelled and all(isinstance(p, slice) for p in parts)
+    assert all(np.array_equal(every[p], r) for p, r in zip(parts, rows, strict=True))
+    position = rec.position.copy()
+    position[np.flatnonzero(position == 2)[-30:]] = 1  # label 1 again after label 2
+    redone = replace(rec, position=position)
+    parts, _ = position_parts(redone)
+    rows, _ = position_rows(redone)
+    assert isinstance(parts[0], slice) and isinstance(parts[2], slice)
+    assert isinstance(parts[1], np.ndarray) and rows_count(parts[1]) == 430
+    assert all(np.array_equal(every[p], r) for p, r in zip(parts, rows, strict=True))
+
+
+def test_rows_where_keeps_one_run_a_slice() -> None:
+    every = np.arange(100)
+    for rows in (slice(10, 30), np.arange(10, 30), np.r_[5:15, 40:50]):
+        for mask in (np.ones(20, bool), np.arange(20) >= 6, np.arange(20) % 3 > 0):
+            picked = rows_where(rows, mask)
+            assert np.array_equal(every[picked], every[rows][mask])
+            assert rows_count(picked) == int(mask.sum())
+            one_run = np.all(np.diff(every[rows][mask]) == 1)
+            assert isinstance(picked, slice) == bool(one_run)
