@@ -28,6 +28,7 @@ import numpy as np
 from canimucal.analysis.calibrate import SiteConditions, Solution
 from canimucal.errors import InputError
 from canimucal.io.calibration import Acceptance
+from canimucal.model.chi2_tail import chi2_sf
 from canimucal.model.vocabulary.plans import PLANS
 from canimucal.schema import parse_toml
 from canimucal.user_dirs import config_dir
@@ -240,9 +241,7 @@ def check_acceptance(
     passed = rms <= limits.max_rms_ms2
     checks.append(Check("fit rms", rms, limits.max_rms_ms2, "m/s²", passed, "max_rms_ms2"))
     if dof > 0:
-        from scipy.special import chdtrc  # lazy (issue 23): χ² tail without scipy.stats
-
-        p = float(chdtrc(dof, chi2))
+        p = chi2_sf(dof, chi2)
         passed = p >= limits.min_fit_p
         name = "fit p-value" if passed else f"model does not fit: χ²/dof {chi2 / dof:.4g}, p"
         checks.append(Check(name, p, limits.min_fit_p, "", passed, "min_fit_p"))

@@ -27,6 +27,7 @@ from canimucal.io.calibration import (
     record_from_estimates,
     summarize_position,
 )
+from canimucal.model.chi2_tail import chi2_sf
 from canimucal.model.joint import JointResult, solve_joint
 from canimucal.model.layout import JointSpec
 from canimucal.model.plan import cramer_rao
@@ -54,9 +55,7 @@ class FitQuality:
         """χ² tail probability (NaN without residual dof)."""
         if self.dof <= 0:
             return float("nan")
-        from scipy.special import chdtrc  # lazy (issue 23): χ² tail without scipy.stats
-
-        return float(chdtrc(self.dof, self.chi2))
+        return chi2_sf(self.dof, self.chi2)
 
     @property
     def rejected(self) -> bool:
@@ -332,9 +331,7 @@ def _lack_of_fit_warning(result: JointResult) -> tuple[str, ...]:
     """Warn when the residuals exceed the predicted noise and angle errors (χ² test)."""
     if result.dof <= 0:
         return ()
-    from scipy.special import chdtrc  # lazy: scipy.special loads with the fit, not at import
-
-    p = float(chdtrc(result.dof, result.chi2))
+    p = chi2_sf(result.dof, result.chi2)
     if p >= LACK_OF_FIT_P:
         return ()
     return (

@@ -38,7 +38,6 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -54,6 +53,7 @@ from canimucal.model.layout import (
     nominal_theta,
     predict,
 )
+from canimucal.model.levmar import LeastSquaresResult, least_squares_lm
 from canimucal.model.plan import (
     NOT_IDENTIFIABLE_RATIO,
     Separability,
@@ -62,9 +62,6 @@ from canimucal.model.plan import (
 )
 from canimucal.model.positions import PositionAverage
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, AccelParams, GyroParams
-
-if TYPE_CHECKING:
-    from scipy.optimize import OptimizeResult
 
 log = logging.getLogger(__name__)
 
@@ -575,18 +572,10 @@ class _Problem:
         return np.concatenate([self.theta[self.free], self.offsets, self.omega])
 
 
-def _least_squares(problem: _Problem) -> OptimizeResult:
-    from scipy.optimize import least_squares  # lazy: imported on the first fit (issue 23)
-
-    return least_squares(
-        problem.residuals,
-        problem.start,
-        jac=problem.jacobian,
-        method="lm",
-        x_scale="jac",
-        xtol=1e-12,
-        ftol=1e-12,
-        gtol=1e-12,
+def _least_squares(problem: _Problem) -> LeastSquaresResult:
+    """Levenberg–Marquardt with Jacobian scaling, in numpy (model/levmar.py: no scipy import)."""
+    return least_squares_lm(
+        problem.residuals, problem.start, problem.jacobian, xtol=1e-12, ftol=1e-12, gtol=1e-12
     )
 
 

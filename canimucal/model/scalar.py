@@ -34,6 +34,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from canimucal.errors import ModelError
+from canimucal.model.levmar import least_squares_lm
 from canimucal.model.positions import PositionAverage
 
 logger = logging.getLogger(__name__)
@@ -122,9 +123,7 @@ def fit_scalar(
     def jac(theta: Array) -> Array:
         return sqrt_w[:, None] * _jacobian(theta, u, model)
 
-    from scipy.optimize import least_squares  # lazy (issue 23)
-
-    sol = least_squares(fun, theta0, jac=jac, x_scale="jac", method="lm")
+    sol = least_squares_lm(fun, theta0, jac)  # scipy's lm tolerances (1e-8), no scipy import
     bias, m = _unpack(sol.x, model)
     m = _fix_signs(m, sign)
     theta = _pack(bias, m, model)

@@ -13,7 +13,11 @@ import pytest
 
 from canimucal.analysis.discrepancy import analyse_discrepancy, effect_sigmas
 from canimucal.analysis.noise_model import (
+    _DECADES,
     ScatterModel,
+    _loglik,
+    _loglik_grid,
+    _rotate,
     estimate_scatter,
     scatter_f_test,
 )
@@ -76,6 +80,16 @@ def test_restricted_likelihood_is_maximal_at_its_estimate() -> None:
             fixed = ScatterModel(model.base, model.unit, "flag", end)
             drop = est.loglik - estimate_scatter(fixed, residual, design).loglik
             assert drop == pytest.approx(0.5 * 3.841, abs=1e-3)
+
+
+@pytest.mark.parametrize("columns", [0, 12])
+def test_the_batched_grid_is_the_likelihood_point_by_point(columns: int) -> None:
+    """The grid search's one-stack evaluation equals ℓ_R(τ) at each τ (to rounding)."""
+    model, residual, design = _synthetic(5, float(np.deg2rad(0.1)))
+    rot = _rotate(model, residual, design[:, :columns])
+    taus = _DECADES * model.tau_max
+    expected = np.array([_loglik(rot, float(t)) for t in taus])
+    np.testing.assert_allclose(_loglik_grid(rot, taus), expected, rtol=1e-12, atol=1e-9)
 
 
 def _few_dof(seed: int) -> tuple[ScatterModel, np.ndarray, np.ndarray, np.ndarray]:

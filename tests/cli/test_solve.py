@@ -474,3 +474,23 @@ def test_imutk_session_gyro_moves_matched_on_gravity(cli: Cli, tmp_path: Path) -
     scale = np.diag(np.array(gyro.S, dtype=float))
     np.testing.assert_allclose(scale, [4778.0, 4758.0, 4766.0], rtol=0.01)  # Xsens factory
     assert np.all(np.array(gyro.S_sigma, dtype=float) < 0.005 * scale.mean())
+
+
+@pytest.mark.parametrize("extra", [[], ["--tilt", "--model", "full"]])
+def test_solve_runs_without_loading_scipy(simulated: Sim, tmp_path: Path, extra: list[str]) -> None:
+    """`solve` fits, checks and writes with numpy alone (docs/performance.md: scipy's import
+    was most of a small session's time); the fit still converges and the JSON is written."""
+    sim = simulated("recommended", "full")
+    out = tmp_path / "cal.json"
+    code = (
+        "import sys, json, contextlib, io\n"
+        "from canimucal.cli.main import main\n"
+        "with contextlib.redirect_stdout(io.StringIO()):\n"
+        f"    rc = main(['solve', {str(sim.path)!r}, '--json', {str(out)!r}, *{extra!r}])\n"
+        "print(json.dumps([rc, sorted(m for m in sys.modules if m.split('.')[0] == 'scipy')]))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    rc, loaded = json.loads(done.stdout.strip().splitlines()[-1])
+    assert rc in (0, 3), done.stderr  # 3: acceptance (the simulated unit), the work all done
+    assert loaded == []
+    assert read_calibration(out).accel is not None
