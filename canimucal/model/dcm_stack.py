@@ -17,28 +17,34 @@ from canimucal.model.frames import TiltModel
 Array = NDArray[np.float64]
 
 
-def _stack(rows: Array) -> Array:
-    """``(n, 9)`` entries to ``(n, 3, 3)`` matrices."""
-    return rows.reshape(-1, 3, 3)
+_ENTRIES = {
+    # axis: where the rotation holds cos (row, col), ±sin (row, col, sign) and 1; the
+    # derivative follows by d cos = −sin, d sin = cos; frames.a1/a2/ay (eq. 1-2)
+    "z": (((0, 0), (1, 1)), ((0, 1, 1), (1, 0, -1)), (2, 2)),
+    "x": (((1, 1), (2, 2)), ((1, 2, 1), (2, 1, -1)), (0, 0)),
+    "y": (((0, 0), (2, 2)), ((2, 0, 1), (0, 2, -1)), (1, 1)),
+}
 
 
 def _rotations(axis: str, angle: Array) -> tuple[Array, Array]:
     """A1 (``z``), A2 (``x``) or Ay (``y``) of each angle and its derivative, ``(n, 3, 3)``.
 
-    Same matrices as ``frames.a1``/``a2``/``ay`` (eq. 1-2), for a vector of angles.
+    Same matrices as ``frames.a1``/``a2``/``ay`` (eq. 1-2), for a vector of angles; filled
+    entry by entry into preallocated stacks (the fits call this thousands of times).
     """
+    angle = np.asarray(angle, dtype=float)
     c, s = np.cos(angle), np.sin(angle)
-    o, i = np.zeros_like(c), np.ones_like(c)
-    if axis == "z":
-        rot = [c, s, o, -s, c, o, o, o, i]
-        der = [-s, c, o, -c, -s, o, o, o, o]
-    elif axis == "x":
-        rot = [i, o, o, o, c, s, o, -s, c]
-        der = [o, o, o, o, -s, c, o, -c, -s]
-    else:
-        rot = [c, o, -s, o, i, o, s, o, c]
-        der = [-s, o, -c, o, o, o, c, o, -s]
-    return _stack(np.stack(rot, axis=1)), _stack(np.stack(der, axis=1))
+    rot = np.zeros(angle.shape + (3, 3))
+    der = np.zeros(angle.shape + (3, 3))
+    cos_at, sin_at, one_at = _ENTRIES[axis]
+    for i, j in cos_at:
+        rot[..., i, j] = c
+        der[..., i, j] = -s
+    for i, j, sign in sin_at:
+        rot[..., i, j] = s if sign > 0 else -s
+        der[..., i, j] = c if sign > 0 else -c
+    rot[..., one_at[0], one_at[1]] = 1.0
+    return rot, der
 
 
 def _partials(factors: Sequence[Array], derivs: Sequence[Array]) -> tuple[Array, list[Array]]:

@@ -24,12 +24,14 @@ from canimucal.model.mounting import MountingMap
 from canimucal.model.sensor import STANDARD_GRAVITY
 from canimucal.model.vocabulary.plans import PLANS
 from canimucal.model.vocabulary.units import QUANTITIES, Scales, operator_value, with_unit
-from canimucal.procedure.events import LevelChecked, PoseVerified
-from canimucal.runtime.plan_forecast import LimitForecast
 from canimucal.untrusted import markdown_text
 
-if TYPE_CHECKING:  # python-can and canopen load with a bus, not with a certificate
+if TYPE_CHECKING:
+    # python-can and canopen load with a bus, not with a certificate; the procedure's events
+    # and the plan forecast are annotations here (`solve` prints value_rows without them)
     from canimucal.device.client import Identity
+    from canimucal.procedure.events import LevelChecked, PoseVerified
+    from canimucal.runtime.plan_forecast import LimitForecast
 
 K1_STATEMENT = (
     "Every ± is one standard uncertainty (k = 1, about 68 % coverage for a normal "
