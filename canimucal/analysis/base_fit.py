@@ -62,6 +62,7 @@ from canimucal.model.layout import (
 )
 from canimucal.model.positions import PositionAverage
 from canimucal.model.scalar import ScalarFit, fit_scalar_averages
+from canimucal.model.small_linalg import pivoted_qr, solve_lower
 from canimucal.model.vocabulary.effects import ScalarInputs
 
 Array = NDArray[np.float64]
@@ -270,9 +271,7 @@ def with_nuisance(
     col_w = _solve_lower(chol, columns)
     q = np.linalg.qr(jac_w)[0]
     off = col_w - q @ (q.T @ col_w)
-    from scipy import linalg  # lazy (issue 23)
-
-    _, r, order = linalg.qr(off, mode="economic", pivoting=True)
+    r, order = pivoted_qr(off)
     scale = max(float(np.max(np.linalg.norm(col_w, axis=0))), 1e-300)
     rank = int(np.sum(np.abs(np.diag(r)) > 1e-8 * scale))
     keep = np.sort(order[:rank])
@@ -300,9 +299,7 @@ def with_nuisance(
 
 
 def _solve_lower(chol: Array, b: Array) -> Array:
-    from scipy.linalg import solve_triangular  # lazy (issue 23)
-
-    return np.asarray(solve_triangular(chol, b, lower=True), dtype=float)
+    return solve_lower(chol, b)
 
 
 def unit_angle_covariance(

@@ -51,6 +51,7 @@ from canimucal.io.grouping import position_rows
 from canimucal.io.recording import Recording
 from canimucal.model.dcm_stack import dcm_stack
 from canimucal.model.frames import EARTH_RATE_RAD_S, earth_rate_level
+from canimucal.model.small_linalg import solve_lower
 from canimucal.model.vocabulary.effects import EFFECTS, PoseInputs
 from canimucal.model.vocabulary.plans import CUSTOM, SCALAR, plan_of_poses
 
@@ -157,10 +158,8 @@ class GyroFit:
 def _gls(y: Array, x: Array, cov: Array, names: Sequence[str]) -> GyroFit:
     """Fit ``y = X θ + e``, ``e ~ N(0, cov)``: values, covariance, χ² on ``N − rank`` dof."""
     chol = np.linalg.cholesky(cov)
-    from scipy.linalg import solve_triangular
-
-    xw = solve_triangular(chol, x, lower=True)
-    yw = solve_triangular(chol, y, lower=True)
+    xw = solve_lower(chol, x)
+    yw = solve_lower(chol, y)
     info = xw.T @ xw
     values = np.linalg.solve(info, xw.T @ yw)
     resid = yw - xw @ values
@@ -318,10 +317,9 @@ def analyse_gyro_only(rec: Recording, site: SiteConditions) -> GyroAnalysis:
     columns = _candidate_columns(pos, site, untestable)
     drift = drift_test(list(pos.windows), pos.temp_rates)
     chol = np.linalg.cholesky(cov)
-    from scipy.linalg import solve_triangular
 
     def whiten(a: Array) -> Array:
-        return np.asarray(solve_triangular(chol, a, lower=True), dtype=float)
+        return solve_lower(chol, a)
 
     problem = LinearProblem(
         residual_w=whiten(base.residuals), base_w=whiten(base_x),

@@ -51,6 +51,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from canimucal.model.search1d import maximise_bounded, root_bracketed
+
 Array = NDArray[np.float64]
 
 SETTLING_ALPHA = 0.01
@@ -166,15 +168,11 @@ def _refine(
     prepared: Sequence[tuple[Array, Array, Array]], grid: Array, k: int, best: float
 ) -> tuple[float, float]:
     """Maximise Δχ²(τ) between the grid neighbours of its best grid point."""
-    from scipy import optimize  # lazy (issue 23)
-
     lo, hi = float(grid[max(k - 1, 0)]), float(grid[min(k + 1, grid.size - 1)])
-    res = optimize.minimize_scalar(
-        lambda t: -_gain(prepared, t)[0], bounds=(lo, hi), method="bounded",
-        options={"xatol": 1e-4 * hi},
-    )  # fmt: skip
-    if res.success and -float(res.fun) > best:
-        return float(res.x), -float(res.fun)
+    tau = maximise_bounded(lambda t: _gain(prepared, t)[0], lo, hi, xtol=1e-4 * hi)
+    gain = _gain(prepared, tau)[0]
+    if gain > best:
+        return tau, gain
     return float(grid[k]), best
 
 
@@ -186,7 +184,6 @@ def _interval(
     best: float,
 ) -> tuple[float, float]:
     """Profile 95 % interval of τ: where Δχ² stays within 3.84 of its maximum (grid-bounded)."""
-    from scipy import optimize  # lazy (issue 23)
 
     def f(t: float) -> float:
         return _gain(prepared, t)[0] - (best - _CHI2_95_1)
@@ -196,11 +193,11 @@ def _interval(
     low = float(grid[0])
     outside_low = below[gains[: below.size] < best - _CHI2_95_1]
     if outside_low.size:
-        low = float(optimize.brentq(f, float(outside_low[-1]), tau, xtol=1e-6 * tau))
+        low = root_bracketed(f, float(outside_low[-1]), tau, 1e-6 * tau)
     high = float(grid[-1])
     outside_high = above[gains[grid.size - above.size :] < best - _CHI2_95_1]
     if outside_high.size:
-        high = float(optimize.brentq(f, tau, float(outside_high[0]), xtol=1e-6 * tau))
+        high = root_bracketed(f, tau, float(outside_high[0]), 1e-6 * tau)
     return low, high
 
 

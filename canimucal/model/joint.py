@@ -62,6 +62,7 @@ from canimucal.model.plan import (
 )
 from canimucal.model.positions import PositionAverage
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, AccelParams, GyroParams
+from canimucal.model.small_linalg import pivoted_qr
 
 log = logging.getLogger(__name__)
 
@@ -493,9 +494,7 @@ def _free_mask(layout: ParameterLayout, check: Separability, allow: bool) -> NDA
             + f" for this model ({check.findings[0].message})"
         )
     null_vectors = check.eigenvectors[:, check.eigenvalue_ratios < NOT_IDENTIFIABLE_RATIO]
-    from scipy.linalg import qr
-
-    _q, _r, pivots = qr(null_vectors.T, pivoting=True)
+    _r, pivots = pivoted_qr(null_vectors.T)
     free[pivots[: null_vectors.shape[1]]] = False
     log.warning(
         "holding %s at their starting values", [layout.names[k] for k in np.flatnonzero(~free)]

@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from canimucal.errors import ModelError
+from canimucal.model.small_linalg import nnls_small
 
 logger = logging.getLogger(__name__)
 
@@ -274,14 +275,12 @@ def _white_edf(m: NDArray[np.int64], segments: list[Array]) -> Array:
 def fit_noise(allan: AllanResult, *, iterations: int = 3) -> NoiseTerms:
     """Fit ``σ²(τ) = N²/τ + floor² + q² τ/3`` to the Allan variance, per axis.
 
-    Non-negative weighted least squares (scipy ``nnls``) of the AVAR on the basis
+    Non-negative weighted least squares (``small_linalg.nnls_small``) of the AVAR on the basis
     ``{1/τ, 1, τ/3}``, each point weighted by its σ(AVAR) = 2·AVAR/√(2·edf). The weights are
     recomputed from the fitted curve (``iterations`` times) so that points that happen to fall
     low do not pull the fit down.
     """
     tau = allan.taus_s
-    from scipy.optimize import nnls  # lazy (issue 23)
-
     basis = np.column_stack((1.0 / tau, np.ones_like(tau), tau / 3.0))
     scale = np.sqrt(2.0 / allan.edf)
     n_axes = allan.adev.shape[1]
@@ -293,7 +292,7 @@ def fit_noise(allan: AllanResult, *, iterations: int = 3) -> NoiseTerms:
         ref = avar.copy()
         for _ in range(max(1, iterations)):
             sigma = np.maximum(ref * scale, np.finfo(float).tiny)
-            c, _res = nnls(basis / sigma[:, None], avar / sigma)
+            c, _res = nnls_small(basis / sigma[:, None], avar / sigma)
             ref = basis @ c
         coef[:, axis] = c
         chi2[axis] = float(np.sum(((avar - ref) / (ref * scale)) ** 2)) / dof

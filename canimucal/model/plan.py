@@ -28,6 +28,7 @@ from canimucal.model.layout import (
 )
 from canimucal.model.positions import Plan
 from canimucal.model.sensor import DEFAULT_ACCEL_LSB, DEFAULT_GYRO_LSB, STANDARD_GRAVITY
+from canimucal.model.small_linalg import pivoted_qr
 from canimucal.model.vocabulary.plans import DEFAULT_PLAN, builtin_plan
 from canimucal.model.vocabulary.units import quantity_of
 
@@ -129,9 +130,7 @@ def canonical_basis(basis: Array) -> Array:
     m = basis.shape[1]
     if m < 2:
         return basis
-    import scipy.linalg  # lazy (issue 23)
-
-    _, r, perm = scipy.linalg.qr(basis.T, pivoting=True)
+    r, perm = pivoted_qr(basis.T)
     echelon = np.linalg.solve(r[:, :m], r)
     out = np.zeros_like(basis.T)
     out[:, perm] = echelon
