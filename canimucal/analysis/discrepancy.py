@@ -225,7 +225,7 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
         + _drift_warnings(drifts, drifting, data, alpha / family, moved),
         ambiguous=tuple(duel),
         earth_rate_horizontal=tau if prepared.earth_unit_covariance is not None else None,
-        trials=len(data.trials) if data.known_positions else 0,
+        trials=len(data.trials),
     )
 
 

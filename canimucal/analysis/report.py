@@ -123,19 +123,6 @@ def analyze(
     )
 
 
-def _scalar_trials_note(recording: Recording) -> tuple[str, ...]:
-    """Say so when a file without angles holds several trials: its |f| = g fit has one bias."""
-    if recording.trial is None or has_angles(recording):
-        return ()
-    count = int(np.unique(recording.trial[recording.position >= 0]).size)
-    if count < 2:
-        return ()
-    return (
-        f"{count} trials in this file without angles: the |f| = g fit has one bias for all "
-        "of them (with angles each trial gets its own)",
-    )
-
-
 def analyse_recording(
     rec: Recording,
     *,
@@ -153,7 +140,8 @@ def analyse_recording(
     held repeats are removed before (:func:`.repeats.unique_samples`, whose line goes in
     ``notes``). Several trials (the ``trial`` column, else found as ``solve`` finds them:
     :func:`~canimucal.io.grouping.detect_trials`, its line in the notes) give each trial its
-    own biases in the base model and every candidate's (:mod:`.base_fit`).
+    own biases in the base model and every candidate's (:mod:`.base_fit`), with known angles
+    or without (the |f| = g fit: docs/design.md §6 *Trials*).
     """
     if has_angles(rec):  # several trials in one file without a trial column
         rec, found = detect_trials(rec)
@@ -169,7 +157,7 @@ def analyse_recording(
     allan = {"accel": _allan(rec, longest.accel)}
     if session.has_gyro and longest.gyro is not None:
         allan["gyro"] = _allan(rec, longest.gyro)
-    return Analysis(rec, session, result, allan, g_source, notes + _scalar_trials_note(rec))
+    return Analysis(rec, session, result, allan, g_source, notes)
 
 
 def _allan(rec: Recording, x: Samples) -> AllanCheck:
