@@ -199,6 +199,30 @@ def trial_offsets(
     return names, columns
 
 
+def trial_biases(
+    names: tuple[str, ...], values: Array, trials: tuple[int, ...], sensor: str
+) -> Array | None:
+    """Each trial's ``sensor`` biases ``(T, 3)`` from a base fit's named values.
+
+    The shared bias is the trials' mean, trial ``t < T`` adds its offset, the last the
+    negative sum (docs/design.md §10 *Trials*). None with fewer than two trials or when
+    ``sensor``'s biases are not among ``names`` (no gyro data).
+    """
+    index = {name: k for k, name in enumerate(names)}
+    shared_names = [f"{sensor}.bias[{i}]" for i in range(3)]
+    if not trials or not all(n in index for n in shared_names):
+        return None
+    shared = np.array([values[index[n]] for n in shared_names], dtype=float)
+    offsets = np.array(
+        [
+            [values[index[f"{TRIAL_OFFSET_PREFIX}[{t}].{sensor}.bias[{i}]"]] for i in range(3)]
+            for t in trials[:-1]
+        ],
+        dtype=float,
+    )
+    return np.asarray(shared + np.vstack([offsets, -offsets.sum(axis=0)]), dtype=float)
+
+
 def with_trial_offsets(prepared: PreparedBase, res: JointResult, data: SessionData) -> PreparedBase:
     """Return ``prepared`` with the trials' bias offsets among its base parameters.
 

@@ -22,6 +22,7 @@ from canimucal.analysis.data import (
     FAMILY_ALPHA,
     Ambiguity,
     DiscrepancyResult,
+    ExtendedParams,
     Samples,
     SessionData,
 )
@@ -383,7 +384,30 @@ def extended_truth(a: Analysis) -> dict[str, Any]:
         doc["effects"] = effects_document(
             {key: scale[key.split(".", 1)[0]] * np.asarray(v) for key, v in p.effects.items()}
         )
+    if p.trial_accel_bias is not None:  # docs/design.md §6 Trials: what the model fitted
+        doc["trials"] = _trials_document(p, (ka, kg), temp0 - mean_t)
     return doc
+
+
+def _trials_document(
+    p: ExtendedParams, scales: tuple[float, float], dtemp: float
+) -> list[dict[str, Any]]:
+    """Each trial's biases as the truth JSON's ``trials`` (counts of the simulated unit).
+
+    At the first position's temperature, as ``accel.bias``/``gyro.bias`` are (their mean).
+    """
+    assert p.trial_accel_bias is not None
+    ka, kg = scales
+    out = []
+    for k, trial in enumerate(p.trials):
+        entry: dict[str, Any] = {
+            "trial": int(trial),
+            "accel_bias": (ka * (p.trial_accel_bias[k] + p.accel_temp_coeff * dtemp)).tolist(),
+        }
+        if p.trial_gyro_bias is not None:
+            entry["gyro_bias"] = (kg * (p.trial_gyro_bias[k] + p.gyro_temp_coeff * dtemp)).tolist()
+        out.append(entry)
+    return out
 
 
 FACT_CHUNK_ROWS = 1 << 20

@@ -15,14 +15,16 @@ within their σ of the truth, nothing is named.
 from __future__ import annotations
 
 import dataclasses
+import json
 from functools import cache
 
 import numpy as np
 
 from canimucal.analysis.base_fit import fit_scalar_base
-from canimucal.analysis.report import Analysis, analyze
+from canimucal.analysis.report import Analysis, analyze, extended_truth
 from canimucal.analysis.simulated import TrialsTruth
 from canimucal.io.recording import Recording
+from canimucal.sim.truth import Truth
 from tests.support import departures as dep
 
 SEEDS = (0, 1, 2, 3)
@@ -83,3 +85,20 @@ def test_a_clean_unit_remounted_names_nothing() -> None:
         chi2, dof, p = r.lack_of_fit
         assert p > 1e-3, (seed, chi2, dof)
     assert not named, named
+
+
+def test_the_truth_of_trials_without_angles_holds_each_trials_biases() -> None:
+    """``--truth-out``'s ``trials`` from the |f| = g fit, read back by the simulator's reader."""
+    for seed in SEEDS[:2]:
+        a, units = analysed(seed)
+        truth = Truth.from_dict(json.loads(json.dumps(extended_truth(a))))
+        fit = fit_scalar_base(a.session)[1]
+        assert fit.trial_bias_sigma is not None
+        # the truth's counts per count of the data (finer counts for fractional data)
+        ka = a.session.accel_lsb / truth.accel.nominal_lsb
+        kg = a.session.gyro_lsb / truth.gyro.nominal_lsb
+        accel = np.array([u.accel.bias for u in truth.trial_units()]) / ka
+        z = (accel - units.accel_bias) / fit.trial_bias_sigma
+        assert np.all(np.abs(z) < Z_LIMIT), z
+        gyro = np.array([u.gyro.bias for u in truth.trial_units()]) / kg
+        assert np.all(np.abs(gyro - units.gyro_bias) < 1.0), gyro - units.gyro_bias
