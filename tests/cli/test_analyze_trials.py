@@ -92,6 +92,17 @@ def test_truth_out_holds_each_trials_biases_and_reads_back(trials_run: TrialsRun
     np.testing.assert_allclose(mean[1], gyro.mean(axis=0), rtol=0, atol=1e-9)
 
 
+def test_the_residual_table_names_each_positions_trial(trials_run: TrialsRun) -> None:
+    """A label recurs in every trial: the first column says whose each position is."""
+    averages = trials_run.session.averages
+    table = trials_run.out.split("(residual of each position's mean", 1)[1].splitlines()[1:]
+    assert table[0].split()[:2] == ["trial", "pos"], table[0]
+    rows = [r.split() for r in table[1 : 1 + len(averages)]]
+    assert [int(r[0]) for r in rows] == [x.trial for x in averages]
+    assert [int(r[1]) for r in rows] == list(range(len(averages)))
+    assert table[1 + len(averages)].lstrip().startswith("lack of fit"), table[1 + len(averages)]
+
+
 def test_one_trial_writes_the_same_files_as_no_trial_column(
     tmp_path: Path, cli: Callable[[Sequence[str]], CliRun]
 ) -> None:
