@@ -200,6 +200,30 @@ def trial_offsets(
     return names, columns
 
 
+def trial_biases(
+    names: tuple[str, ...], values: Array, trials: tuple[int, ...], sensor: str
+) -> Array | None:
+    """Each trial's ``sensor`` biases ``(T, 3)`` from a base fit's named values.
+
+    The shared bias is the trials' mean, trial ``t < T`` adds its offset, the last the
+    negative sum (docs/design.md §10 *Trials*). None with fewer than two trials or when
+    ``sensor``'s biases are not among ``names`` (no gyro data).
+    """
+    index = {name: k for k, name in enumerate(names)}
+    shared_names = [f"{sensor}.bias[{i}]" for i in range(3)]
+    if not trials or not all(n in index for n in shared_names):
+        return None
+    shared = np.array([values[index[n]] for n in shared_names], dtype=float)
+    offsets = np.array(
+        [
+            [values[index[f"{TRIAL_OFFSET_PREFIX}[{t}].{sensor}.bias[{i}]"]] for i in range(3)]
+            for t in trials[:-1]
+        ],
+        dtype=float,
+    )
+    return np.asarray(shared + np.vstack([offsets, -offsets.sum(axis=0)]), dtype=float)
+
+
 def with_trial_offsets(prepared: PreparedBase, res: JointResult, data: SessionData) -> PreparedBase:
     """Return ``prepared`` with the trials' bias offsets among its base parameters.
 
@@ -326,26 +350,39 @@ def block_covariance(data: SessionData, angle_cov: Array, within: bool = True) -
 
 
 def fit_scalar_base(data: SessionData) -> tuple[PreparedBase, ScalarFit]:
-    """Scalar ``|f| = g`` base fit (model "6") plus the gyro bias, and its linearisation."""
-    fit = fit_scalar_averages(data.averages, data.g, model="6", accel_lsb=data.accel_lsb)
+    """Scalar ``|f| = g`` base fit (model "6") plus the gyro bias, and its linearisation.
+
+    With trials (docs/design.md §6 *Trials*) each trial has its own accelerometer and gyro
+    bias, the trials' mean and ``T − 1`` offsets as in the known-angle fit, K shared: the
+    scalar fit's offsets (:mod:`canimucal.model.scalar`, *Trials*) follow the gyro's among
+    the base parameters, named as :data:`TRIAL_OFFSET_PREFIX` names them.
+    """
+    trials = bool(data.trials)
+    fit = fit_scalar_averages(
+        data.averages, data.g, model="6", accel_lsb=data.accel_lsb, by_trial=trials
+    )
     means = np.array([a.mean_accel for a in data.averages])
     temps = _position_temperatures(data)
     dt = None if temps is None else temps - np.mean(temps)
-    state = ScalarInputs(means, fit.bias, fit.M, data.has_gyro, dt)
+    state = ScalarInputs(means, fit.position_bias, fit.M, data.has_gyro, dt)
     n = means.shape[0]
     jac_a = scalar_jacobian(state)
-    f = (means - fit.bias) @ fit.M.T
+    f = (means - fit.position_bias) @ fit.M.T
     unit = f / np.linalg.norm(f, axis=1, keepdims=True)
     rows_m = unit @ fit.M
     var_a = np.array([r @ a.cov_accel @ r for r, a in zip(rows_m, data.averages, strict=True)])
     resid_a = data.g - np.linalg.norm(f, axis=1)  # observed g − predicted |f|
     gyro = data.has_gyro
     earth = gyro and earth_rate_visible(data)
+    contrast = fit.contrast if trials else np.zeros((n, 0))
+    offsets = 3 * contrast.shape[1]
     size = n + (3 * n if gyro else 0)
-    p = 6 + (3 if gyro else 0) + (1 if earth else 0)
+    p = 6 + (3 + offsets if gyro else 0) + (1 if earth else 0) + offsets
     cov, jac, resid = np.zeros((size, size)), np.zeros((size, p)), np.zeros(size)
     cov[:n, :n] = np.diag(var_a)
     jac[:n, :6] = jac_a
+    if offsets:  # the accelerometer's offsets last: ∂|f|/∂δ_t is ∂|f|/∂b on trial t's rows
+        jac[:n, p - offsets :] = np.einsum("nt,ni->nti", contrast, jac_a[:, :3]).reshape(n, -1)
     resid[:n] = resid_a
     names = [f"accel.bias[{i}]" for i in range(3)] + [f"accel.K[{i}][{i}]" for i in range(3)]
     values = list(fit.bias) + list(np.diag(fit.K))
@@ -355,13 +392,18 @@ def fit_scalar_base(data: SessionData) -> tuple[PreparedBase, ScalarFit]:
     earth_unit: Array | None = None  # accelerometer only: no gyro rows, no Earth rate
     if gyro:
         est, est_sigma, earth_unit = _scalar_gyro_rows(
-            data, unit if earth else None, (cov, jac, resid)
+            data, unit if earth else None, (cov, jac, resid), contrast
         )
         names += [f"gyro.bias[{i}]" for i in range(3)] + ([EARTH_RATE_VERTICAL] if earth else [])
+        names += list(_scalar_offset_names(data.trials, "gyro"))
         values += list(est)
         sigmas += list(est_sigma)
         table = np.column_stack([table, resid[n:].reshape(n, 3)])
         labels += ("gyro.x", "gyro.y", "gyro.z")
+    if offsets:
+        names += list(_scalar_offset_names(data.trials, "accel"))
+        values += list(fit.params[6:])
+        sigmas += list(fit.sigma[6:])
     idx = np.arange(n, dtype=np.int64)
     block = np.concatenate([idx, np.repeat(idx, 3)])[:size]
     channel = np.concatenate([np.zeros(n, np.int64), np.tile(np.arange(3, 6), n)])[:size]
@@ -371,15 +413,26 @@ def fit_scalar_base(data: SessionData) -> tuple[PreparedBase, ScalarFit]:
     chi2 = float(np.sum(resid_a**2 / var_a))
     prepared = PreparedBase(
         "scalar", resid, jac, cov, block, scale, sensor, channel, tuple(cands),
-        tuple(names), np.array(values), np.array(sigmas), table, labels, chi2, max(n - 6, 0),
+        tuple(names), np.array(values), np.array(sigmas), table, labels, chi2,
+        max(n - 6 - offsets, 0),
         within_covariance=None if earth_unit is None else cov,
         earth_unit_covariance=earth_unit,
     )  # fmt: skip
     return prepared, fit
 
 
+def _scalar_offset_names(trials: tuple[int, ...], sensor: str) -> tuple[str, ...]:
+    """Name the first ``T − 1`` trials' bias offsets of ``sensor`` as the joint fit does."""
+    return tuple(
+        f"{TRIAL_OFFSET_PREFIX}[{t}].{sensor}.bias[{i}]" for t in trials[:-1] for i in range(3)
+    )
+
+
 def _scalar_gyro_rows(
-    data: SessionData, unit: Array | None, problem: tuple[Array, Array, Array]
+    data: SessionData,
+    unit: Array | None,
+    problem: tuple[Array, Array, Array],
+    contrast: Array | None = None,
 ) -> tuple[Array, Array, Array | None]:
     """Fill the gyro rows (after the n accel rows) of the scalar problem ``(cov, jac, resid)``.
 
@@ -388,8 +441,10 @@ def _scalar_gyro_rows(
     at the nominal scale), and ``e_k`` the within-position noise plus the horizontal Earth
     rate of an unknown heading, ``(Ω_h²/2) S (I − u_k u_kᵀ) Sᵀ`` (module doc). ``B`` and
     ``c`` by generalised least squares (eq. 36 with the vertical term); ``unit`` None leaves
-    the Earth rate out. Returns ``(B, c)`` (or ``B``), their σ, and, for a gyro of unknown
-    scale, the covariance per count² of horizontal Earth rate (else None: ``cov`` holds it).
+    the Earth rate out. ``contrast`` ``(n, T − 1)`` (trials, docs/design.md §6 *Trials*)
+    adds each trial's offset ``δ_t`` to ``B`` (its columns after ``c``). Returns ``(B, c, δ)``
+    (or less), their σ, and, for a gyro of unknown scale, the covariance per count² of
+    horizontal Earth rate (else None: ``cov`` holds it).
     """
     cov, jac, resid = problem
     n = len(data.averages)
@@ -401,6 +456,9 @@ def _scalar_gyro_rows(
         s = 1.0 / data.gyro_lsb
         design = np.concatenate([design, s * unit[:, :, None]], axis=2)
         horizontal = 0.5 * (np.eye(3) - np.einsum("ni,nj->nij", unit, unit))
+    if contrast is not None and contrast.shape[1]:
+        per_trial = np.einsum("nt,ij->nitj", contrast, np.eye(3)).reshape(n, 3, -1)
+        design = np.concatenate([design, per_trial], axis=2)
     known = unit is not None and data.gyro_lsb_known
     if known:
         lat = data.latitude
@@ -411,10 +469,11 @@ def _scalar_gyro_rows(
     info = np.linalg.pinv(normal, hermitian=True)
     est = info @ np.einsum("nki,nkl,nl->i", design, w, vg)
     earth_unit = None if unit is None or known else np.zeros_like(cov)
+    q = design.shape[2]
     for k in range(n):
         rows = slice(n + 3 * k, n + 3 * k + 3)
         cov[rows, rows] = cg[k]
-        jac[rows, 6:] = design[k]
+        jac[rows, 6 : 6 + q] = design[k]
         resid[rows] = vg[k] - design[k] @ est
         if earth_unit is not None:
             earth_unit[rows, rows] = horizontal[k]

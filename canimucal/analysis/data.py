@@ -166,6 +166,12 @@ class ExtendedParams:
     effects: Mapping[str, Array] = field(default_factory=dict)
     """Chosen effects the simulator applies through their columns, by ``sensor.effect``
     (the truth JSON's ``effects``; :mod:`canimucal.model.vocabulary.effects`)."""
+    trials: tuple[int, ...] = ()
+    """The trials the base model gave their own biases (empty: one trial, or none)."""
+    trial_accel_bias: Array | None = None
+    """``(T, 3)`` each trial's accelerometer bias (counts; ``accel_bias`` is their mean)."""
+    trial_gyro_bias: Array | None = None
+    """``(T, 3)`` each trial's gyro bias (counts; ``gyro_bias`` is their mean)."""
 
 
 @dataclass(frozen=True)

@@ -46,6 +46,7 @@ from canimucal.analysis.base_fit import (
     fit_scalar_base,
     named_values,
     temperature_status,
+    trial_biases,
 )
 from canimucal.analysis.candidates import Candidate
 from canimucal.analysis.data import (
@@ -225,7 +226,7 @@ def analyse_discrepancy(data: SessionData, *, alpha: float = FAMILY_ALPHA) -> Di
         + _drift_warnings(drifts, drifting, data, alpha / family, moved),
         ambiguous=tuple(duel),
         earth_rate_horizontal=tau if prepared.earth_unit_covariance is not None else None,
-        trials=len(data.trials) if data.known_positions else 0,
+        trials=len(data.trials),
     )
 
 
@@ -1006,6 +1007,9 @@ def _extended(
         gyro_temp_coeff=coef.get("gyro.temperature_bias", zero3),
         gyro_random_walk=walk["gyro"] if "gyro" in drifts else zero3,
         effects=generic,
+        trials=data.trials,
+        trial_accel_bias=trial_biases(prepared.names, values, data.trials, "accel"),
+        trial_gyro_bias=trial_biases(prepared.names, values, data.trials, "gyro"),
     )
 
 

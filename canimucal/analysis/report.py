@@ -22,6 +22,7 @@ from canimucal.analysis.data import (
     FAMILY_ALPHA,
     Ambiguity,
     DiscrepancyResult,
+    ExtendedParams,
     Samples,
     SessionData,
 )
@@ -123,19 +124,6 @@ def analyze(
     )
 
 
-def _scalar_trials_note(recording: Recording) -> tuple[str, ...]:
-    """Say so when a file without angles holds several trials: its |f| = g fit has one bias."""
-    if recording.trial is None or has_angles(recording):
-        return ()
-    count = int(np.unique(recording.trial[recording.position >= 0]).size)
-    if count < 2:
-        return ()
-    return (
-        f"{count} trials in this file without angles: the |f| = g fit has one bias for all "
-        "of them (with angles each trial gets its own)",
-    )
-
-
 def analyse_recording(
     rec: Recording,
     *,
@@ -153,7 +141,8 @@ def analyse_recording(
     held repeats are removed before (:func:`.repeats.unique_samples`, whose line goes in
     ``notes``). Several trials (the ``trial`` column, else found as ``solve`` finds them:
     :func:`~canimucal.io.grouping.detect_trials`, its line in the notes) give each trial its
-    own biases in the base model and every candidate's (:mod:`.base_fit`).
+    own biases in the base model and every candidate's (:mod:`.base_fit`), with known angles
+    or without (the |f| = g fit: docs/design.md §6 *Trials*).
     """
     if has_angles(rec):  # several trials in one file without a trial column
         rec, found = detect_trials(rec)
@@ -169,7 +158,7 @@ def analyse_recording(
     allan = {"accel": _allan(rec, longest.accel)}
     if session.has_gyro and longest.gyro is not None:
         allan["gyro"] = _allan(rec, longest.gyro)
-    return Analysis(rec, session, result, allan, g_source, notes + _scalar_trials_note(rec))
+    return Analysis(rec, session, result, allan, g_source, notes)
 
 
 def _allan(rec: Recording, x: Samples) -> AllanCheck:
@@ -395,7 +384,30 @@ def extended_truth(a: Analysis) -> dict[str, Any]:
         doc["effects"] = effects_document(
             {key: scale[key.split(".", 1)[0]] * np.asarray(v) for key, v in p.effects.items()}
         )
+    if p.trial_accel_bias is not None:  # docs/design.md §6 Trials: what the model fitted
+        doc["trials"] = _trials_document(p, (ka, kg), temp0 - mean_t)
     return doc
+
+
+def _trials_document(
+    p: ExtendedParams, scales: tuple[float, float], dtemp: float
+) -> list[dict[str, Any]]:
+    """Each trial's biases as the truth JSON's ``trials`` (counts of the simulated unit).
+
+    At the first position's temperature, as ``accel.bias``/``gyro.bias`` are (their mean).
+    """
+    assert p.trial_accel_bias is not None
+    ka, kg = scales
+    out = []
+    for k, trial in enumerate(p.trials):
+        entry: dict[str, Any] = {
+            "trial": int(trial),
+            "accel_bias": (ka * (p.trial_accel_bias[k] + p.accel_temp_coeff * dtemp)).tolist(),
+        }
+        if p.trial_gyro_bias is not None:
+            entry["gyro_bias"] = (kg * (p.trial_gyro_bias[k] + p.gyro_temp_coeff * dtemp)).tolist()
+        out.append(entry)
+    return out
 
 
 FACT_CHUNK_ROWS = 1 << 20

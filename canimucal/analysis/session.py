@@ -4,8 +4,9 @@ Labelled positions are used as they are (with their angles when every one has th
 recording without labels is cut into static intervals (:mod:`canimucal.model.static`), whose
 orientations are unknown, so only the scalar ``|f| = g`` fit applies. A recording of
 several trials (its ``trial`` column, or the trials :func:`~canimucal.io.grouping.detect_trials`
-found) with known angles gives one position per trial and label, each carrying its trial,
-as ``solve`` groups it: the base fit then gives each trial its own biases (:mod:`.base_fit`).
+found) gives one position per trial and label, each carrying its trial, as ``solve`` groups
+it, with known angles or without: the base fit then gives each trial its own biases
+(:mod:`.base_fit`; docs/design.md §6 *Trials*).
 """
 
 from __future__ import annotations
@@ -72,14 +73,14 @@ def session_from_recording(
     recording's ``tolerance_deg`` header (``header``), else left to be estimated from the
     data (``estimated``: the poses carry no tolerance). A settling transient after each move
     (:mod:`.settling`, fitted per sensor) is trimmed from every position before averaging,
-    each by the longer of the two sensors' trims. With known angles and two or more trials
-    in the ``trial`` column the positions are keyed by (trial, label) (module doc).
+    each by the longer of the two sensors' trims. With labelled positions and two or more
+    trials in the ``trial`` column the positions are keyed by (trial, label) (module doc).
     """
     tolerance_deg, source = scatter_source(rec, tolerance_deg)
     groups, labelled = position_parts(rec)
     known = labelled and has_angles(rec)
     trials: list[int | None] = [None] * len(groups)
-    if known and rec.trial is not None and _trial_count(rec) >= 2:
+    if labelled and rec.trial is not None and _trial_count(rec) >= 2:
         keyed = trial_label_rows(rec.position, rec.trial)
         groups, trials = [rows for _t, _l, rows in keyed], [t for t, _l, _r in keyed]
     gyro_ok = bool(np.isfinite(rec.gyro).any())

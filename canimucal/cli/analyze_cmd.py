@@ -343,19 +343,34 @@ def residual_units(label: str, scales: Scales, gyro_known: bool) -> tuple[str, f
 
 
 def _residual_table(a: Analysis) -> list[str]:
-    """Tabulate the base fit's residual of each position and channel, each with its unit."""
+    """Tabulate the base fit's residual of each position and channel, each with its unit.
+
+    With trials (docs/design.md §6 *Trials*) a first column names each position's trial:
+    a label recurs in every trial, and its positions are the trials' own.
+    """
     r = a.result
     columns = [
         residual_units(lbl, _scales(a), a.session.gyro_lsb_known) for lbl in r.residual_labels
     ]
-    head = "  pos  " + "  ".join(f"{name:>16}" for name, _, _ in columns)
+    trials = [x.trial for x in a.session.averages] if r.trials else None
+    head = (
+        ("  trial" if trials else "")
+        + "  pos  "
+        + "  ".join(f"{name:>16}" for name, _, _ in columns)
+    )
     out = [head]
     for k, row in enumerate(r.residuals):
         cells = [
             f"{v * factor:+.4g} {unit}" for v, (_, factor, unit) in zip(row, columns, strict=True)
         ]
-        out.append(f"  {k:3d}  " + "  ".join(f"{cell:>16}" for cell in cells))
+        lead = f"  {_trial_cell(trials[k]):>5}" if trials else ""
+        out.append(f"{lead}  {k:3d}  " + "  ".join(f"{cell:>16}" for cell in cells))
     return out
+
+
+def _trial_cell(trial: int | None) -> str:
+    """Show a trial as the residual table does (``-`` for rows of no trial)."""
+    return "-" if trial is None or trial < 0 else str(trial)
 
 
 def _lack_of_fit(a: Analysis) -> str:

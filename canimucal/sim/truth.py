@@ -17,6 +17,7 @@ height when ``g`` is absent.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -37,6 +38,8 @@ from canimucal.schema import (
     is_numeric_tree,
     key_path,
     read_array,
+    read_integer,
+    read_list,
     read_number,
     read_object,
 )
@@ -58,7 +61,7 @@ _TOP_KEYS = tuple(
     " store_pdo_mode"
     " storage_subs sync_pdos timer_skew_ppm calibration_store_sub documented_store_sub"
     " second_send_ms refuses_start trim_object"
-    " device_name hardware_version software_version effects".split()
+    " device_name hardware_version software_version effects trials".split()
 )
 NMT_STARTS = ("pre-operational", "operational")
 DEFAULT_STORAGE_SUBS = (1, 2, 3, 4)
@@ -173,6 +176,10 @@ class Truth:
     effects: Mapping[str, Vector] = field(default_factory=dict)
     """Coefficients of effects the simulator applies through their columns, by
     ``sensor.effect`` (:mod:`canimucal.model.vocabulary.effects`; its unit, in counts)."""
+    trials: tuple[TrialBiases, ...] = ()
+    """Each trial's biases (the unit re-mounted between trials of one recording: ``analyze
+    --truth-out`` of such a file, docs/design.md §6 *Trials*); the simulator runs
+    ``accel.bias``/``gyro.bias``, their mean, and :meth:`trial_units` each trial's unit."""
 
     @classmethod
     def from_dict(cls, d: Any) -> Truth:
@@ -243,6 +250,7 @@ class Truth:
                 d.get("software_version", DEFAULT_SOFTWARE_VERSION), "software_version"
             ),
             effects=_effects(d.get("effects", {})),
+            trials=_trials(d.get("trials", [])),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -281,7 +289,19 @@ class Truth:
             **self._behaviour_dict(),
             **identity,
             **({"effects": effects_document(self.effects)} if self.effects else {}),
+            **({"trials": [t.to_dict() for t in self.trials]} if self.trials else {}),
         }
+
+    def trial_units(self) -> tuple[Truth, ...]:
+        """Each trial's unit: this one with that trial's biases (none: empty)."""
+        out = []
+        for t in self.trials:
+            accel = dataclasses.replace(self.accel, bias=t.accel_bias)
+            gyro = self.gyro
+            if t.gyro_bias is not None:
+                gyro = dataclasses.replace(self.gyro, bias=t.gyro_bias)
+            out.append(dataclasses.replace(self, accel=accel, gyro=gyro, trials=()))
+        return tuple(out)
 
     def _trim_dict(self) -> dict[str, Any]:
         """``mounting_trim_deg`` and ``trim_object`` when they differ from their defaults."""
@@ -688,3 +708,40 @@ def _nonneg(arr: Vector, path: str) -> Vector:
     if np.any(arr < 0):
         fail(path, "must be non-negative")
     return arr
+
+
+@dataclass(frozen=True, eq=False)
+class TrialBiases:
+    """One trial's biases (counts): ``trials[]`` of the truth JSON (docs/design.md §5)."""
+
+    trial: int
+    accel_bias: Vector
+    gyro_bias: Vector | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the entry of the truth JSON's ``trials``."""
+        out: dict[str, Any] = {"trial": self.trial, "accel_bias": self.accel_bias.tolist()}
+        if self.gyro_bias is not None:
+            out["gyro_bias"] = self.gyro_bias.tolist()
+        return out
+
+
+def _trials(obj: Any) -> tuple[TrialBiases, ...]:
+    """Read ``trials``: ``[{trial, accel_bias, gyro_bias?}, …]``, distinct trials (-1: none)."""
+    out = []
+    for k, entry in enumerate(read_list(obj, "trials")):
+        path = f"trials[{k}]"
+        entry = read_object(entry, path, ("trial", "accel_bias", "gyro_bias"))
+        if "trial" not in entry or "accel_bias" not in entry:
+            fail(path, "needs trial and accel_bias")
+        gyro = entry.get("gyro_bias")
+        out.append(
+            TrialBiases(
+                read_integer(entry["trial"], key_path(path, "trial"), low=-1),
+                read_array(entry["accel_bias"], key_path(path, "accel_bias"), (3,)),
+                None if gyro is None else read_array(gyro, key_path(path, "gyro_bias"), (3,)),
+            )
+        )
+    if len({t.trial for t in out}) != len(out):
+        fail("trials", "each trial once")
+    return tuple(out)

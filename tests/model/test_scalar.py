@@ -264,3 +264,54 @@ def test_noise_free_means_are_fitted_exactly(
     np.testing.assert_allclose(fit.bias, bias, atol=1e-5)
     np.testing.assert_allclose(fit.K, k, rtol=1e-7, atol=1e-5)
     assert fit.rms_mps2 < 1e-9
+
+
+TRIAL_STEP = np.array([[0.0, 0.0, 0.0], [25.0, -18.0, 30.0], [-22.0, 15.0, -27.0]])
+"""Each trial's bias less the first's (counts): a unit re-mounted three times."""
+
+
+def trials_means(seed: int, n_per_trial: int = 12) -> tuple[np.ndarray, list[int], np.ndarray]:
+    """Noisy means of three trials of one K, each trial its own bias, and the trials' biases."""
+    rng = np.random.default_rng(seed)
+    biases = BIAS + TRIAL_STEP
+    means, keys = [], []
+    for t, bias in enumerate(biases):
+        f = orientations(n_per_trial, 100 * seed + t)
+        means.append(bias + f @ K_DIAG.T + rng.normal(0.0, NOISE_COUNTS, (n_per_trial, 3)))
+        keys += [t] * n_per_trial
+    return np.vstack(means), keys, biases
+
+
+def test_trials_get_their_own_bias_and_share_k() -> None:
+    """Three trials whose biases differ by ~50σ_b: one bias per trial, K shared (model doc).
+
+    Without ``trials`` the one bias cannot hold the steps: the fit's χ²/dof runs to thousands
+    and K moves by many σ. With them every trial's bias and K lie within 4σ of the truth.
+    """
+    for seed in range(5):
+        means, keys, biases = trials_means(seed)
+        weights = np.full(means.shape[0], 1.0 / (NOISE_COUNTS * DEFAULT_ACCEL_LSB) ** 2)
+        one = fit_scalar(means, G, model="6", weights=weights, accel_lsb=DEFAULT_ACCEL_LSB)
+        assert one.reduced_chi2 > 100.0, one.reduced_chi2
+        fit = fit_scalar(
+            means, G, model="6", weights=weights, accel_lsb=DEFAULT_ACCEL_LSB, trials=keys
+        )
+        assert fit.trials == (0, 1, 2) and fit.dof == means.shape[0] - 12
+        assert fit.reduced_chi2 < 2.0, fit.reduced_chi2
+        assert fit.trial_bias is not None and fit.trial_bias_sigma is not None
+        z_bias = (fit.trial_bias - biases) / fit.trial_bias_sigma
+        assert np.all(np.abs(z_bias) < 4.0), z_bias
+        np.testing.assert_allclose(fit.bias, biases.mean(axis=0), atol=4.0 * fit.bias_sigma.max())
+        z_k = (np.diag(fit.K) - np.diag(K_DIAG)) / np.diag(fit.K_sigma)
+        assert np.all(np.abs(z_k) < 4.0), z_k
+        assert fit.param_names[6:9] == tuple(f"trial_offset[0].bias[{i}]" for i in range(3))
+        np.testing.assert_array_equal(fit.position_bias[:12], np.tile(fit.trial_bias[0], (12, 1)))
+
+
+def test_one_trial_fits_as_without_trials() -> None:
+    means, _keys, _ = trials_means(0)
+    plain = fit_scalar(means, G, model="6", accel_lsb=DEFAULT_ACCEL_LSB)
+    one = fit_scalar(means, G, model="6", accel_lsb=DEFAULT_ACCEL_LSB, trials=[3] * len(means))
+    assert one.trials == () and one.trial_bias is None
+    np.testing.assert_array_equal(one.params, plain.params)
+    np.testing.assert_array_equal(one.covariance, plain.covariance)

@@ -312,3 +312,32 @@ def test_floor_tilt_deg_is_read_as_the_floor_slope() -> None:
     assert (tilt.alpha0, tilt.beta0) == (slope.alpha0, slope.beta0) != (0.0, 0.0)
     with pytest.raises(SchemaError, match="not both"):
         Truth.from_dict({**doc, "floor_tilt_deg": [1.0, 0.0], "floor_slope_deg": [1.0, 0.0]})
+
+
+def test_trials_biases_round_trip_and_give_each_trials_unit() -> None:
+    """``trials`` (analyze --truth-out of a file of trials): each trial's biases, read back."""
+    doc = {
+        "accel": {"bias": [1.0, 2.0, 3.0]},
+        "gyro": {"bias": [0.5, 0.0, -0.5]},
+        "trials": [
+            {"trial": 0, "accel_bias": [0.0, 2.0, 3.0], "gyro_bias": [0.0, 0.0, 0.0]},
+            {"trial": 1, "accel_bias": [2.0, 2.0, 3.0], "gyro_bias": [1.0, 0.0, -1.0]},
+        ],
+    }
+    truth = Truth.from_dict(doc)
+    assert [t.trial for t in truth.trials] == [0, 1]
+    units = truth.trial_units()
+    np.testing.assert_array_equal(units[1].accel.bias, [2.0, 2.0, 3.0])
+    np.testing.assert_array_equal(units[1].gyro.bias, [1.0, 0.0, -1.0])
+    assert units[0].trials == () and units[0].accel.K.tolist() == truth.accel.K.tolist()
+    again = Truth.from_dict(json.loads(json.dumps(truth.to_dict())))
+    assert [t.to_dict() for t in again.trials] == doc["trials"]
+    assert "trials" not in Truth.from_dict({}).to_dict()
+    for bad, where in (
+        ([{"trial": 0}], "trials[0]"),
+        ([{"trial": 0, "accel_bias": [1.0, 2.0]}], "trials[0].accel_bias"),
+        ([{"trial": 0, "accel_bias": [0.0] * 3}] * 2, "trials"),
+        ([{"trial": -2, "accel_bias": [0.0] * 3}], "trials[0].trial"),
+    ):
+        with pytest.raises(SchemaError, match=where.replace("[", r"\[").replace("]", r"\]")):
+            Truth.from_dict({"trials": bad})
