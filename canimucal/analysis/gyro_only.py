@@ -161,12 +161,11 @@ def _gls(y: Array, x: Array, cov: Array, names: Sequence[str]) -> GyroFit:
     xw = solve_lower(chol, x)
     yw = solve_lower(chol, y)
     info = xw.T @ xw
-    values = np.linalg.solve(info, xw.T @ yw)
+    values = np.asarray(np.linalg.solve(info, xw.T @ yw), dtype=float)
     resid = yw - xw @ values
     dof = int(y.size - np.linalg.matrix_rank(xw))
-    return GyroFit(
-        tuple(names), values, np.linalg.inv(info), float(resid @ resid), dof, y - x @ values
-    )
+    cov = np.asarray(np.linalg.inv(info), dtype=float)
+    return GyroFit(tuple(names), values, cov, float(resid @ resid), dof, y - x @ values)
 
 
 def _block(covariances: Array) -> Array:

@@ -18,6 +18,7 @@ half a second on every call (docs/performance.md), for matrices of a few dozen c
 from __future__ import annotations
 
 from itertools import combinations
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,7 +29,7 @@ NNLS_MAX_COLUMNS = 8
 """:func:`nnls_small` tries 2ⁿ − 1 supports: beyond a few columns use an iterative method."""
 
 
-def solve_lower(chol: Array, b: Array) -> Array:
+def solve_lower(chol: NDArray[np.floating[Any]], b: NDArray[np.floating[Any]]) -> Array:
     """Return ``L⁻¹ b`` for the lower-triangular ``chol`` (``b`` a vector or a matrix)."""
     return np.asarray(np.linalg.solve(chol, b), dtype=float)
 
