@@ -164,8 +164,8 @@ def _gls(y: Array, x: Array, cov: Array, names: Sequence[str]) -> GyroFit:
     values = np.asarray(np.linalg.solve(info, xw.T @ yw), dtype=float)
     resid = yw - xw @ values
     dof = int(y.size - np.linalg.matrix_rank(xw))
-    cov = np.asarray(np.linalg.inv(info), dtype=float)
-    return GyroFit(tuple(names), values, cov, float(resid @ resid), dof, y - x @ values)
+    covariance = np.asarray(np.linalg.inv(info), dtype=float)
+    return GyroFit(tuple(names), values, covariance, float(resid @ resid), dof, y - x @ values)
 
 
 def _block(covariances: Array) -> Array:
