@@ -367,18 +367,25 @@ def solve_scalar(
     full: bool,
     recording: RecordingRef | None = None,
 ) -> Solution:
-    """Fit |f| = g (6 or 9 parameters) to static means of unknown orientation."""
+    """Fit |f| = g (6 or 9 parameters) to static means of unknown orientation.
+
+    Averages of several trials (the unit re-mounted: docs/design.md §10 *Trials*) give each
+    trial its own bias and share K, as with known angles; the record's ``accel.bias`` is the
+    trials' mean and ``trials`` lists each one's.
+    """
+    by_trial = len({a.trial for a in averages}) > 1
     fit = fit_scalar_averages(
-        averages, site.g, model="9" if full else "6", accel_lsb=site.accel_lsb
+        averages, site.g, model="9" if full else "6", accel_lsb=site.accel_lsb, by_trial=by_trial
     )
     quality = birge(fit.reduced_chi2 * fit.dof, fit.dof)
     if quality.inflation > 1.0:
         fit = replace(fit, covariance=fit.covariance * quality.inflation**2)
-    names = [f"accel.{n}" for n in fit.param_names]
+    core = [k for k, n in enumerate(fit.param_names) if not n.startswith("trial_offset")]
+    names = [f"accel.{fit.param_names[k]}" for k in core]
     record = record_from_estimates(
         names,
-        fit.params,
-        fit.covariance,
+        fit.params[core],
+        fit.covariance[np.ix_(core, core)],
         device=device,
         plan=SCALAR,
         conditions=site.as_record_conditions(),
@@ -386,7 +393,25 @@ def solve_scalar(
         fit=Fit(rms=fit.rms_mps2, dof=fit.dof),
         recording=recording,
     )
+    if fit.trials:
+        record = replace(record, trials=scalar_trial_summaries(fit, averages))
     warnings: tuple[str, ...] = ()
     if not fit.converged:
         warnings = (f"the scalar fit did not converge: {fit.message}",)
     return Solution(record, scalar=fit, warnings=warnings, quality=quality)
+
+
+def scalar_trial_summaries(
+    fit: ScalarFit, averages: Sequence[PositionAverage]
+) -> tuple[TrialSummary, ...]:
+    """Return the record's ``trials`` of a |f| = g fit: each trial's accelerometer bias and σ."""
+    assert fit.trial_bias is not None and fit.trial_bias_sigma is not None
+    return tuple(
+        TrialSummary(
+            trial=int(trial),
+            positions=sum((a.trial if a.trial is not None else -1) == trial for a in averages),
+            accel_bias=tuple(float(v) for v in fit.trial_bias[k]),
+            accel_bias_sigma=tuple(float(v) for v in fit.trial_bias_sigma[k]),
+        )
+        for k, trial in enumerate(fit.trials)
+    )
