@@ -182,8 +182,9 @@ def _loglik_grid(rot: _Rotated, taus: Array) -> Array:
     if rot.basis_u.shape[1] == 0:
         return np.asarray(-0.5 * (logdet + rr), dtype=float)
     u = rot.basis_u
-    gram = np.einsum("ni,gn,nj->gij", u, inv_d, u)
-    b = np.einsum("ni,gn,n->gi", u, inv_d, rot.residual)
+    weighted = inv_d[:, :, None] * u[None, :, :]  # (G, n, k): D⁻¹U at each grid point
+    gram = np.matmul(weighted.transpose(0, 2, 1), u)  # batched BLAS, not a 3-operand einsum
+    b = weighted.transpose(0, 2, 1) @ rot.residual
     fitted = np.einsum("gi,gi->g", b, np.linalg.solve(gram, b[:, :, None])[:, :, 0])
     proj = np.maximum(rr - fitted, 0.0)
     _sign, logdet_gram = np.linalg.slogdet(gram)

@@ -6,17 +6,19 @@ Jacobian. scipy's MINPACK wrapper solves them in milliseconds but costs about a 
 imports (``scipy.optimize`` pulls scipy.linalg, sparse, spatial and fft): most of `solve`'s
 time on a small session (docs/performance.md). This module is the same method without them.
 
-Method (Marquardt 1963; the scaling and stopping tests of Moré 1978, as MINPACK's ``lmder``):
-in scaled variables ``s = D·δ``, where ``D`` holds the largest norm each Jacobian column has
-had so far (scipy's ``x_scale="jac"``), each step minimises ``‖J D⁻¹ s + r‖² + λ‖s‖²``,
-solved through the SVD of ``J D⁻¹`` so that trying another λ costs no factorisation. λ
-follows the gain ratio ρ (actual over predicted reduction; Nielsen 1999): accepted steps
-shrink it by ``max(1/3, 1 − (2ρ − 1)³)``, rejected ones grow it geometrically.
+Method (Marquardt 1963, as a trust region: Moré 1978, MINPACK's ``lmder``): in scaled
+variables ``s = D·δ``, where ``D`` holds the largest norm each Jacobian column has had so far
+(scipy's ``x_scale="jac"``), each step minimises ``‖J D⁻¹ s + r‖`` within ``‖s‖ ≤ Δ``: the
+Gauss–Newton step when it fits, else the damped step ``(JᵀJ + λI)⁻¹`` on the boundary, both
+through the SVD of ``J D⁻¹`` (another λ costs no factorisation). Δ starts at ``100·‖D x₀‖``
+and follows the gain ratio ρ (actual over predicted reduction): shrunk below 0.25, grown to
+twice the step above 0.75; a step is taken when ρ ≥ 10⁻⁴.
 
 Stopping, with MINPACK's meanings and status codes:
 1. ``gtol``: the largest cosine between a Jacobian column and the residual vector ≤ gtol;
-2. ``ftol``: actual and predicted relative reductions of ‖r‖² both ≤ ftol (ρ ≤ 2);
-3. ``xtol``: the scaled step ``‖s‖ ≤ xtol·(‖D x‖ + xtol)``; 4: both 2 and 3;
+2. ``ftol``: actual and predicted relative reductions of ‖r‖² both ≤ ftol (ρ ≤ 2), tested
+   on every trial step as MINPACK does (a rejected step at the minimum ends the search);
+3. ``xtol``: the trust region ``Δ ≤ xtol·‖D x‖``; 4: both 2 and 3;
 0. the evaluation budget ``max_nfev`` (default ``100·(n + 1)``) is spent.
 """
 
@@ -37,8 +39,11 @@ MESSAGES = {
     3: "`xtol` termination condition is satisfied.",
     4: "Both `ftol` and `xtol` termination conditions are satisfied.",
 }
-_FIRST_DAMPING = 1e-3
-"""λ of the first step, relative to the scaled Jacobian's largest squared singular value."""
+_INITIAL_RADIUS = 100.0
+"""The first trust region, times ‖D x₀‖ (MINPACK's ``factor``)."""
+_ACCEPT = 1e-4
+"""Gain ratio from which a step is taken (MINPACK's)."""
+_RANK_EPS = float(np.finfo(float).eps)
 
 
 @dataclass(frozen=True)
@@ -89,57 +94,81 @@ def least_squares_lm(
     if not np.all(np.isfinite(r)):
         raise ValueError("the residuals are not finite at the starting point")
     scale = _column_norms(j, None)
-    damping = -1.0
-    status = 0
+    radius = _INITIAL_RADIUS * (float(np.linalg.norm(scale * x)) or 1.0)
     while True:
         cost2 = float(r @ r)
         if _gradient_small(j, r, gtol):
-            status = 1
-            break
+            return _done(x, r, j, 1, nfev, njev)
         u, sv, vt = np.linalg.svd(j / scale, full_matrices=False)
         ur = u.T @ r
-        if damping < 0:
-            damping = _FIRST_DAMPING * float(sv[0] ** 2 if sv.size else 1.0)
-        growth = 2.0
         while True:
-            s = -(vt.T @ (sv / (sv**2 + damping) * ur))
-            step = s / scale
-            x_new = x + step
+            s = _step_within(sv, vt, ur, radius)
+            x_new = x + s / scale
             r_new = np.asarray(fun(x_new), dtype=float)
             nfev += 1
             new2 = float(r_new @ r_new) if np.all(np.isfinite(r_new)) else np.inf
             # predicted ‖r + J δ‖² from the SVD: components of r outside J's range stay put
             fitted = sv * (vt @ s) + ur
-            predicted = cost2 - (cost2 - float(ur @ ur) + float(fitted @ fitted))
+            predicted = float(ur @ ur) - float(fitted @ fitted)
             actual = cost2 - new2
             rho = actual / predicted if predicted > 0 else -1.0
-            small_step = float(np.linalg.norm(s)) <= xtol * (
-                float(np.linalg.norm(scale * x)) + xtol
+            step = float(np.linalg.norm(s))
+            if rho < 0.25:  # Moré (1978) §4: shrink to the step's scale
+                radius = 0.5 * min(radius, 10.0 * step) if rho >= 0 else 0.25 * min(radius, step)
+            elif rho >= 0.75:
+                radius = max(radius, 2.0 * step)
+            small_reduction = cost2 == 0 or (
+                abs(actual) <= ftol * cost2 and predicted <= ftol * cost2 and rho <= 2.0
             )
-            if rho > 0:
-                break
-            if small_step:
-                return _done(x, r, j, 3, nfev, njev)
+            xnorm = float(np.linalg.norm(scale * (x_new if rho >= _ACCEPT else x)))
+            small_radius = radius <= xtol * xnorm
+            if rho >= _ACCEPT:
+                x, r = x_new, r_new
+                j = np.asarray(jac(x), dtype=float)
+                njev += 1
+                scale = _column_norms(j, scale)
+            if small_reduction or small_radius:
+                status = 4 if small_reduction and small_radius else (2 if small_reduction else 3)
+                return _done(x, r, j, status, nfev, njev)
             if nfev >= budget:
                 return _done(x, r, j, 0, nfev, njev)
-            damping *= growth
-            growth *= 2.0
-        small_reduction = (
-            cost2 > 0 and abs(actual) <= ftol * cost2 and predicted <= ftol * cost2 and rho <= 2
-        )
-        damping *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-        x, r = x_new, r_new
-        j = np.asarray(jac(x), dtype=float)
-        njev += 1
-        scale = _column_norms(j, scale)
-        if small_reduction or small_step:
-            status = (2 if small_reduction else 0) + (3 if small_step else 0)
-            status = 4 if status == 5 else status
+            if rho >= _ACCEPT:
+                break
+
+
+def _step_within(sv: Array, vt: Array, ur: Array, radius: float) -> Array:
+    """Return the scaled step ``s`` minimising ``‖J_s s + r‖`` within ``‖s‖ ≤ radius``.
+
+    The Gauss–Newton step (pseudo-inverse: singular values below ``ε·n·σ₁`` are dropped)
+    when it fits; otherwise the Levenberg–Marquardt step whose λ puts it on the boundary,
+    ``‖s(λ)‖ = radius`` to 1 %, found by bisection on log λ (each try costs a few vector
+    operations: the SVD is not redone).
+    """
+    keep = sv > _RANK_EPS * max(sv.size, 1) * (float(sv[0]) if sv.size else 0.0)
+    gn = np.where(keep, ur / np.where(keep, sv, 1.0), 0.0)
+    if float(np.linalg.norm(gn)) <= radius:
+        return -(vt.T @ gn)
+
+    def length(lam: float) -> float:
+        return float(np.linalg.norm(sv / (sv**2 + lam) * ur))
+
+    hi = float(sv[0]) ** 2 if sv.size else 1.0
+    while length(hi) > radius:
+        hi *= 10.0
+    lo = hi
+    while length(lo) <= radius and lo > 1e-300:
+        lo *= 0.1
+    lam = hi
+    for _ in range(100):  # bisection on log λ: ‖s(λ)‖ falls as λ grows
+        if abs(length(lam) - radius) <= 0.01 * radius or hi <= lo * (1.0 + 1e-12):
             break
-        if nfev >= budget:
-            status = 0
-            break
-    return _done(x, r, j, status, nfev, njev)
+        lam = float(np.sqrt(lo * hi)) if lo > 0.0 else 0.5 * hi
+        if length(lam) > radius:
+            lo = lam
+        else:
+            hi = lam
+    lam = hi if length(lam) > radius else lam  # never a step outside the region
+    return -(vt.T @ (sv / (sv**2 + lam) * ur))
 
 
 def _column_norms(j: Array, previous: Array | None) -> Array:
