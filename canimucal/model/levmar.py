@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 Array = NDArray[np.float64]
 
 MESSAGES = {
+    -1: "Improper input parameters status returned from MINPACK.",
     0: "The maximum number of function evaluations is exceeded.",
     1: "`gtol` termination condition is satisfied.",
     2: "`ftol` termination condition is satisfied.",
