@@ -3,6 +3,10 @@
 For a second process or another tool (candump, a CANopen master) on e.g. ``vcan0``. With
 ``--poses FILE`` the unit follows that pose schedule from the first NMT start. Prints one
 line when the node is up (``ready: …``), one when it stops.
+
+The node keeps the wall clock (``wall_clock``, :mod:`canimucal.simnode.producer`): on a host
+too slow for its rate it drops samples, as a real unit does, and says how many when it stops;
+its world (poses, noise) never runs slower than the bus's time.
 """
 
 from __future__ import annotations
@@ -70,7 +74,13 @@ def run(args: argparse.Namespace) -> int:
         for nid in ids:
             state = per_node_path(args.state, nid, len(ids) > 1) if args.state else None
             node = SimulatedImuNode(
-                network, nid, truth, state_file=state, time_scale=args.time_scale, seed=args.seed
+                network,
+                nid,
+                truth,
+                state_file=state,
+                time_scale=args.time_scale,
+                seed=args.seed,
+                wall_clock=True,
             )
             if placed is not None:
                 node.set_schedule(placed)
@@ -90,7 +100,9 @@ def run(args: argparse.Namespace) -> int:
         if network.notifier is not None:
             network.notifier.stop(network.NOTIFIER_SHUTDOWN_TIMEOUT)
         bus.shutdown()
-    print("stopped", file=sys.stderr, flush=True)
+    dropped = sum(node.samples_dropped for node in nodes)
+    why = f" ({dropped} samples dropped: the host could not send them in time)" if dropped else ""
+    print(f"stopped{why}", file=sys.stderr, flush=True)
     return 0
 
 

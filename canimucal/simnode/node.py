@@ -55,6 +55,9 @@ class SimulatedImuNode:
 
     ``truth`` defaults to a nominal unit; ``state_file`` is the node's non-volatile memory
     (JSON); ``time_scale`` is simulated seconds per wall second; ``seed`` seeds the noise.
+    ``wall_clock`` keeps the unit's world on the wall clock when the host cannot keep up (the
+    samples it could not send are dropped, as a real unit's; :mod:`~canimucal.simnode.producer`):
+    for a node in a process of its own on a real bus.
     A truth whose ``faults`` name a ``twin_serial`` brings a second unit with that serial,
     answering as the same node-id on the same network (:attr:`twin`): two devices set to
     one node-id, as a misconfigured bus has them (docs/design.md §9).
@@ -69,6 +72,7 @@ class SimulatedImuNode:
         state_file: Path | None = None,
         time_scale: float = 1.0,
         seed: int | None = None,
+        wall_clock: bool = False,
         _twin_of: SimulatedImuNode | None = None,
     ) -> None:
         if not 1 <= int(node_id) <= 127:
@@ -110,6 +114,7 @@ class SimulatedImuNode:
             send=self._send,
             cal_active=self._access.calibration_active,
             on_time=lambda t_s: self._fault_actions.on_sim_time(t_s),
+            wall_clock=wall_clock,
             backlog=VirtualBusBacklog(self._network.bus),
             timer_skew_ppm=self.truth.timer_skew_ppm,
             second_send_ms=self.truth.second_send_ms,
@@ -174,6 +179,11 @@ class SimulatedImuNode:
         """Simulated seconds the clock ran behind ``time_scale`` because the host lagged."""
         return self._producer.clock_slip_s
 
+    @property
+    def samples_dropped(self) -> int:
+        """Samples never sent because the host lagged (``wall_clock`` nodes only)."""
+        return self._producer.samples_dropped
+
     def _make_twin(self, state_file: Path | None, seed: int | None) -> SimulatedImuNode | None:
         """Build the unit that shares this node-id, when the truth asks for one."""
         serial = self.faults.config.twin_serial
@@ -190,6 +200,7 @@ class SimulatedImuNode:
             state_file=twin_state,
             time_scale=self.time_scale,
             seed=None if seed is None else seed + 1,
+            wall_clock=self._producer.wall_clock,
             _twin_of=self,
         )
 
@@ -229,10 +240,12 @@ class SimulatedImuNode:
             self.twin.stop()
         self._stop_own_notifier()
         log.info(
-            "simulated IMU node %d stopped (its clock slipped %.3g s behind %g× wall time)",
+            "simulated IMU node %d stopped (its clock slipped %.3g s behind %g× wall time; "
+            "%d samples dropped, the host too slow to send them)",
             self.node_id,
             self.clock_slip_s,
             self.time_scale,
+            self.samples_dropped,
         )
 
     def _stop_own_notifier(self) -> None:

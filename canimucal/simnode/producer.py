@@ -10,6 +10,15 @@ simulated clock slips instead: ``time_scale`` is an upper bound, never a reason 
 bus under frames the host cannot dispatch (the slip is counted in ``clock_slip_s``). Samples
 are never skipped: the counter and the simulated time run on, only slower.
 
+With ``wall_clock`` (a node in its own process on a real bus, ``canimucal sim``) a host too
+slow to keep up does not slow the unit's world: a real unit's sensor and the operator moving it
+keep the wall clock, whatever its CPU manages to send. The samples past the catch-up limit are
+made (the simulated time, the pose schedule and the counter run on) but never sent, as an
+overloaded MCU drops them: the recorder sees counter gaps, counts them lost, and the sample
+rate it measures over the receive times stays the device's (counted in ``samples_dropped``).
+A slowed clock there would look like a device sampling slower than it claims, and a schedule
+labelled at the measured rate would name the wrong pose.
+
 Event-driven TPDOs (transmission type 254/255) follow their event timers in simulated time;
 SYNC-driven ones (1..240) are sent from :meth:`SampleProducer.on_sync`. Nothing is sent unless
 the node is OPERATIONAL.
@@ -89,8 +98,10 @@ class SampleProducer:
         timer_skew_ppm: float = 0.0,
         second_send_ms: float = 0.0,
         before_sending: Callable[[], None] | None = None,
+        wall_clock: bool = False,
     ) -> None:
         self.simulator = simulator
+        self.wall_clock = bool(wall_clock)
         self._before_sending = before_sending
         self.lock = lock
         self.time_scale = float(time_scale)
@@ -107,6 +118,8 @@ class SampleProducer:
         self._timed_seq = itertools.count()
         self.clock_slip_s = 0.0
         """Simulated seconds the clock fell behind ``time_scale`` × wall time (host too slow)."""
+        self.samples_dropped = 0
+        """Samples made but never sent because the host fell behind (``wall_clock`` only)."""
         self.error_register = 0
         """0x1001 as the live value reports it (an EMCY sets it)."""
         self.live: dict[Key, int] = {}
@@ -193,7 +206,10 @@ class SampleProducer:
             if held_back or due > lag_limit:
                 slip = due if held_back else due - lag_limit
                 self._anchor_count += slip
-                self.clock_slip_s += slip / self._rate_hz
+                if self.wall_clock and not held_back:
+                    self._drop(slip)
+                else:
+                    self.clock_slip_s += slip / self._rate_hz
                 if held_back:
                     return [], MIN_SLEEP_S
                 due -= slip
@@ -210,6 +226,13 @@ class SampleProducer:
             if ticks:
                 self._schedule(ticks, first_due_wall, rate)
         return frames, (MIN_SLEEP_S if due <= MAX_BATCH else 0.0)
+
+    def _drop(self, n: int) -> None:
+        """Make ``n`` samples and send none: the world and the counter keep the wall clock."""
+        self.last_block = self.simulator.next_block(n)
+        self.counter = (self.counter + n) % COUNTER_MODULUS
+        self.samples_produced += n
+        self.samples_dropped += n
 
     def _schedule(self, ticks: list[TimedFrame], first_due_wall: float, rate: float) -> None:
         """Queue skewed timer ticks at their wall times.

@@ -58,7 +58,7 @@ def test_record_solve_write_read_over_vcan(
     out = tmp_path / "session.csv"
     rec = run_cli("record", out, "--plan", poses, "--follow-schedule", "--g", truth.g, *bus)
     assert rec.returncode == 0, rec.stderr + rec.stdout
-    print(rec.stdout)  # the loss counts, for the report (-rP)
+    print(rec.stdout, rec.stderr)  # the loss counts and any rate warning, for the report (-rP)
     recording = read_recording(out)
     labels, counts = np.unique(recording.position[recording.position >= 0], return_counts=True)
     assert labels.tolist() == list(range(8))
@@ -75,6 +75,9 @@ def test_record_solve_write_read_over_vcan(
     cal = tmp_path / "cal.json"
     solved = run_cli("solve", out, "--tilt", "--json", cal)
     assert solved.returncode == 0, solved.stderr
+    # the node kept the wall clock: what its host could not send is counted lost above, and
+    # the schedule was labelled at the rate it claims (a slowed clock mislabelled it, CI)
+    assert "samples arrive at" not in rec.stderr, rec.stderr
     written = run_cli("write-params", cal, *bus, "--backup-dir", tmp_path / "backups")
     assert written.returncode == 0, written.stderr + written.stdout
     assert "backup of the previous calibration" in written.stdout
