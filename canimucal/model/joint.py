@@ -53,7 +53,7 @@ from canimucal.model.layout import (
     nominal_theta,
     predict,
 )
-from canimucal.model.levmar import LeastSquaresResult, least_squares_lm
+from canimucal.model.levmar import LeastSquaresResult, least_squares_checked
 from canimucal.model.plan import (
     NOT_IDENTIFIABLE_RATIO,
     Separability,
@@ -572,28 +572,13 @@ class _Problem:
 
 
 def _least_squares(problem: _Problem) -> LeastSquaresResult:
-    """Levenberg–Marquardt with Jacobian scaling, in numpy (model/levmar.py: no scipy import).
+    """Levenberg–Marquardt with Jacobian scaling, in numpy (model/levmar.py).
 
-    When it spends its evaluation budget unconverged, MINPACK's ``lmder`` (scipy) runs from
-    the same start: a recommended-plan session over vcan in the HIL VM (wrapped ψ, --tilt)
-    ended the numpy search at χ² 2·10⁷ where MINPACK converges.
+    No scipy import unless the search spends its budget, when MINPACK redoes it.
     """
-    fit = least_squares_lm(
+    return least_squares_checked(
         problem.residuals, problem.start, problem.jacobian, xtol=1e-12, ftol=1e-12, gtol=1e-12
     )
-    if fit.success:
-        return fit
-    from scipy.optimize import least_squares  # lazy: only for a search numpy did not finish
-
-    ref = least_squares(
-        problem.residuals, problem.start, jac=problem.jacobian, method="lm", x_scale="jac",
-        xtol=1e-12, ftol=1e-12, gtol=1e-12,
-    )  # fmt: skip
-    return LeastSquaresResult(
-        x=np.asarray(ref.x, dtype=float), fun=np.asarray(ref.fun, dtype=float),
-        jac=np.asarray(ref.jac, dtype=float), cost=float(ref.cost), status=int(ref.status),
-        nfev=int(ref.nfev), njev=int(ref.njev or 0),
-    )  # fmt: skip
 
 
 def _rate_of(ctx: ModelContext, data: _Data) -> Array:

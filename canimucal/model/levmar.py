@@ -137,6 +137,40 @@ def least_squares_lm(
                 break
 
 
+def least_squares_checked(
+    fun: Callable[[Array], Array],
+    x0: Array,
+    jac: Callable[[Array], Array],
+    *,
+    xtol: float = 1e-8,
+    ftol: float = 1e-8,
+    gtol: float = 1e-8,
+) -> LeastSquaresResult:
+    """:func:`least_squares_lm`; a search that spends its budget is redone by MINPACK.
+
+    MINPACK's ``lmder`` (``scipy.optimize.least_squares(method="lm")``, imported only then)
+    runs from the same start with the same tolerances, so a search this module did not finish
+    never passes for converged. The joint fit and the |f| = g fit call this.
+    """
+    fit = least_squares_lm(fun, x0, jac, xtol=xtol, ftol=ftol, gtol=gtol)
+    if fit.success:
+        return fit
+    from scipy.optimize import least_squares  # lazy: only for a search numpy did not finish
+
+    ref = least_squares(
+        fun, x0, jac=jac, method="lm", x_scale="jac", xtol=xtol, ftol=ftol, gtol=gtol
+    )
+    return LeastSquaresResult(
+        x=np.asarray(ref.x, dtype=float),
+        fun=np.asarray(ref.fun, dtype=float),
+        jac=np.asarray(ref.jac, dtype=float),
+        cost=float(ref.cost),
+        status=int(ref.status),
+        nfev=int(ref.nfev),
+        njev=int(ref.njev or 0),
+    )
+
+
 def _step_within(sv: Array, vt: Array, ur: Array, radius: float) -> Array:
     """Return the scaled step ``s`` minimising ``‖J_s s + r‖`` within ``‖s‖ ≤ radius``.
 

@@ -37,13 +37,13 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from canimucal.errors import ModelError
-from canimucal.model.levmar import least_squares_lm
+from canimucal.model.levmar import least_squares_checked
 from canimucal.model.plan import offset_contrast
 from canimucal.model.positions import PositionAverage
 
@@ -183,11 +183,7 @@ def fit_scalar(
     def jac(theta: Array) -> Array:
         return sqrt_w[:, None] * _jacobian(theta, u, model, contrast)
 
-    sol: Any = least_squares_lm(fun, theta0, jac)  # scipy's lm tolerances (1e-8), no scipy
-    if not sol.success:  # the budget spent: MINPACK from the same start (model/joint.py)
-        from scipy.optimize import least_squares
-
-        sol = least_squares(fun, theta0, jac=jac, x_scale="jac", method="lm")
+    sol = least_squares_checked(fun, theta0, jac)  # scipy's lm tolerances (1e-8), no scipy
     bias, m, offsets = _unpack(sol.x, model)
     m = _fix_signs(m, sign)
     theta = np.concatenate([_pack(bias, m, model), offsets])

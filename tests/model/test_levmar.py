@@ -100,30 +100,19 @@ def test_bad_starting_points_are_refused() -> None:
         least_squares_lm(f, np.array([0.0, 1.0]), j, xtol=-1.0)
 
 
-def test_the_joint_fit_falls_back_to_minpack_when_the_budget_is_spent(
+def test_a_search_that_spends_its_budget_is_redone_by_minpack(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """A numpy search that ends unconverged is redone by MINPACK from the same start."""
-    from canimucal.model import joint, levmar
+    """The joint and |f| = g fits' search: unconverged numpy ends go to MINPACK."""
+    from canimucal.model import levmar
 
     f, j, x0 = _decay(2)
-
-    class Problem:
-        start = x0
-
-        @staticmethod
-        def residuals(x: Array) -> Array:
-            return f(x)
-
-        @staticmethod
-        def jacobian(x: Array) -> Array:
-            return j(x)
 
     def spent(*args: object, **kwargs: object) -> levmar.LeastSquaresResult:
         return levmar.LeastSquaresResult(x0, f(x0), j(x0), 0.0, 0, 1, 1)
 
-    monkeypatch.setattr(joint, "least_squares_lm", spent)
-    fit = joint._least_squares(Problem())  # type: ignore[arg-type]
+    monkeypatch.setattr(levmar, "least_squares_lm", spent)
+    fit = levmar.least_squares_checked(f, x0, j, xtol=1e-12, ftol=1e-12, gtol=1e-12)
     ref = least_squares(f, x0, jac=j, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12)
     assert fit.success
     np.testing.assert_allclose(fit.x, ref.x)
