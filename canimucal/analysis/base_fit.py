@@ -239,7 +239,7 @@ def with_trial_offsets(prepared: PreparedBase, res: JointResult, data: SessionDa
     chol = np.asarray(
         np.linalg.cholesky(0.5 * (prepared.covariance + prepared.covariance.T)), dtype=float
     )
-    white = _solve_lower(chol, design)
+    white = solve_lower(chol, design)
     cov = np.linalg.pinv(white.T @ white, hermitian=True)
     p = prepared.jacobian.shape[1]
     sigmas = np.sqrt(np.abs(np.diag(cov)))[p:]
@@ -291,8 +291,8 @@ def with_nuisance(
     chol = np.asarray(
         np.linalg.cholesky(0.5 * (prepared.covariance + prepared.covariance.T)), dtype=float
     )
-    jac_w = _solve_lower(chol, prepared.jacobian)
-    col_w = _solve_lower(chol, columns)
+    jac_w = solve_lower(chol, prepared.jacobian)
+    col_w = solve_lower(chol, columns)
     q = np.linalg.qr(jac_w)[0]
     off = col_w - q @ (q.T @ col_w)
     r, order = pivoted_qr(off)
@@ -303,7 +303,7 @@ def with_nuisance(
         return prepared
     design = np.hstack([prepared.jacobian, columns[:, keep]])
     design_w = np.hstack([jac_w, col_w[:, keep]])
-    resid_w = _solve_lower(chol, prepared.residual[:, None])[:, 0]
+    resid_w = solve_lower(chol, prepared.residual[:, None])[:, 0]
     step = np.linalg.lstsq(design_w, resid_w, rcond=None)[0]
     residual = prepared.residual - design @ step
     left = resid_w - design_w @ step
@@ -320,10 +320,6 @@ def with_nuisance(
         chi2=float(left @ left),
         dof=max(prepared.dof - rank, 0),
     )
-
-
-def _solve_lower(chol: Array, b: Array) -> Array:
-    return solve_lower(chol, b)
 
 
 def unit_angle_covariance(

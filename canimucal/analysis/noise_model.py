@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from canimucal.model.search1d import maximise_bounded, root_bracketed
+from canimucal.model.small_linalg import solve_lower
 
 Array = NDArray[np.float64]
 
@@ -81,7 +82,7 @@ class ScatterModel:
         for rows in groups:
             cell = np.ix_(rows, rows)
             chol = np.asarray(np.linalg.cholesky(0.5 * (self.base[cell] + self.base[cell].T)))
-            inv = _solve_lower(chol, np.eye(rows.size))
+            inv = solve_lower(chol, np.eye(rows.size))
             half = inv @ self.unit[cell] @ inv.T
             lam_b, q = np.linalg.eigh(0.5 * (half + half.T))
             w[cell] = q.T @ inv
@@ -173,10 +174,6 @@ def _loglik(rot: _Rotated, tau: float) -> float:
     b = su.T @ rw
     proj = max(float(rw @ rw) - float(b @ np.linalg.solve(gram, b)), 0.0)
     return -0.5 * (logdet + proj) - rot.log_sv - 0.5 * float(np.linalg.slogdet(gram)[1])
-
-
-def _solve_lower(chol: Array, b: Array) -> Array:
-    return np.asarray(np.linalg.solve(chol, b), dtype=float)  # small; no scipy.linalg import
 
 
 def _maximise(rot: _Rotated, tau_max: float) -> tuple[float, float]:
