@@ -53,7 +53,7 @@ from canimucal.model.layout import (
     nominal_theta,
     predict,
 )
-from canimucal.model.levmar import LeastSquaresResult, least_squares_checked
+from canimucal.model.levmar import LeastSquaresResult, least_squares_lm
 from canimucal.model.plan import (
     NOT_IDENTIFIABLE_RATIO,
     Separability,
@@ -576,9 +576,10 @@ def _least_squares(problem: _Problem) -> LeastSquaresResult:
 
     No scipy import unless the search spends its budget, when MINPACK redoes it.
     """
-    return least_squares_checked(
-        problem.residuals, problem.start, problem.jacobian, xtol=1e-12, ftol=1e-12, gtol=1e-12
-    )
+    return least_squares_lm(
+        problem.residuals, problem.start, problem.jacobian,
+        xtol=1e-12, ftol=1e-12, gtol=1e-12, minpack_if_unfinished=True,
+    )  # fmt: skip
 
 
 def _rate_of(ctx: ModelContext, data: _Data) -> Array:

@@ -80,8 +80,14 @@ def least_squares_lm(
     ftol: float = 1e-8,
     gtol: float = 1e-8,
     max_nfev: int | None = None,
+    minpack_if_unfinished: bool = False,
 ) -> LeastSquaresResult:
-    """Minimise ``½‖fun(x)‖²`` from ``x0`` with the analytic Jacobian ``jac`` (module doc)."""
+    """Minimise ``½‖fun(x)‖²`` from ``x0`` with the analytic Jacobian ``jac`` (module doc).
+
+    With ``minpack_if_unfinished`` a search that spends its evaluation budget is redone by
+    MINPACK from ``x0`` (scipy imported then, tolerances the smallest of the three), so an
+    unfinished search never passes for converged: the joint and |f| = g fits ask for it.
+    """
     x = np.array(x0, dtype=float)
     if x.ndim != 1 or not np.all(np.isfinite(x)):
         raise ValueError("x0 must be a finite one-dimensional array")
@@ -132,34 +138,20 @@ def least_squares_lm(
                 status = 4 if small_reduction and small_radius else (2 if small_reduction else 3)
                 return _done(x, r, j, status, nfev, njev)
             if nfev >= budget:
+                if minpack_if_unfinished:
+                    return _minpack(fun, np.array(x0, dtype=float), jac, min(xtol, ftol, gtol))
                 return _done(x, r, j, 0, nfev, njev)
             if rho >= _ACCEPT:
                 break
 
 
-def least_squares_checked(
-    fun: Callable[[Array], Array],
-    x0: Array,
-    jac: Callable[[Array], Array],
-    *,
-    xtol: float = 1e-8,
-    ftol: float = 1e-8,
-    gtol: float = 1e-8,
+def _minpack(
+    fun: Callable[[Array], Array], x0: Array, jac: Callable[[Array], Array], tol: float
 ) -> LeastSquaresResult:
-    """:func:`least_squares_lm`; a search that spends its budget is redone by MINPACK.
+    """MINPACK's ``lmder`` (scipy, imported only here) from ``x0`` with every tolerance ``tol``."""
+    from scipy.optimize import least_squares
 
-    MINPACK's ``lmder`` (``scipy.optimize.least_squares(method="lm")``, imported only then)
-    runs from the same start with the same tolerances, so a search this module did not finish
-    never passes for converged. The joint fit and the |f| = g fit call this.
-    """
-    fit = least_squares_lm(fun, x0, jac, xtol=xtol, ftol=ftol, gtol=gtol)
-    if fit.success:
-        return fit
-    from scipy.optimize import least_squares  # lazy: only for a search numpy did not finish
-
-    ref = least_squares(
-        fun, x0, jac=jac, method="lm", x_scale="jac", xtol=xtol, ftol=ftol, gtol=gtol
-    )
+    ref = least_squares(fun, x0, jac=jac, method="lm", x_scale="jac", xtol=tol, ftol=tol, gtol=tol)
     return LeastSquaresResult(
         x=np.asarray(ref.x, dtype=float),
         fun=np.asarray(ref.fun, dtype=float),

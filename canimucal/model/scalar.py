@@ -43,7 +43,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from canimucal.errors import ModelError
-from canimucal.model.levmar import least_squares_checked
+from canimucal.model.levmar import least_squares_lm
 from canimucal.model.plan import offset_contrast
 from canimucal.model.positions import PositionAverage
 
@@ -183,7 +183,8 @@ def fit_scalar(
     def jac(theta: Array) -> Array:
         return sqrt_w[:, None] * _jacobian(theta, u, model, contrast)
 
-    sol = least_squares_checked(fun, theta0, jac)  # scipy's lm tolerances (1e-8), no scipy
+    # scipy's lm tolerances (1e-8); MINPACK only if the numpy search spends its budget
+    sol = least_squares_lm(fun, theta0, jac, minpack_if_unfinished=True)
     bias, m, offsets = _unpack(sol.x, model)
     m = _fix_signs(m, sign)
     theta = np.concatenate([_pack(bias, m, model), offsets])

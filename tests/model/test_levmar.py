@@ -100,19 +100,15 @@ def test_bad_starting_points_are_refused() -> None:
         least_squares_lm(f, np.array([0.0, 1.0]), j, xtol=-1.0)
 
 
-def test_a_search_that_spends_its_budget_is_redone_by_minpack(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    """The joint and |f| = g fits' search: unconverged numpy ends go to MINPACK."""
-    from canimucal.model import levmar
-
+def test_a_search_that_spends_its_budget_is_redone_by_minpack() -> None:
+    """The joint and |f| = g fits' search: an unfinished numpy search goes to MINPACK."""
     f, j, x0 = _decay(2)
-
-    def spent(*args: object, **kwargs: object) -> levmar.LeastSquaresResult:
-        return levmar.LeastSquaresResult(x0, f(x0), j(x0), 0.0, 0, 1, 1)
-
-    monkeypatch.setattr(levmar, "least_squares_lm", spent)
-    fit = levmar.least_squares_checked(f, x0, j, xtol=1e-12, ftol=1e-12, gtol=1e-12)
+    alone = least_squares_lm(f, x0, j, max_nfev=3, xtol=1e-12, ftol=1e-12, gtol=1e-12)
+    assert not alone.success  # the budget ends it unconverged ...
+    fit = least_squares_lm(
+        f, x0, j, max_nfev=3, xtol=1e-12, ftol=1e-12, gtol=1e-12, minpack_if_unfinished=True
+    )
     ref = least_squares(f, x0, jac=j, method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12)
-    assert fit.success
+    assert fit.success  # ... and MINPACK, from the same start, finishes it
     np.testing.assert_allclose(fit.x, ref.x)
+    assert fit.nfev == ref.nfev
