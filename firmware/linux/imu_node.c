@@ -171,6 +171,12 @@ void app_programRt(CO_t* co, uint32_t timer1usDiff) {
     int64_t now = now_ns(), period = 1000000000LL / (odr_hz ? odr_hz : 200);
     double t = 0.0;
     (void)timer1usDiff;
+    /* Nothing while a communication reset runs (as CO_epoll_processRT): the main thread is
+     * then initialising imu and the PDOs, first after this thread has started. Sampling into
+     * a half-initialised imu crashed the node once in CI's VM, right at its ready line. */
+    if (!co->CANmodule->CANnormal) {
+        return;
+    }
     if (now < next_due_ns) {
         return;
     }

@@ -51,6 +51,7 @@ class FirmwareNode:
         self.proc: subprocess.Popen[str] | None = None
         self._ready = threading.Condition()
         self._readies = 0
+        self._output_ended = threading.Event()  # the current process's output read to its end
         self._stopping = False
         self._lock = threading.Lock()  # start and the respawn's check-and-spawn, one at a time
         storage.mkdir(parents=True, exist_ok=True)
@@ -72,6 +73,7 @@ class FirmwareNode:
             env={**os.environ, **self.env},
         )
         self.starts += 1
+        self._output_ended.clear()
         threading.Thread(target=self._read, args=(self.proc,), daemon=True).start()
 
     def _read(self, proc: subprocess.Popen[str]) -> None:
@@ -82,6 +84,8 @@ class FirmwareNode:
                 with self._ready:
                     self._readies += 1
                     self._ready.notify_all()
+        if proc is self.proc:
+            self._output_ended.set()
         code = proc.wait()
         with self._lock:  # only the current process is respawned: after a restart (stop,
             # then start) the old one's reader must not start a second node beside the new
@@ -97,7 +101,16 @@ class FirmwareNode:
             while self._readies < wanted:
                 left = deadline - time.monotonic()
                 if left <= 0 or (self.proc is not None and self.proc.poll() not in (None, 0)):
-                    raise AssertionError("reference node did not start:\n" + "\n".join(self.lines))
+                    self._ready.release()  # let the reader take what the node printed last
+                    try:
+                        self._output_ended.wait(5.0)
+                    finally:
+                        self._ready.acquire()
+                    code = None if self.proc is None else self.proc.poll()
+                    raise AssertionError(
+                        f"reference node did not start (exit status {code}):\n"
+                        + "\n".join(self.lines)
+                    )
                 self._ready.wait(min(left, 0.2))
 
     @property
