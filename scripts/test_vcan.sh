@@ -12,7 +12,7 @@
 #
 # Environment: PYTHON (default .venv/bin/python), SHARED_DIR (default ../shared), CANVM_DIR
 # (default $SHARED_DIR/tools/canvm), CANIMUCAL_VCAN (default vcan0), VM_TIMEOUT (default
-# 1500 s), PYTEST_ADDOPTS.
+# 1500 s), PYTEST_ADDOPTS (handed into the VM too, e.g. -k case3).
 set -uo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-.venv/bin/python}
@@ -78,7 +78,8 @@ else
     give_up "setup_vm.sh failed"
   fi
   VM_TIMEOUT=${VM_TIMEOUT:-1500} "$CANVM/run_in_vm.sh" . \
-    "PYTHONPATH=. CANIMUCAL_VCAN=$VCAN python ${PYTEST[*]}" 2>&1 | tee "$LOG"
+    "PYTEST_ADDOPTS='${PYTEST_ADDOPTS:-}' PYTHONPATH=. CANIMUCAL_VCAN=$VCAN python ${PYTEST[*]}" \
+    2>&1 | tee "$LOG"
   rc=${PIPESTATUS[0]}
 fi
 
