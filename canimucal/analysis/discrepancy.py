@@ -71,7 +71,7 @@ from canimucal.analysis.drift import (
 )
 from canimucal.analysis.exact_fit import exact_fit
 from canimucal.analysis.holdout import MIN_GAIN_DOF, Holdout, Selector, refit_holdout
-from canimucal.analysis.motion import PositionMotion, positions_that_moved
+from canimucal.analysis.motion import PositionMotion, moved_alone
 from canimucal.analysis.noise_model import (
     ScatterEstimate,
     ScatterModel,
@@ -586,23 +586,11 @@ def _sensor_windows(data: SessionData, sensor: str) -> list[tuple[Array, Samples
 
 
 def _motion(data: SessionData, temps: Array | None, level: float) -> tuple[PositionMotion, ...]:
-    """Return the positions that moved, when they alone carry the accelerometer's trends.
-
-    Positions whose direction turned while ``|f|`` stayed steady (:mod:`.motion`) are taken
-    out and the drift test run on the others: when these no longer trend at ``level`` the
-    trends were the unit moving, not a wandering bias (a bias walk trends in every position,
-    along gravity as much as across it); else nothing is said of motion.
-    """
-    windows = [(w.t_s, w.accel) for w in data.windows]
-    moved = positions_that_moved(windows, level)
-    still = [i for i in range(len(windows)) if i not in {m.index for m in moved}]
-    if not moved or len(still) < 2:
-        return ()
+    """Return the positions that moved, when they alone carry the trends (:func:`moved_alone`)."""
     rates = None
     if temps is not None:
-        rates = np.array([_temp_rate(data.windows[i].t_s, data.windows[i].temp_c) for i in still])
-    rest = drift_test([windows[i] for i in still], rates)
-    return moved if rest.p_value >= level else ()
+        rates = np.array([_temp_rate(w.t_s, w.temp_c) for w in data.windows])
+    return moved_alone([(w.t_s, w.accel) for w in data.windows], level, rates)
 
 
 def _drift_warnings(

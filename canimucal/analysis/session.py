@@ -26,6 +26,7 @@ from canimucal.errors import InputError
 from canimucal.io.grouping import (
     Rows,
     has_angles,
+    interval_trials,
     position_parts,
     rows_count,
     rows_where,
@@ -83,6 +84,9 @@ def session_from_recording(
     if labelled and rec.trial is not None and _trial_count(rec) >= 2:
         keyed = trial_label_rows(rec.position, rec.trial)
         groups, trials = [rows for _t, _l, rows in keyed], [t for t, _l, _r in keyed]
+    elif not labelled and rec.trial is not None:  # still intervals found: each in its trial
+        pairs = interval_trials(rec, groups)
+        groups, trials = [rows for _t, rows in pairs], [t for t, _r in pairs]
     gyro_ok = bool(np.isfinite(rec.gyro).any())
     temp_ok = bool(np.isfinite(rec.temp_c).any())
     tol = float(np.deg2rad(tolerance_deg))

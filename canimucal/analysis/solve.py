@@ -31,6 +31,7 @@ from canimucal.analysis.conditions import recording_conditions
 from canimucal.analysis.gravity_moves import solve_gravity_moves_recording
 from canimucal.analysis.gyro_moves import solve_gyro_moves
 from canimucal.analysis.gyro_only import has_accel, solve_gyro_only
+from canimucal.analysis.motion import moved_alone
 from canimucal.analysis.pose_scatter import PoseScatter, fit_scatter
 from canimucal.analysis.repeats import unique_samples
 from canimucal.analysis.session_model import (
@@ -43,11 +44,14 @@ from canimucal.analysis.session_model import (
 from canimucal.errors import InputError, ModelError
 from canimucal.io.calibration import Calibration, Device, Fit, RecordingRef
 from canimucal.io.grouping import (
+    Rows,
     average_rows,
     detect_trials,
     has_angles,
+    interval_trials,
     position_averages,
     position_labels,
+    position_parts,
     position_rows,
     trial_label_rows,
 )
@@ -115,6 +119,7 @@ def solve_recording(
     site, g_source = site_of(rec, choice)
     serial, node_id = _header_int(rec, "device_serial"), _header_int(rec, "node_id")
     device = Device(serial=serial or 0, node_id=node_id)
+    moved: tuple[str, ...] = ()  # labelled positions whose unit moved (accel and angles only)
     if not has_accel(rec):  # gyro only: its bias (and S from the Earth rate), nothing else
         solution = solve_gyro_only(
             rec, site, device, gyro=choice.gyro, plan_name=session.plan_name, recording=recording
@@ -147,6 +152,7 @@ def solve_recording(
             solution = solve_positions(averages, spec, site, device, **context.keywords())
         line = trials_line(solution.record)
         notes += () if line is None else (line,)
+        moved = _moved(rec)
         if choice.gyro == "moves":  # imucal's turns are known; its poses leave psi free
             sigmas = _pose_sigmas(rec, averages) if session.tolerance_source != "default" else None
             solution, _ = solve_gyro_moves(
@@ -167,7 +173,7 @@ def solve_recording(
         if choice.gyro == "moves":  # imu_tk: the moves' rotations known through gravity only
             solution, _ = solve_gravity_moves_recording(rec, solution, site)
     unchecked = _unchecked_gyro(solution) if has_accel(rec) else ()
-    warnings = solution.warnings + unchecked + _few_dof(solution)
+    warnings = moved + solution.warnings + unchecked + _few_dof(solution)
     # the limits of the plan the record names: the header's, else the one its poses match
     accept = limits_for(limits, session.plan_name or solution.record.plan)
     verdict = judge(solution, site, accept)
@@ -208,6 +214,37 @@ def _pose_sigmas(
 
 MIN_DOF = 10
 """Below this many residual degrees of freedom `solve` warns (docs/design.md §10)."""
+
+
+MOTION_LEVEL = 1e-4
+"""Level of the test for a unit that moved inside a position (Bonferroni inside), as strict as
+analyze's family-wise one: a turn that matters is far beyond it (0.2° in a 10 s position:
+across χ² ≥ 490 on 2 dof; the threshold at five positions is 22), a mild bias walk is not."""
+
+
+def _moved(rec: Recording) -> tuple[str, ...]:
+    """Say which labelled positions moved (:func:`~.motion.moved_alone`, as ``analyze``).
+
+    A position whose accelerometer direction turned while ``|f|`` stayed steady, when the
+    other positions do not trend and a walk as large as theirs does not explain it: its mean
+    is of a pose held only part of the time. Numbered as ``analyze`` numbers them: 1, 2, …
+    in label order (within each trial).
+    """
+    keyed: list[tuple[int | None, Rows]]
+    if rec.trial is None:
+        keyed = [(None, rows) for rows in position_parts(rec)[0]]
+    else:
+        keyed = [(trial, rows) for trial, _, rows in trial_label_rows(rec.position, rec.trial)]
+    names, count = [], dict[int | None, int]()
+    for trial, _ in keyed:
+        count[trial] = count.get(trial, 0) + 1
+        names.append(f"{count[trial]}" + ("" if trial is None else f" of trial {trial}"))
+    windows = [(np.asarray(rec.t[rows], dtype=np.float64), rec.accel[rows]) for _, rows in keyed]
+    return tuple(
+        f"accel: {m.line(names[m.index])}: its mean is of a pose held only part of the time "
+        "(redo the position)"
+        for m in moved_alone(windows, MOTION_LEVEL)
+    )
 
 
 def _few_dof(solution: Solution) -> tuple[str, ...]:
@@ -285,7 +322,10 @@ def _unknown_pose_averages(rec: Recording) -> list[PositionAverage]:
     rows, labelled = position_rows(rec)
     if labelled:
         return position_averages(rec, require_angles=False)
-    return [average_rows(rec, r) for r in rows]
+    return [
+        average_rows(rec, part) if trial is None else replace(average_rows(rec, part), trial=trial)
+        for trial, part in interval_trials(rec, list(rows))
+    ]
 
 
 def _header_int(rec: Recording, key: str) -> int | None:

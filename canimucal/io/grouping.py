@@ -108,6 +108,28 @@ def position_parts(recording: Recording) -> tuple[list[Rows], bool]:
     return parts, True
 
 
+def interval_trials(recording: Recording, parts: list[Rows]) -> list[tuple[int | None, Rows]]:
+    """Each unlabelled position's rows with its trial (the ``trial`` column), in order.
+
+    A still interval the detector found across a trial boundary is split there (a unit
+    re-mounted between trials is a new position). With fewer than two trials among the
+    rows every part keeps trial None, as a file without the column.
+    """
+    if recording.trial is None:
+        return [(None, rows) for rows in parts]
+    keyed = np.where(recording.trial < 0, -1, recording.trial)
+    out: list[tuple[int | None, Rows]] = []
+    for rows in parts:
+        index = np.arange(rows.start, rows.stop) if isinstance(rows, slice) else rows
+        values = keyed[index]
+        _, first = np.unique(values, return_index=True)
+        for trial in values[np.sort(first)].tolist():
+            out.append((int(trial), rows_where(rows, values == trial)))
+    if len({trial for trial, _ in out}) < 2:
+        return [(None, rows) for rows in parts]
+    return out
+
+
 def rows_count(rows: Rows) -> int:
     """Return the number of rows in ``rows``."""
     if isinstance(rows, slice):
@@ -128,7 +150,7 @@ def rows_where(rows: Rows, mask: NDArray[np.bool_]) -> Rows:
     return picked
 
 
-def average_rows(recording: Recording, rows: NDArray[np.intp]) -> PositionAverage:
+def average_rows(recording: Recording, rows: Rows) -> PositionAverage:
     """Average ``rows`` as one position of unknown orientation (NaN angles: scalar fit only)."""
     gyro = recording.gyro[rows] if np.isfinite(recording.gyro).any() else None
     return average_position(
