@@ -6,7 +6,8 @@ without ``--overwrite``):
 - ``residuals.png``: the base model's residual per position and axis (counts; the scalar
   fit's ``|f| − g`` in m/s²) with the ±1σ noise of each position's mean as error bars,
   accelerometer and gyro on their own axes (their scales differ by orders of magnitude),
-  points only (positions are not a sequence in time);
+  points only (positions are not a sequence in time); a file of several trials has each
+  trial's positions between dotted lines, named ``trial k`` at the top;
 - ``allan.png``: the overlapping Allan deviation of the longest static window per sensor and
   axis against the white noise the simulator's base model predicts from its short-τ level
   (a measured curve above the dashed line at long τ is drift the base model does not have),
@@ -56,7 +57,7 @@ def write_plots(a: Analysis, directory: Path, *, overwrite: bool) -> list[Path]:
     """Write the plots of the module doc to ``directory``; return their paths."""
     plt = pyplot()
     make_directory(directory)
-    written = [_save(plt, _residual_figure(plt, a), directory / PLOT_FILES[0], overwrite=overwrite)]
+    written = [_save(plt, residual_figure(plt, a), directory / PLOT_FILES[0], overwrite=overwrite)]
     fig, axes = plt.subplots(1, len(a.allan), figsize=(6 * len(a.allan), 4), squeeze=False)
     for ax, (sensor, check) in zip(axes[0], a.allan.items(), strict=True):
         for axis in range(3):
@@ -97,7 +98,7 @@ def _mark_averaging_time(ax: Any, tau_s: float, longest_s: float) -> None:
     )
 
 
-def _residual_figure(plt: Any, a: Analysis) -> Any:
+def residual_figure(plt: Any, a: Analysis) -> Any:
     """Residuals per position with ±1σ error bars; accel and gyro on their own axes."""
     residuals = a.result.residuals
     labels = a.result.residual_labels
@@ -107,6 +108,7 @@ def _residual_figure(plt: Any, a: Analysis) -> Any:
     fig, axes = plt.subplots(len(groups), 1, figsize=(7, 3 * len(groups)), squeeze=False)
     positions = np.arange(1, len(residuals) + 1)
     errors = _residual_errors(a, residuals.shape)
+    spans = trial_spans(a.session.averages, len(residuals))
     for ax, group in zip(axes[:, 0], groups, strict=True):
         for k, column in enumerate(group):
             ax.errorbar(
@@ -118,14 +120,49 @@ def _residual_figure(plt: Any, a: Analysis) -> Any:
                 label=labels[column],
             )
         ax.axhline(0.0, color="grey", linewidth=0.8)
+        _mark_trials(ax, spans)
         ax.set_xticks(positions)
         sensor = "gyro" if group.start >= 3 else "accelerometer"
         unit = "|f| − g, m/s²" if a.result.method == "scalar" else "counts"
         ax.set_ylabel(f"{sensor} residual ({unit})")
         ax.legend(fontsize="small", ncol=3)
     axes[-1, 0].set_xlabel("position (error bars: ±1σ noise of the position's mean)")
-    axes[0, 0].set_title(f"What the base model leaves ({a.result.method})")
+    axes[0, 0].set_title(f"What the base model leaves ({a.result.method})", pad=16 if spans else 6)
     return fig
+
+
+def trial_spans(averages: Any, rows: int) -> list[tuple[int, int, int]]:
+    """``(trial, first, last)`` plotted positions (1-based) of each trial; [] for one trial.
+
+    ``averages`` are the session's positions in the residuals' order; a count other than
+    ``rows`` (the residual table's) marks nothing.
+    """
+    found: list[int | None] = [getattr(x, "trial", None) for x in averages]
+    trials = [t for t in found if t is not None]
+    if len(trials) != rows or len(set(trials)) < 2:
+        return []
+    spans: list[tuple[int, int, int]] = []
+    for i, trial in enumerate(trials, start=1):
+        if spans and spans[-1][0] == trial:
+            spans[-1] = (trial, spans[-1][1], i)
+        else:
+            spans.append((trial, i, i))
+    return spans
+
+
+def _mark_trials(ax: Any, spans: list[tuple[int, int, int]]) -> None:
+    """Dotted lines between trials and each trial's name above its positions."""
+    for k, (trial, first, last) in enumerate(spans):
+        if k:
+            ax.axvline(first - 0.5, color="grey", linewidth=0.8, linestyle=":")
+        ax.annotate(
+            f"trial {trial}",
+            ((first + last) / 2.0, 1.0),
+            xycoords=("data", "axes fraction"),
+            ha="center",
+            va="bottom",
+            fontsize="small",
+        )
 
 
 def _residual_errors(a: Analysis, shape: tuple[int, ...]) -> Any:

@@ -23,8 +23,10 @@ import pytest
 
 from canimucal.analysis.base_fit import fit_known
 from canimucal.analysis.data import SessionData
+from canimucal.analysis.report import analyze
 from canimucal.analysis.session import session_from_recording
 from canimucal.analysis.simulated import TrialsTruth
+from canimucal.cli.analyze_plots import residual_figure, trial_spans
 from canimucal.cli.main import main
 from canimucal.io.recording import read_recording_csv
 from canimucal.io.recording_writer import write_recording
@@ -123,3 +125,23 @@ def test_one_trial_writes_the_same_files_as_no_trial_column(
     assert outputs[0] == outputs[1]
     assert "trials" not in json.loads(outputs[0][1])
     assert "trial" not in outputs[0][0].split("(residual of each position's mean", 1)[1]
+
+
+def test_the_residual_plot_marks_each_trial(tmp_path: Path) -> None:
+    """residuals.png: each trial's positions between dotted lines, named above them."""
+    plt = pytest.importorskip("matplotlib.pyplot")  # the dev extra installs it
+    rec, _ = dep.trials_recording(dep.Case(dep.REMOUNTED, "recommended", 0.0), 1)
+    analysis = analyze(rec)
+    spans = trial_spans(analysis.session.averages, len(analysis.result.residuals))
+    assert [t for t, _, _ in spans] == list(range(dep.TRIALS))
+    assert spans[0][1] == 1 and spans[-1][2] == len(analysis.result.residuals)
+    assert all(b[1] == a[2] + 1 for a, b in zip(spans, spans[1:], strict=False))
+    fig = residual_figure(plt, analysis)
+    for ax in fig.axes:
+        names = [t.get_text() for t in ax.texts if t.get_text().startswith("trial")]
+        assert names == [f"trial {t}" for t in range(dep.TRIALS)]
+        dotted = [x for x in ax.lines if x.get_linestyle() == ":"]
+        assert sorted(x.get_xdata()[0] for x in dotted) == [s[1] - 0.5 for s in spans[1:]]
+    plt.close(fig)
+    one_trial = [dataclasses.replace(a, trial=0) for a in analysis.session.averages]
+    assert trial_spans(one_trial, len(one_trial)) == []  # one trial: nothing to mark
