@@ -228,11 +228,22 @@ class SampleProducer:
         return frames, (MIN_SLEEP_S if due <= MAX_BATCH else 0.0)
 
     def _drop(self, n: int) -> None:
-        """Make ``n`` samples and send none: the world and the counter keep the wall clock."""
-        self.last_block = self.simulator.next_block(n)
-        self.counter = (self.counter + n) % COUNTER_MODULUS
-        self.samples_produced += n
+        """Make ``n`` samples and send none: the world and the counter keep the wall clock.
+
+        The live values (0x2001, 0x2002, read by SDO) become the last of them, as an MCU's
+        registers hold the newest sample whether or not its frames went out.
+        """
+        block = self.last_block = self.simulator.next_block(n)
+        self.counter = (self.counter + n - 1) % COUNTER_MODULUS
+        self.samples_produced += n - 1
         self.samples_dropped += n
+        last = slice(n - 1, n)
+        status = od.STATUS_CAL_ACTIVE if self._cal_active() else 0
+        status |= od.STATUS_SATURATED if bool(np.asarray(block.saturated)[-1]) else 0
+        status |= od.STATUS_MOVING if bool(np.asarray(block.moving)[-1]) else 0
+        temp = _int16_rows(np.asarray(block.temp_c, dtype=float)[last] * 100.0)[0]
+        accel, gyro = _int16_rows(block.accel[last])[0], _int16_rows(block.gyro[last])[0]
+        self._update_live(accel, gyro, temp, status)  # the last sample: counter + 1
 
     def _schedule(self, ticks: list[TimedFrame], first_due_wall: float, rate: float) -> None:
         """Queue skewed timer ticks at their wall times.
