@@ -31,7 +31,7 @@ from canimucal.analysis.repeats import unique_samples
 from canimucal.analysis.session import session_from_recording
 from canimucal.analysis.static_noise import static_rows
 from canimucal.errors import InputError
-from canimucal.io.grouping import detect_trials, has_angles
+from canimucal.io.grouping import detect_trials
 from canimucal.io.recording import Recording
 from canimucal.model.noise import (
     NoiseTerms,
@@ -144,7 +144,7 @@ def analyse_recording(
     own biases in the base model and every candidate's (:mod:`.base_fit`), with known angles
     or without (the |f| = g fit: docs/design.md §6 *Trials*).
     """
-    if has_angles(rec):  # several trials in one file without a trial column
+    if bool((rec.position >= 0).any()):  # several trials in one file, no trial column
         rec, found = detect_trials(rec)
         notes += () if found is None else (found,)
     session = session_from_recording(

@@ -113,7 +113,7 @@ def solve_recording(
     rec, held = unique_samples(rec)
     choice, session = session_model(rec, choice or ModelChoice())
     notes: tuple[str, ...] = () if held is None else (held.line(),)
-    if has_angles(rec):  # several trials in one file without a trial column
+    if bool((rec.position >= 0).any()):  # several trials in one file, no trial column
         rec, found = detect_trials(rec)
         notes += () if found is None else (found,)
     site, g_source = site_of(rec, choice)

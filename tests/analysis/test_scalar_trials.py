@@ -146,3 +146,20 @@ def test_unlabelled_still_intervals_take_their_trial() -> None:
     assert a.result.trials == dep.TRIALS and not a.result.findings, a.result.findings
     pooled = solve_recording(dataclasses.replace(unlabelled, trial=None)).solution.quality
     assert pooled is not None and pooled.p_value < 1e-6  # the departure is real
+
+
+def test_trials_are_found_without_angles_or_a_trial_column() -> None:
+    """Labels that run again, no angles, no trial column: found as trials by solve and analyze.
+
+    Before, trials were looked for only in files with angles: these four were one, with one
+    bias for all (the pooled fit of the test above).
+    """
+    rec, _units = dep.trials_recording(dep.Case(dep.REMOUNTED, "twelve", 0.1), 0)
+    bare = dataclasses.replace(without_angles(rec), trial=None)
+    solved = solve_recording(bare)
+    assert any("treated as 4 trials" in note for note in solved.notes), solved.notes
+    assert solved.record.trials is not None and len(solved.record.trials) == dep.TRIALS
+    quality = solved.solution.quality
+    assert quality is not None and quality.p_value > 0.01, quality.line("the noise")
+    a = analyze(bare)
+    assert a.result.trials == dep.TRIALS and not a.result.findings, a.result.findings
