@@ -3,8 +3,9 @@
 It holds SIGINT, SIGTERM and SIGHUP from its first line, before the command line's modules
 are imported, so a Ctrl-C that early cannot print a traceback: :func:`canimucal.cli.main.main`
 raises the first held signal inside its own handling (one line, exit 130/143/129). The
-holding handlers stay in place after ``main`` returns, so a late second signal cannot turn
-the chosen exit status into a death by signal. Only this module installs them on a process;
+holding handlers stay in place after ``main`` returns, and the signals are blocked for the
+interpreter's finalisation, so a late signal cannot turn the chosen exit status into a death
+by signal. Only this module installs them on a process;
 ``main`` itself, called in process (tests, scripts), puts back what it found.
 """
 
@@ -45,5 +46,13 @@ def run_main(argv: Sequence[str]) -> int:
 
 
 def run() -> None:
-    """Run the command and exit with its status (the console script)."""
-    sys.exit(run_main(sys.argv[1:]))
+    """Run the command and exit with its status (the console script).
+
+    The held signals are blocked before the interpreter finalises: finalisation puts SIG_DFL
+    back for every signal with a Python handler, so a Ctrl-C in its last milliseconds killed
+    a finished command (status -2 after its whole output, once in CI). Blocked, the signal
+    stays pending and goes with the process; the command's own status stands.
+    """
+    status = run_main(sys.argv[1:])
+    signal.pthread_sigmask(signal.SIG_BLOCK, _HOLD)
+    sys.exit(status)
