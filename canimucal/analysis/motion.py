@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 
 from canimucal.analysis.data import Samples
 from canimucal.analysis.drift import drift_test, slope
+from canimucal.model.chi2_tail import chi2_sf
 
 Array = NDArray[np.float64]
 
@@ -71,8 +72,6 @@ def positions_that_moved(
     ``q`` per axis (counts/√s) whose slopes count as noise: a window of ``T`` s then has
     slope variance ``σ_pc² + 6 q_c² / (5 T)`` (:func:`~.drift.walk_estimate`'s).
     """
-    from scipy import special  # lazy (issue 23)
-
     level = alpha / max(len(windows), 1)
     moved = []
     for i, (t, samples) in enumerate(windows):
@@ -93,7 +92,7 @@ def positions_that_moved(
         z1, z2 = (float(v @ s) / float(np.sqrt((v * v) @ (e * e))) for v in (e1, e2))
         z_r = float(u @ s) / float(np.sqrt((u * u) @ (e * e)))
         across = z1 * z1 + z2 * z2
-        if special.chdtrc(2, across) < level and special.chdtrc(1, z_r * z_r) >= level:
+        if chi2_sf(2, across) < level and chi2_sf(1, z_r * z_r) >= level:
             seconds = float(t[keep][-1] - t[keep][0])
             perp = s - (u @ s) * u
             angle = float(np.rad2deg(np.linalg.norm(perp) * seconds / size))
