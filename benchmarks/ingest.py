@@ -13,7 +13,11 @@ Run: ``.venv/bin/python benchmarks/ingest.py [--seconds 3] [--rates 200,1000,350
    Classical CAN at 1 Mbit/s carries about 3,500 samples/s with two 8-byte TPDOs each
    (~130 bits per frame with stuffing): the target is that ceiling at ≤ 10 % of one core.
    Note: the producer runs in the same process (the virtual bus is in-process), so it
-   competes for the GIL; the figures are an upper bound of the client's cost.
+   competes for the GIL; the figures are an upper bound of the client's cost. With
+   ``--producer-process`` the producer runs in a child process instead, on a bus of the
+   tests' own over 127.0.0.1 (:mod:`tests.support.tcpbus`: the hub and the sender both in
+   the child), so only the client's receive path (the TCP bus's recv in the notifier
+   thread, standing for SocketCAN's) and the consumer are measured in this process.
 3. The time of a full transactional write with read-back against the simulated node.
 """
 
@@ -21,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import struct
+import subprocess
 import sys
 import tempfile
 import threading
@@ -41,6 +46,7 @@ from canimucal.io.calibration import Calibration
 from canimucal.model.samples import SampleBlock
 from canimucal.sim.truth import Truth
 from canimucal.simnode.node import SimulatedImuNode
+from tests.support import tcpbus
 from tests.support.pdo import design_layout
 
 NODE = 0x10
@@ -98,11 +104,68 @@ def _produce(bus: can.BusABC, rate_hz: float, seconds: float, sent: list[int]) -
     sent.append(counter)
 
 
-def ingest(rate_hz: float, seconds: float) -> dict[str, float]:
-    """Stream ``rate_hz`` paired samples for ``seconds`` through an ImuClient."""
-    channel = f"bench-{uuid.uuid4().hex}"
-    client_bus = can.Bus(interface="virtual", channel=channel)
-    producer_bus = can.Bus(interface="virtual", channel=channel)
+CHILD = """
+import sys, threading, time
+sys.path.insert(0, sys.argv[3])
+from benchmarks.ingest import _produce
+from tests.support.tcpbus import TcpBus, TcpHub
+hub = TcpHub()
+print(hub.channel, flush=True)
+while hub.clients < 1:
+    time.sleep(0.01)
+bus = TcpBus(hub.channel)
+sys.stdin.readline()  # go
+sent = []
+_produce(bus, float(sys.argv[1]), float(sys.argv[2]), sent)
+time.sleep(0.3)
+print(sent[0], flush=True)
+bus.shutdown()
+hub.close()
+"""
+
+
+class _ChildProducer:
+    """The producer of :func:`_produce` in a child process, on a TCP hub of its own."""
+
+    def __init__(self, rate_hz: float, seconds: float) -> None:
+        root = str(Path(__file__).resolve().parents[1])
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", CHILD, str(rate_hz), str(seconds), root],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        assert self.proc.stdout is not None
+        self.channel = self.proc.stdout.readline().strip()
+        self.sent: list[int] = []
+
+    def start(self) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write("go\n")
+        self.proc.stdin.flush()
+
+    def is_alive(self) -> bool:
+        if self.proc.poll() is None:
+            return True
+        if not self.sent:
+            assert self.proc.stdout is not None
+            self.sent.append(int(self.proc.stdout.read().split()[-1]))
+        return False
+
+
+def ingest(rate_hz: float, seconds: float, separate: bool = False) -> dict[str, float]:
+    """Stream ``rate_hz`` paired samples for ``seconds`` through an ImuClient.
+
+    ``separate``: the producer in a child process (module doc), else a thread of this one.
+    """
+    child = _ChildProducer(rate_hz, seconds) if separate else None
+    if child is not None:
+        tcpbus.register()
+        client_bus = can.Bus(interface=tcpbus.INTERFACE, channel=child.channel)
+    else:
+        channel = f"bench-{uuid.uuid4().hex}"
+        client_bus = can.Bus(interface="virtual", channel=channel)
+        producer_bus = can.Bus(interface="virtual", channel=channel)
     network = canopen.Network(client_bus)
     network.NOTIFIER_CYCLE = 0.1
     network.connect()
@@ -113,7 +176,11 @@ def ingest(rate_hz: float, seconds: float) -> dict[str, float]:
     consumer = client.consumer_thread
     cpu0 = (_thread_cpu_s(consumer), _thread_cpu_s(notifier_thread))
     sent: list[int] = []
-    producer = threading.Thread(target=_produce, args=(producer_bus, rate_hz, seconds, sent))
+    producer: threading.Thread | _ChildProducer
+    if child is not None:
+        producer, sent = child, child.sent
+    else:
+        producer = threading.Thread(target=_produce, args=(producer_bus, rate_hz, seconds, sent))
     wall0 = time.perf_counter()
     producer.start()
     blocks: list[SampleBlock] = []
@@ -133,7 +200,11 @@ def ingest(rate_hz: float, seconds: float) -> dict[str, float]:
     client.close()
     network.notifier.stop()
     client_bus.shutdown()
-    producer_bus.shutdown()
+    if child is None:
+        producer_bus.shutdown()
+    else:
+        child.is_alive()  # reads what it sent
+        child.proc.wait(10.0)
     received = sum(b.n for b in blocks)
     lat = np.concatenate(latencies) if latencies else np.array([np.nan])
     consumer_cpu, callback_cpu = cpu1[0] - cpu0[0], cpu1[1] - cpu0[1]
@@ -194,6 +265,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--rates", default="200,500,1000,2000,3500,5000")
+    parser.add_argument(
+        "--producer-process",
+        action="store_true",
+        help="the producer in a child process over a TCP bus on 127.0.0.1 (module doc)",
+    )
     args = parser.parse_args()
     print(f"decode + pairing: {decode_cost_us():.2f} µs CPU per sample (consumer only)")
     header = (
@@ -203,7 +279,7 @@ def main() -> None:
     )
     print(header)
     for rate in (float(r) for r in args.rates.split(",")):
-        r = ingest(rate, args.seconds)
+        r = ingest(rate, args.seconds, separate=args.producer_process)
         print(
             f"{r['rate_hz']:8.0f} {r['sent']:7.0f} {r['received']:7.0f} {r['lost']:5.0f} "
             f"{r['late_dup']:8.0f} {r['lat_p50_ms']:7.2f} {r['lat_p99_ms']:7.2f} "

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from canimucal.analysis.calibrate import SiteConditions
+from canimucal.analysis.calibrate import MISFIT_P, SiteConditions
 from canimucal.device import od
 from canimucal.model.layout import TRIM_NAMES
 from canimucal.model.vocabulary.plans import builtin_plan
@@ -59,8 +59,19 @@ def test_a_vehicle_session_with_slope_and_trim_writes_the_trim_it_solved(
     joint = solved.solutions[0x10].joint
     assert joint is not None
     # a clean unit on a sloped floor passes the vehicle plan's own acceptance (§3), which a
-    # session opened without limits judges against
-    assert solved.acceptance[0x10].passed, [c.line() for c in solved.acceptance[0x10].checks]
+    # session opened without limits judges against. A clean session's fit p is uniform
+    # (tests/runtime/test_vehicle_fit.py): below MISFIT_P, 1 % of sessions, the fit is called
+    # rejected and every σ inflated by its Birge factor, which may then fail the σ limits by
+    # design (CI once: p = 0.0079, bias σ 17.7 mg against 15). Then only σ limits may fail.
+    checks = solved.acceptance[0x10].checks
+    fit_p = next(c.value for c in checks if c.key == "min_fit_p")
+    failed = [c.key for c in checks if not c.passed]
+    if fit_p >= MISFIT_P:
+        assert not failed, [c.line() for c in checks]
+    else:
+        assert set(failed) <= {"max_bias_sigma_mg", "max_scale_sigma_ppm"}, [
+            c.line() for c in checks
+        ]
     truths = {"base_tilt.alpha0": truth.alpha0, "base_tilt.beta0": truth.beta0}
     truths.update(zip(TRIM_NAMES, truth.trim, strict=True))
     for name, true in truths.items():
