@@ -108,12 +108,18 @@ def position_parts(recording: Recording) -> tuple[list[Rows], bool]:
     return parts, True
 
 
+MIN_SPLIT_ROWS = 20
+"""A still interval cut by a trial boundary keeps only pieces of at least this many rows (a
+mean of a few rows, with a covariance from as few, would weigh as a position)."""
+
+
 def interval_trials(recording: Recording, parts: list[Rows]) -> list[tuple[int | None, Rows]]:
     """Each unlabelled position's rows with its trial (the ``trial`` column), in order.
 
     A still interval the detector found across a trial boundary is split there (a unit
-    re-mounted between trials is a new position). With fewer than two trials among the
-    rows every part keeps trial None, as a file without the column.
+    re-mounted between trials is a new position); a piece of it shorter than
+    :data:`MIN_SPLIT_ROWS` is dropped. With fewer than two trials among the rows every part
+    keeps trial None, as a file without the column.
     """
     if recording.trial is None:
         return [(None, rows) for rows in parts]
@@ -123,8 +129,11 @@ def interval_trials(recording: Recording, parts: list[Rows]) -> list[tuple[int |
         index = np.arange(rows.start, rows.stop) if isinstance(rows, slice) else rows
         values = keyed[index]
         _, first = np.unique(values, return_index=True)
-        for trial in values[np.sort(first)].tolist():
-            out.append((int(trial), rows_where(rows, values == trial)))
+        pieces = values[np.sort(first)].tolist()
+        for trial in pieces:
+            mine = values == trial
+            if len(pieces) == 1 or int(np.count_nonzero(mine)) >= MIN_SPLIT_ROWS:
+                out.append((int(trial), rows_where(rows, mine)))
     if len({trial for trial, _ in out}) < 2:
         return [(None, rows) for rows in parts]
     return out

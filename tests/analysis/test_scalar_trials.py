@@ -24,6 +24,7 @@ from canimucal.analysis.base_fit import fit_scalar_base
 from canimucal.analysis.report import Analysis, analyze, extended_truth
 from canimucal.analysis.simulated import TrialsTruth
 from canimucal.analysis.solve import solve_recording
+from canimucal.io.grouping import interval_trials, rows_count
 from canimucal.io.recording import Recording
 from canimucal.sim.truth import Truth
 from tests.support import departures as dep
@@ -163,3 +164,18 @@ def test_trials_are_found_without_angles_or_a_trial_column() -> None:
     assert quality is not None and quality.p_value > 0.01, quality.line("the noise")
     a = analyze(bare)
     assert a.result.trials == dep.TRIALS and not a.result.findings, a.result.findings
+
+
+def test_a_still_interval_cut_by_a_trial_boundary_keeps_its_long_pieces() -> None:
+    rec, _units = dep.trials_recording(dep.Case(dep.REMOUNTED, "twelve", 0.1), 0)
+    n = rec.n_rows
+    trial = np.zeros(n, dtype=np.int64)
+    trial[n // 2 :] = 1
+    trial[n // 2 + 5 :] = 2  # trial 1: five rows only
+    cut = dataclasses.replace(rec, trial=trial)
+    pieces = interval_trials(cut, [slice(n // 2 - 100, n // 2 + 100)])
+    assert [t for t, _ in pieces] == [0, 2]  # the five rows of trial 1 are too few to keep
+    assert [rows_count(r) for _, r in pieces] == [100, 95]
+    assert interval_trials(dataclasses.replace(rec, trial=None), [slice(0, 9)]) == [
+        (None, slice(0, 9))
+    ]
