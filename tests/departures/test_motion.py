@@ -64,37 +64,38 @@ def _motion_lines(warnings: tuple[str, ...] | list[str]) -> list[tuple[float, in
     return [(float(m.group(1)), int(m.group(2))) for m in found if m]
 
 
-@pytest.mark.parametrize("seed", SEEDS)
-def test_a_unit_that_turns_during_a_position_is_said_to_have_moved(seed: int) -> None:
+def _turned(seed: int) -> tuple[Recording, Recording, int, float]:
+    """The seed's clean recording, the same with one position turned, its index and angle."""
     case = {s: c for c, s in dep.rotation(CLEAN, SEEDS)}[seed]
     clean = dep.short_recording(case, seed)
-    truth = dep.case_truth(case, seed)
     rng = np.random.default_rng(seed + dep.DRAW_OFFSET)
     index = int(rng.integers(1, len(np.unique(clean.position[clean.position >= 0]))))
     angle = float(rng.uniform(0.2, 0.5))
-    result = analyze(moved(clean, truth, index, angle, seed)).result
-    assert not result.findings, [f.effect for f in result.findings]
-    lines = _motion_lines(result.warnings)
-    assert [p for _, p in lines] == [index + 1], result.warnings
+    return clean, moved(clean, dep.case_truth(case, seed), index, angle, seed), index, angle
+
+
+def _said_once(warnings: tuple[str, ...], index: int, angle: float) -> None:
+    """One motion line, for the turned position, with the angle within 25 %."""
+    lines = _motion_lines(warnings)
+    assert [p for _, p in lines] == [index + 1], warnings
     ((said, _),) = lines
     assert abs(said - angle) < 0.25 * angle, (said, angle)
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_a_unit_that_turns_during_a_position_is_said_to_have_moved(seed: int) -> None:
+    clean, turned, index, angle = _turned(seed)
+    result = analyze(turned).result
+    assert not result.findings, [f.effect for f in result.findings]
+    _said_once(result.warnings, index, angle)
     assert not _motion_lines(analyze(clean).result.warnings)
 
 
 @pytest.mark.parametrize("seed", SEEDS)
 def test_solve_says_which_position_moved(seed: int) -> None:
     # the same departure through `solve`'s path: one warning naming the position and the turn
-    case = {s: c for c, s in dep.rotation(CLEAN, SEEDS)}[seed]
-    clean = dep.short_recording(case, seed)
-    truth = dep.case_truth(case, seed)
-    rng = np.random.default_rng(seed + dep.DRAW_OFFSET)
-    index = int(rng.integers(1, len(np.unique(clean.position[clean.position >= 0]))))
-    angle = float(rng.uniform(0.2, 0.5))
-    warnings = solve_recording(moved(clean, truth, index, angle, seed)).solution.warnings
-    lines = _motion_lines(warnings)
-    assert [p for _, p in lines] == [index + 1], warnings
-    ((said, _),) = lines
-    assert abs(said - angle) < 0.25 * angle, (said, angle)
+    clean, turned, index, angle = _turned(seed)
+    _said_once(solve_recording(turned).solution.warnings, index, angle)
     assert not _motion_lines(solve_recording(clean).solution.warnings)
 
 
