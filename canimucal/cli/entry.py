@@ -41,8 +41,16 @@ def run_main(argv: Sequence[str]) -> int:
     for name in _BLAS_THREADS:  # read when numpy is first imported, below
         os.environ.setdefault(name, "1")
     from canimucal.cli.main import main
+    from canimucal.signals import describe, exit_status
 
-    return main(list(argv), early=pending)
+    try:
+        return main(list(argv), early=pending)
+    except KeyboardInterrupt as interrupt:  # in the instant before main disarms its handler
+        try:
+            print(describe(interrupt), file=sys.stderr)
+        except OSError:  # the terminal is gone (SIGHUP): the status still tells
+            pass
+        return exit_status(interrupt)
 
 
 def run() -> None:
