@@ -215,8 +215,9 @@ def test_time_scale_runs_simulated_time_fast(
     assert set(np.diff(counters) % 65536) == {1}
     assert 1000 < _rate_hz(frames) < 2300
     # paced, not one burst: frames spread over the second (a burst would leave ~1 s gaps);
-    # 0.25 s leaves room for scheduling stalls on the shared machine
-    assert max(np.diff([f.timestamp for f in frames])) < 0.25
+    # 0.5 s leaves room for scheduling stalls on the shared machine (CI's lowest-versions run
+    # beside the other xdist worker: one gap of 0.28 s)
+    assert max(np.diff([f.timestamp for f in frames])) < 0.5
 
 
 def test_output_data_rate_change(
