@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from canimucal.analysis.simulated import simulate_plan_recording
-from canimucal.cli.main import main
 from canimucal.io.recording_writer import write_recording
 from canimucal.model.vocabulary.plans import builtin_plan
 from canimucal.sim.truth import Truth
+from tests.support.cli_run import CliRun, run_captured
 from tests.support.user_dirs import UserDirs
 
 TRUTH_SEED = 20261121
@@ -30,15 +30,6 @@ class Simulated:
 
     path: Path
     truth: Truth
-
-
-@dataclass(frozen=True)
-class CliRun:
-    """Exit status and captured streams of one in-process ``canimucal`` run."""
-
-    code: int
-    out: str
-    err: str
 
 
 def make_truth(kind: str) -> Truth:
@@ -85,11 +76,4 @@ def _own_user_dirs(own_user_dirs: UserDirs) -> UserDirs:
 @pytest.fixture
 def cli(capsys: pytest.CaptureFixture[str]) -> Callable[[Sequence[str]], CliRun]:
     """Run ``canimucal ARGV`` in-process; return its exit status and captured output."""
-
-    def run(argv: Sequence[str]) -> CliRun:
-        capsys.readouterr()
-        code = main([str(a) for a in argv])
-        captured = capsys.readouterr()
-        return CliRun(code, captured.out, captured.err)
-
-    return run
+    return lambda argv: run_captured(capsys, argv)

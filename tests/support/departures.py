@@ -45,6 +45,7 @@ from canimucal.analysis.simulated import (
 from canimucal.analysis.solve import solve_estimating_scatter, solve_recording
 from canimucal.io.calibration import Device
 from canimucal.io.recording import Recording, recording_from_columns
+from canimucal.model.joint import JointResult
 from canimucal.model.layout import JointSpec
 from canimucal.model.positions import Plan, PlannedPosition, PositionAverage
 from canimucal.model.vocabulary.constants import COUNTER_MODULUS
@@ -210,7 +211,11 @@ def solve_errors(case: Case, seed: int) -> dict[str, float]:
     solution, _ = solve_estimating_scatter(averages, solve_spec(case.plan), site, Device(serial=0))
     joint = solution.joint
     assert joint is not None
-    true = true_values(truth)
+    return z_scores(joint, true_values(truth))
+
+
+def z_scores(joint: JointResult, true: Mapping[str, float]) -> dict[str, float]:
+    """(estimate − truth)/σ of every determined parameter of ``joint`` that ``true`` holds."""
     sigma = np.sqrt(np.diag(joint.covariance))
     return {
         n: float((joint.values[k] - true[n]) / sigma[k])
@@ -457,13 +462,7 @@ def recording_errors(case: Case, seed: int) -> dict[str, float]:
     choice = ModelChoice(model=spec.accel_k, tilt=True)  # type: ignore[arg-type]
     joint = solve_recording(short_recording(case, seed), choice).solution.joint
     assert joint is not None
-    true = true_values(truth)
-    sigma = np.sqrt(np.diag(joint.covariance))
-    return {
-        n: float((joint.values[k] - true[n]) / sigma[k])
-        for k, n in enumerate(joint.names)
-        if n not in joint.undetermined and n in true
-    }
+    return z_scores(joint, true_values(truth))
 
 
 def spread_of(rows: Sequence[Mapping[str, float]]) -> Spread:
@@ -534,12 +533,7 @@ def trials_errors(case: Case, seed: int) -> tuple[dict[str, float], float]:
     joint = solved.solution.joint
     assert joint is not None and joint.trial_bias is not None and joint.trial_bias_cov is not None
     true = {n: v for n, v in true_values(units.trials[0]).items() if "bias" not in n}
-    sigma = np.sqrt(np.diag(joint.covariance))
-    out = {
-        n: float((joint.values[k] - true[n]) / sigma[k])
-        for k, n in enumerate(joint.names)
-        if n not in joint.undetermined and n in true
-    }
+    out = z_scores(joint, true)
     bias_sigma = np.sqrt(np.diagonal(joint.trial_bias_cov, axis1=1, axis2=2))[:, :3]
     for t, trial in enumerate(joint.trials):
         for i in range(3):
