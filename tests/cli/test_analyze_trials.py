@@ -32,8 +32,8 @@ from canimucal.io.recording import read_recording_csv
 from canimucal.io.recording_writer import write_recording
 from canimucal.io.truth import load_truth
 from canimucal.sim.truth import AccelTruth, GyroTruth, Truth
-from tests.cli.conftest import CliRun
 from tests.support import departures as dep
+from tests.support.cli_run import CliRun
 
 Z_LIMIT = 4.0
 """|written − simulated|/σ allowed for each trial's bias entries."""

@@ -29,7 +29,8 @@ from canimucal.model.vocabulary.constants import COUNTER_MODULUS
 from canimucal.runtime import inputs
 from canimucal.runtime.inputs import read_recording
 from canimucal.runtime.recorder import ScheduleLabels
-from tests.cli.conftest import CliRun, make_truth
+from tests.cli.conftest import make_truth
+from tests.support.cli_run import CliRun
 
 Cli = Callable[[Sequence[Any]], CliRun]
 

@@ -11,9 +11,9 @@ import pytest
 from canimucal.io import recording_writer
 from canimucal.io.truth import write_truth
 from canimucal.runtime.inputs import read_recording
-from tests.cli.conftest import CliRun
 from tests.cli.test_device_cmds import make_truth, sim_flags
 from tests.io.test_file_faults import full_disk_after
+from tests.support.cli_run import CliRun
 
 Cli = Callable[[Sequence[str]], CliRun]
 POSE = ["--position", "0", "--alpha-deg", "0", "--beta-deg", "0", "--seconds", "2"]

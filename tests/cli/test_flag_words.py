@@ -20,7 +20,7 @@ from canimucal.flag_words import FLAGS, worded_for_flags
 from canimucal.io import atomic
 from canimucal.io.atomic import write_text_atomic
 from canimucal.io.importers import read_imucal
-from tests.cli.conftest import CliRun
+from tests.support.cli_run import CliRun
 
 PACKAGE = Path(canimucal.__file__).parent
 SHELLS = ("cli", "tui")

@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 
 from canimucal.device import od
-from tests.cli.conftest import CliRun, Simulated
+from tests.cli.conftest import Simulated
+from tests.support.cli_run import CliRun
 
 Run = Callable[[Sequence[object]], CliRun]
 

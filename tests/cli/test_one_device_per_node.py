@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.cli.conftest import CliRun
 from tests.support.calibrations import calibration
+from tests.support.cli_run import CliRun
 
 Run = Callable[[Sequence[object]], CliRun]
 MESSAGE = "error: two devices answer as node 16 (serials 4242 and 5555): "

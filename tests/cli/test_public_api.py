@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 import canimucal as cm
-from tests.cli.conftest import CliRun, Simulated
+from tests.cli.conftest import Simulated
+from tests.support.cli_run import CliRun
 from tests.support.user_dirs import UserDirs
 
 Cli = Callable[[list[str]], CliRun]

@@ -9,8 +9,6 @@ import pytest
 from tests.support.cli_run import CliRun, run_captured
 from tests.support.user_dirs import UserDirs
 
-__all__ = ["CliRun", "cli"]
-
 
 @pytest.fixture
 def cli(

@@ -28,8 +28,8 @@ from canimucal.analysis.session_model import ModelChoice
 from canimucal.analysis.solve import site_of, solve_recording
 from canimucal.errors import InputError
 from canimucal.io.recording_writer import write_recording
-from tests.departures.conftest import CliRun
 from tests.support import departures as dep
+from tests.support.cli_run import CliRun
 
 SEEDS = tuple(range(20))
 

@@ -41,9 +41,9 @@ from canimucal.io.recording_writer import write_recording
 from canimucal.model.positions import PlannedPosition
 from canimucal.model.vocabulary.plans import FIVE
 from canimucal.sim.averages import simulate_averages
-from tests.departures.conftest import CliRun
 from tests.support import departures as dep
 from tests.support.chi2_band import chi2_ratio_band
+from tests.support.cli_run import CliRun
 
 SEEDS = tuple(range(20))
 
