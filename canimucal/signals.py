@@ -63,19 +63,17 @@ def _in_main_thread() -> bool:
 
 
 class _FirstRaises:
-    """Signal handler: the first signal raises its interrupt, later ones are only recorded.
+    """Signal handler: the first signal raises its interrupt, later ones are dropped.
 
-    Once disarmed (the handlers are being put back) every signal is only recorded.
+    Once disarmed (the handlers are being put back) every signal is dropped.
     """
 
     def __init__(self) -> None:
         self.first: int | None = None
-        self.later: list[int] = []
         self.armed = True
 
     def __call__(self, signum: int, frame: FrameType | None) -> None:
         if self.first is not None or not self.armed:
-            self.later.append(signum)
             return
         self.first = signum
         raise interrupt_for(signum)
@@ -100,7 +98,7 @@ class SignalHandling:
         """Put back the handlers found on entry.
 
         The handler is disarmed first: a signal while the handlers are being put back (the
-        command has ended) is recorded, not raised out of the caller's ``finally`` (measured:
+        command has ended) is dropped, not raised out of the caller's ``finally`` (measured:
         4 of 100 Ctrl-Cs sent as ``plan``'s output ended died of an uncaught interrupt there).
         """
         if self._handler is not None:

@@ -146,7 +146,7 @@ def test_ctrl_c_as_the_output_ends_is_never_a_death_by_signal() -> None:
 
 
 @pytest.mark.parametrize("signum", HELD_SIGNALS, ids=lambda s: signal.Signals(s).name)
-def test_a_signal_while_the_handlers_are_put_back_is_recorded_not_raised(signum: int) -> None:
+def test_a_signal_while_the_handlers_are_put_back_is_dropped_not_raised(signum: int) -> None:
     """The statistical test above catches this race about once in ten runs on a loaded
     machine; here the signal arrives, deterministically, as the handlers are put back."""
     handling = handle_signals()
@@ -162,7 +162,7 @@ def test_a_signal_while_the_handlers_are_put_back_is_recorded_not_raised(signum:
     assert callable(handler)
     handling()
     try:
-        handler(signum, None)  # arrived during the restore: recorded, not raised
+        handler(signum, None)  # arrived during the restore: dropped, not raised
     except KeyboardInterrupt:
         pytest.fail("a signal while the handlers were put back raised its interrupt")
     assert handling.first is None
