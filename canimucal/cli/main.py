@@ -13,6 +13,7 @@ import sys
 import traceback
 from collections.abc import Sequence
 
+from canimucal.cli.heap import keep_heap_for_arrays
 from canimucal.errors import CanimucalError
 from canimucal.flag_words import worded_for_flags
 from canimucal.signals import (
@@ -164,6 +165,8 @@ def _main(argv: list[str], handling: SignalHandling) -> int:
     if interrupt is not None:
         raise interrupt
     configure_logging(args.verbose, args.debug)
+    if verb in BULK_ARRAY_VERBS:
+        keep_heap_for_arrays()
     try:
         return int(args.run(args))
     except CanimucalError as error:
@@ -179,6 +182,10 @@ def _main(argv: list[str], handling: SignalHandling) -> int:
             raise interrupt_for(handling.first) from error
         _report(error, args.debug, prefix="internal error: ")  # a bug: say so, in one line
         return 1
+
+
+BULK_ARRAY_VERBS = frozenset({"solve", "allan", "analyze"})
+"""Commands that sweep a whole recording's arrays, block by block (:mod:`.heap`)."""
 
 
 def _interrupted(interrupt: KeyboardInterrupt, verb: str | None) -> int:

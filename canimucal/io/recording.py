@@ -649,7 +649,7 @@ def _read_stream(handle: BinaryIO, source: str, size: int) -> Recording:
             capacity = int(size * rows_per_byte * 1.02) + table.shape[0] + 16
             columns = _Columns(capacity, with_trial=with_trial)
         columns.append(table, trial)
-        line_no += data.count(b"\n")
+        line_no += int(np.count_nonzero(np.frombuffer(data, dtype=np.uint8) == 10))
         if final:
             break
     assert columns is not None
